@@ -1,0 +1,259 @@
+"""Reading the latent chart (paper §3.2 "Reading the chart"; artifact ``chart.npz``).
+
+Stage 1 closes by freezing two things on the trained autoencoder:
+
+* the whitening ``q = (z - mean) W`` (row vectors), with ``W = V diag(lambda)^-1/2``
+  from the eigendecomposition of the covariance of the encoded *training*
+  frames (paper App. C), eigenvalues in descending order so ``q[:, 0]`` is the
+  principal direction of the raw chart;
+* the visibility metric ``G_bar = E_q[J^T J]`` (paper Eq. 6), ``J`` the Jacobian of
+  the rendered image (training renderer, training resolution, values in
+  [0, 1]) with respect to the whitened ``q``, averaged over encoded training
+  frames; and the loss metric ``A = G_bar + rho lambda_max I`` normalised to
+  ``trace A = d`` (paper §3.3, "Fitting the dynamics").
+
+It also records the autoencoder floor ``eps_AE``: the MSE between a frame and
+its own reconstruction ``decode(encode(frame))``, on training and held-out
+frames.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from lagsplat.io.atomic import atomic_write
+from lagsplat.io.clip import Clip
+from lagsplat.train.stage1 import AutoEncoder, frames_to_tensor
+
+__all__ = ["Chart", "fit_whitening", "visibility_metric", "loss_metric", "build_chart", "save_chart", "load_chart"]
+
+
+@dataclass
+class Chart:
+    """The frozen latent chart of one clip.
+
+    Attributes:
+        mean: ``[d]`` raw-latent mean of the training encodings.
+        W: ``[d,d]`` whitening, ``q = (z - mean) @ W``.
+        W_inv: ``[d,d]`` its inverse, ``z = q @ W_inv + mean``.
+        q: ``[T,d]`` whitened encodings of every frame of the clip.
+        t: ``[T]`` timestamps in seconds.
+        split: ``[T]`` 0 = train, 1 = held-out.
+        G_bar: ``[d,d]`` visibility metric (per pixel and channel, images in [0, 1]).
+        A: ``[d,d]`` loss metric, trace ``d``.
+        ae_mse: ``[T]`` per-frame reconstruction MSE.
+        ae_floor_train, ae_floor_held_out: mean of ``ae_mse`` over each split.
+        height, width: resolution of the images the numbers refer to.
+        meta: provenance (sample count, rho, ...).
+    """
+
+    mean: np.ndarray
+    W: np.ndarray
+    W_inv: np.ndarray
+    q: np.ndarray
+    t: np.ndarray
+    split: np.ndarray
+    G_bar: np.ndarray
+    A: np.ndarray
+    ae_mse: np.ndarray
+    ae_floor_train: float
+    ae_floor_held_out: float
+    height: int
+    width: int
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def d(self) -> int:
+        """Latent dimension."""
+        return int(self.W.shape[0])
+
+    def to_raw(self, q: Tensor) -> Tensor:
+        """Whitened ``q [...,d]`` -> raw decoder input ``z [...,d]``."""
+        return q @ torch.as_tensor(self.W_inv, dtype=q.dtype) + torch.as_tensor(self.mean, dtype=q.dtype)
+
+    def to_whitened(self, z: Tensor) -> Tensor:
+        """Raw ``z [...,d]`` -> whitened ``q [...,d]``."""
+        return (z - torch.as_tensor(self.mean, dtype=z.dtype)) @ torch.as_tensor(self.W, dtype=z.dtype)
+
+
+def fit_whitening(z: np.ndarray, eps: float = 1e-6) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """PCA whitening of raw latents (paper App. C), in float64.
+
+    Args:
+        z: ``[N,d]`` raw encodings of the training frames.
+        eps: ridge added to the covariance and eigenvalue floor.
+
+    Returns:
+        ``(mean [d], W [d,d], W_inv [d,d])`` with ``(z - mean) @ W`` of identity
+        covariance and columns ordered by decreasing variance.
+
+    Raises:
+        ValueError: if fewer than ``d + 1`` samples are given.
+    """
+    z = np.asarray(z, np.float64)
+    if z.ndim != 2 or len(z) <= z.shape[1]:
+        raise ValueError(f"whitening needs [N,d] with N > d, got {z.shape}")
+    mean = z.mean(0)
+    cov = np.cov(z, rowvar=False).reshape(z.shape[1], z.shape[1]) + eps * np.eye(z.shape[1])
+    lam, V = np.linalg.eigh(cov)
+    order = np.argsort(lam)[::-1]
+    lam, V = np.clip(lam[order], eps, None), V[:, order]
+    for k in range(V.shape[1]):  # deterministic sign: largest component positive
+        if V[np.argmax(np.abs(V[:, k])), k] < 0:
+            V[:, k] *= -1
+    W = V / np.sqrt(lam)[None, :]
+    return mean, W, np.linalg.inv(W)
+
+
+def visibility_metric(model: AutoEncoder, chart_mean: np.ndarray, W_inv: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Visibility metric ``G_bar = mean_q J(q)^T J(q)`` (paper Eq. 6).
+
+    ``J = d vec(image) / d q`` at the training resolution, computed exactly by
+    forward-mode AD (one Jacobian-vector product per latent direction) through
+    the pure-torch tile rasteriser, which implements the same compositing rule
+    as the training backend (the tests check they agree pixel for pixel). The
+    image is in [0, 1]; ``G_bar`` is divided by the number of image values so it
+    does not grow with resolution.
+
+    Args:
+        model: trained autoencoder.
+        chart_mean, W_inv: whitening (see :func:`fit_whitening`).
+        q: ``[N,d]`` whitened states to average over.
+
+    Returns:
+        ``(G_bar [d,d], per_sample_singular_values [N,d])``.
+    """
+    dec = model.decoder
+    H, W = model.height, model.width
+    d = dec.d
+    mean_t = torch.as_tensor(chart_mean, dtype=torch.float32)
+    winv_t = torch.as_tensor(W_inv, dtype=torch.float32)
+
+    def render(qb: Tensor) -> Tensor:
+        return dec(qb @ winv_t + mean_t, H, W, backend="torch").reshape(qb.shape[0], -1)
+
+    G = np.zeros((d, d))
+    svals = []
+    eye = torch.eye(d)
+    with torch.no_grad():
+        for qi in torch.as_tensor(q, dtype=torch.float32):
+            cols = [torch.func.jvp(render, (qi[None],), (eye[j][None],))[1][0] for j in range(d)]
+            J = torch.stack(cols, 1).double()  # [n_pix, d]
+            G += (J.T @ J).numpy() / J.shape[0]
+            svals.append(torch.linalg.svdvals(J).numpy() / np.sqrt(J.shape[0]))
+    return G / len(q), np.array(svals)
+
+
+def loss_metric(G_bar: np.ndarray, rho: float = 0.01) -> np.ndarray:
+    """``A = G_bar + rho lambda_max(G_bar) I``, rescaled to ``trace A = d`` (paper §3.3)."""
+    G = 0.5 * (G_bar + G_bar.T)
+    d = G.shape[0]
+    A = G + rho * float(np.linalg.eigvalsh(G).max()) * np.eye(d)
+    return A * d / np.trace(A)
+
+
+@torch.no_grad()
+def build_chart(model: AutoEncoder, clip: Clip, n_metric_samples: int = 64, rho: float = 0.01, seed: int = 0) -> Chart:
+    """Encode the clip, whiten, compute ``G_bar``, ``A`` and the AE floor.
+
+    Args:
+        model: trained autoencoder (frozen).
+        clip: the clip it was trained on.
+        n_metric_samples: training frames drawn (seeded) to average ``G_bar``.
+        rho: ridge of the loss metric.
+        seed: RNG seed of the frame draw.
+
+    Returns:
+        The :class:`Chart`.
+    """
+    z = model.encode_frames(clip.images).numpy().astype(np.float64)
+    tr = clip.train_idx
+    mean, W, W_inv = fit_whitening(z[tr])
+    q = (z - mean) @ W
+    rng = np.random.default_rng(seed)
+    pick = rng.choice(tr, size=min(n_metric_samples, len(tr)), replace=False)
+    G_bar, svals = visibility_metric(model, mean, W_inv, q[np.sort(pick)])
+    ae = np.empty(clip.n_frames)
+    for i in range(0, clip.n_frames, 64):
+        x = frames_to_tensor(clip.images[i : i + 64])
+        rec = model.decode(torch.as_tensor(z[i : i + 64], dtype=torch.float32))
+        ae[i : i + 64] = ((rec - x) ** 2).mean(dim=(1, 2, 3)).numpy()
+    ho = clip.held_out_idx
+    return Chart(
+        mean=mean,
+        W=W,
+        W_inv=W_inv,
+        q=q,
+        t=clip.t.copy(),
+        split=clip.split.copy(),
+        G_bar=G_bar,
+        A=loss_metric(G_bar, rho),
+        ae_mse=ae,
+        ae_floor_train=float(ae[tr].mean()),
+        ae_floor_held_out=float(ae[ho].mean()) if len(ho) else float("nan"),
+        height=model.height,
+        width=model.width,
+        meta={"n_metric_samples": int(len(pick)), "rho": rho, "seed": seed, "G_singular_values_mean": svals.mean(0).tolist()},
+    )
+
+
+def save_chart(path: str | Path, chart: Chart) -> Path:
+    """Write ``chart.npz`` atomically."""
+    import json
+
+    with atomic_write(path) as tmp:
+        with open(tmp, "wb") as fh:
+            np.savez(
+                fh,
+                mean=chart.mean,
+                W=chart.W,
+                W_inv=chart.W_inv,
+                q=chart.q,
+                t=chart.t,
+                split=chart.split,
+                G_bar=chart.G_bar,
+                A=chart.A,
+                ae_mse=chart.ae_mse,
+                ae_floor_train=chart.ae_floor_train,
+                ae_floor_held_out=chart.ae_floor_held_out,
+                height=chart.height,
+                width=chart.width,
+                meta=np.array(json.dumps(chart.meta)),
+            )
+    return Path(path)
+
+
+def load_chart(path: str | Path) -> Chart:
+    """Read ``chart.npz``.
+
+    Raises:
+        FileNotFoundError: if the file is missing.
+    """
+    import json
+
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: chart not found")
+    with np.load(path, allow_pickle=False) as z:
+        return Chart(
+            mean=z["mean"],
+            W=z["W"],
+            W_inv=z["W_inv"],
+            q=z["q"],
+            t=z["t"],
+            split=z["split"],
+            G_bar=z["G_bar"],
+            A=z["A"],
+            ae_mse=z["ae_mse"],
+            ae_floor_train=float(z["ae_floor_train"]),
+            ae_floor_held_out=float(z["ae_floor_held_out"]),
+            height=int(z["height"]),
+            width=int(z["width"]),
+            meta=json.loads(str(z["meta"])),
+        )

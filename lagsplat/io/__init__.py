@@ -1,0 +1,62 @@
+"""Ingest layer: read videos, image folders, .npz and .mcap recordings into a :class:`Clip`.
+
+Public entry points:
+
+* :func:`ingest` / :func:`ingest_to_file`: system configuration -> validated clip.
+* Readers: :func:`read_video`, :func:`read_image_folder`, :func:`read_npz`,
+  :func:`read_mcap` (all raise :class:`ClipError` with one line naming the file).
+* Timing rule: :func:`resolve_timing`, :class:`TimingWarning`.
+* Downloads: :func:`fetch`, :func:`sha256_file`, :class:`DownloadError`
+  (command line: ``python -m lagsplat.io.download URL DEST SHA256``).
+* The clip artifact: :class:`Clip`, :func:`save_clip`, :func:`load_clip`.
+
+Names are imported lazily on first use, so ``import lagsplat.io.clip`` does not
+load OpenCV or mcap, and ``python -m lagsplat.io.download`` runs cleanly.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+_EXPORTS = {
+    "atomic_write": "atomic",
+    "save_torch": "atomic",
+    "write_json": "atomic",
+    "Clip": "clip",
+    "ClipError": "clip",
+    "HELD_OUT": "clip",
+    "TRAIN": "clip",
+    "load_clip": "clip",
+    "save_clip": "clip",
+    "DownloadError": "download",
+    "fetch": "download",
+    "sha256_file": "download",
+    "IMAGE_EXTENSIONS": "images",
+    "read_image_folder": "images",
+    "ingest": "ingest",
+    "ingest_to_file": "ingest",
+    "source_format": "ingest",
+    "read_mcap": "mcap_io",
+    "zero_order_hold": "mcap_io",
+    "read_npz": "npz",
+    "TimingWarning": "timing",
+    "resolve_timing": "timing",
+    "VIDEO_EXTENSIONS": "video",
+    "read_video": "video",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    mod = _EXPORTS.get(name)
+    if mod is None:
+        raise AttributeError(f"module 'lagsplat.io' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"lagsplat.io.{mod}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_EXPORTS))

@@ -1,0 +1,197 @@
+"""The `Clip`: one recording, as every later stage reads it (artifact ``clip.npz``).
+
+A clip holds frames, their real timestamps, the logged actuation and the
+train / held-out split (DESIGN.md, "Data flows one way"). It is written once by
+the ingest stage and never modified afterwards.
+
+On-disk layout of ``clip.npz`` (all arrays, NumPy ``.npz``, uncompressed):
+
+=============  ====================  ==========================================
+key            dtype / shape         meaning
+=============  ====================  ==========================================
+``images``     uint8 ``[T,H,W,3]``   RGB frames
+``t``          float64 ``[T]``       timestamps in seconds, strictly increasing
+``u``          float32 ``[T,n_u]``   actuation channels (``n_u`` may be 0)
+``u_names``    str ``[n_u]``         channel names, e.g. ``p1..p4``
+``split``      int8 ``[T]``          0 = training frame, 1 = held-out frame
+``meta``       str (JSON)            provenance, timing rule, known physics
+=============  ====================  ==========================================
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lagsplat.io.atomic import atomic_write
+
+__all__ = ["Clip", "ClipError", "save_clip", "load_clip", "TRAIN", "HELD_OUT"]
+
+TRAIN = 0
+HELD_OUT = 1
+
+
+class ClipError(ValueError):
+    """Raised when a clip (or the file it comes from) is unusable.
+
+    The message always starts with the offending file path so a user sees, on
+    one line, which file is wrong and why.
+    """
+
+
+@dataclass
+class Clip:
+    """A recorded (or synthetic) video with timestamps, actuation and split.
+
+    Attributes:
+        images: uint8 ``[T, H, W, 3]`` RGB frames.
+        t: float64 ``[T]`` timestamps in seconds, strictly increasing.
+        u: float32 ``[T, n_u]`` actuation (e.g. chamber pressures); ``n_u`` may be 0.
+        u_names: names of the ``n_u`` actuation channels.
+        split: int8 ``[T]``, ``TRAIN`` (0) or ``HELD_OUT`` (1) per frame.
+        meta: JSON-serialisable provenance and known physics (e.g. the
+            synthetic generator's natural frequency under ``"truth"``).
+
+    Raises:
+        ClipError: from :meth:`validate` when shapes, dtypes or values are
+            inconsistent.
+    """
+
+    images: np.ndarray
+    t: np.ndarray
+    u: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), np.float32))
+    u_names: list[str] = field(default_factory=list)
+    split: np.ndarray | None = None
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.t = np.asarray(self.t, dtype=np.float64)
+        T = len(self.t)
+        if self.u.size == 0:
+            self.u = np.zeros((T, 0), np.float32)
+        self.u = np.asarray(self.u, dtype=np.float32)
+        if self.split is None:
+            self.split = np.zeros(T, np.int8)
+        self.split = np.asarray(self.split, dtype=np.int8)
+        self.u_names = [str(n) for n in self.u_names]
+
+    # ------------------------------------------------------------------ views
+    @property
+    def n_frames(self) -> int:
+        """Number of frames ``T``."""
+        return int(self.images.shape[0])
+
+    @property
+    def dt(self) -> float:
+        """Median frame interval in seconds."""
+        return float(np.median(np.diff(self.t)))
+
+    @property
+    def train_idx(self) -> np.ndarray:
+        """Indices of training frames, int64 ``[n_train]``."""
+        return np.flatnonzero(self.split == TRAIN)
+
+    @property
+    def held_out_idx(self) -> np.ndarray:
+        """Indices of held-out frames, int64 ``[n_held_out]``."""
+        return np.flatnonzero(self.split == HELD_OUT)
+
+    def validate(self, source: str | Path = "<clip>") -> "Clip":
+        """Check shapes, dtypes and values; return ``self``.
+
+        Args:
+            source: file name used in error messages.
+
+        Raises:
+            ClipError: naming ``source`` and the first problem found.
+        """
+        src = str(source)
+        im = self.images
+        if not isinstance(im, np.ndarray) or im.ndim != 4 or im.shape[-1] != 3:
+            raise ClipError(f"{src}: images must be uint8 [T,H,W,3], got shape {getattr(im, 'shape', None)}")
+        if im.dtype != np.uint8:
+            raise ClipError(f"{src}: images must be uint8, got {im.dtype}")
+        T = im.shape[0]
+        if T < 2:
+            raise ClipError(f"{src}: a clip needs at least 2 frames, got {T}")
+        if self.t.shape != (T,):
+            raise ClipError(f"{src}: timestamps t has shape {self.t.shape}, expected ({T},) to match {T} frames")
+        if not np.all(np.isfinite(self.t)):
+            raise ClipError(f"{src}: timestamps contain NaN or inf")
+        if np.any(np.diff(self.t) <= 0):
+            raise ClipError(f"{src}: timestamps are not strictly increasing")
+        if self.u.ndim != 2 or self.u.shape[0] != T:
+            raise ClipError(
+                f"{src}: actuation has {self.u.shape[0] if self.u.ndim else 0} samples but the clip has {T} frames"
+            )
+        if self.u.shape[1] != len(self.u_names):
+            raise ClipError(f"{src}: {self.u.shape[1]} actuation channels but {len(self.u_names)} names")
+        bad = ~np.isfinite(self.u)
+        if bad.any():
+            ch = self.u_names[int(np.argwhere(bad)[0, 1])]
+            raise ClipError(f"{src}: actuation channel '{ch}' contains NaN or inf ({int(bad.sum())} values)")
+        if self.split.shape != (T,) or not np.isin(self.split, (TRAIN, HELD_OUT)).all():
+            raise ClipError(f"{src}: split must be int8 [T] of 0 (train) / 1 (held-out)")
+        return self
+
+
+def save_clip(path: str | Path, clip: Clip) -> Path:
+    """Validate ``clip`` and write it atomically to ``path`` (``.npz``).
+
+    Args:
+        path: destination; its parent folder is created.
+        clip: the clip to store.
+
+    Returns:
+        The path written.
+
+    Raises:
+        ClipError: if the clip does not validate; nothing is written then.
+    """
+    path = Path(path)
+    clip.validate(path)
+    with atomic_write(path) as tmp:
+        with open(tmp, "wb") as fh:
+            np.savez(
+                fh,
+                images=clip.images,
+                t=clip.t,
+                u=clip.u,
+                u_names=np.array(clip.u_names, dtype=str),
+                split=clip.split,
+                meta=np.array(json.dumps(clip.meta, sort_keys=True)),
+            )
+    return path
+
+
+def load_clip(path: str | Path) -> Clip:
+    """Read a ``clip.npz`` written by :func:`save_clip`.
+
+    Raises:
+        ClipError: if the file is missing, unreadable or lacks a key.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise ClipError(f"{path}: file not found")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            missing = [k for k in ("images", "t", "u", "u_names", "split", "meta") if k not in z.files]
+            if missing:
+                raise ClipError(f"{path}: not a lagsplat clip, missing keys {missing}")
+            clip = Clip(
+                images=z["images"],
+                t=z["t"],
+                u=z["u"],
+                u_names=list(z["u_names"]),
+                split=z["split"],
+                meta=json.loads(str(z["meta"])),
+            )
+    except ClipError:
+        raise
+    except Exception as exc:  # zipfile.BadZipFile, ValueError, EOFError, ...
+        raise ClipError(f"{path}: cannot read clip ({type(exc).__name__}: {exc})") from exc
+    return clip.validate(path)

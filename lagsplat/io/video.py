@@ -1,0 +1,198 @@
+"""Read a video file with OpenCV, with honest per-frame timestamps.
+
+Frames are decoded with ``cv2.VideoCapture`` and converted from BGR to RGB.
+Each frame's timestamp is the decoder's ``CAP_PROP_POS_MSEC`` read right after
+the frame. Those raw timestamps then go through one timing rule (implemented
+in :func:`lagsplat.io.timing.resolve_timing`):
+
+* The container fps is *absurd* if not finite, ``<= 0``, ``< 1`` or
+  ``> max_fps``; timestamps *jitter* if any interval is ``<= 0`` or
+  ``std(dt) / mean(dt) > jitter_tol``.
+* ``fps`` given (true capture rate, ``system.source.fps``): ``t_i = i / fps``;
+  a warning naming the file is issued if the container fps is absurd, the
+  timestamps jitter, or their mean rate differs from ``fps`` by more than 1 %.
+* else, regular timestamps spanning ``> 0`` s are used (shifted to start at
+  0), even if the container's nominal fps differs slightly (the ``.mov`` that
+  says 59.77 fps but has frames exactly 16.683 ms apart gets its timestamps).
+* else, jittering timestamps with a plausible container fps: warn and use
+  uniform timestamps at the timestamps' mean rate ``(T-1) / (t_last - t_first)``.
+* else (absurd container fps, jittering timestamps, no ``fps``): ClipError,
+  e.g. ``oscillating_cart.webm: container claims 1000 fps and frame
+  timestamps jitter (31-49 ms); state the true capture rate with
+  system.source.fps=<Hz>``.
+
+The rule always looks at *all* decoded frames, also when only a frame range
+is kept.
+
+Damaged files: a missing file, a file OpenCV cannot open (garbage bytes; an
+MP4 cut short before its ``moov`` index, which FFmpeg cannot open at all) or
+one that yields no frame raises ``ClipError("<path>: cannot decode video
+(...)")``. A file that opens but ends early is decoded as far as possible; if
+the container states a frame count and fewer than 90 % of it were decoded,
+``ClipError("<path>: video is truncated or corrupt: decoded N of M frames")``
+is raised. Containers without a frame count (browser WebM) cannot be checked
+this way and return the frames that decoded.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from lagsplat.io._common import FrameCollector, FrameTransform, check_range, cv_to_rgb, validate_range
+from lagsplat.io.clip import ClipError
+from lagsplat.io.timing import resolve_timing
+
+__all__ = ["read_video", "VIDEO_EXTENSIONS"]
+
+VIDEO_EXTENSIONS = (".mp4", ".webm", ".mov", ".avi", ".mkv", ".m4v")
+"""File extensions (lower case) treated as video by :func:`lagsplat.io.ingest.ingest`."""
+
+_OPEN_TIMEOUT_MS = 30_000
+_MIN_DECODED_FRACTION = 0.9
+
+
+def _fourcc(cap: cv2.VideoCapture) -> str | None:
+    try:
+        code = int(cap.get(cv2.CAP_PROP_FOURCC))
+    except (TypeError, ValueError, OverflowError):
+        return None
+    if code <= 0:
+        return None
+    s = code.to_bytes(4, "little").decode("ascii", errors="replace")
+    return s if s.isprintable() else None
+
+
+def read_video(
+    path: str | Path,
+    fps: float | None = None,
+    max_fps: float = 240.0,
+    jitter_tol: float = 0.05,
+    *,
+    start: int = 0,
+    stop: int | None = None,
+    transform: FrameTransform | None = None,
+) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+    """Decode a video file into RGB frames and timestamps.
+
+    Args:
+        path: video file (anything FFmpeg reads: mp4, webm, mov, avi, mkv...).
+        fps: true capture rate in Hz (``system.source.fps``) or None; see the
+            timing rule in the module docstring.
+        max_fps: a container fps above this (Hz) is absurd.
+        jitter_tol: tolerated ``std(dt) / mean(dt)`` of the timestamps.
+        start, stop: keep only frames ``[start, stop)`` (``stop=None``: to the
+            end). Timing is still decided on all frames; the returned ``t``
+            is the kept frames' times, shifted so that ``t[0] = 0``.
+        transform: optional per-frame function applied to each kept frame
+            (uint8 ``[H, W, 3]`` -> uint8 ``[h, w, 3]``), e.g. crop + resize,
+            so that only small frames are held in memory.
+
+    Returns:
+        ``(frames, t, info)``: frames uint8 ``[T, h, w, 3]`` RGB; ``t`` float64
+        ``[T]`` seconds, strictly increasing, ``t[0] = 0``; ``info`` a
+        JSON-serialisable dict with ``container_fps``, ``rule`` (``"config_fps"
+        | "timestamps" | "mean_rate"``, see :mod:`lagsplat.io.timing`),
+        ``dt_ms_min`` / ``dt_ms_median`` / ``dt_ms_max`` (raw intervals),
+        ``warnings`` (messages issued), ``container_frame_count`` (None if the
+        container does not say), ``n_decoded``, ``width`` / ``height`` (native
+        pixels), ``codec`` and ``frames`` (the kept range).
+
+    Raises:
+        ClipError: ``"<path>: file not found"``; ``"<path>: cannot decode
+            video (...)"`` if OpenCV cannot open it or decodes no frame;
+            ``"<path>: video is truncated or corrupt: decoded N of M frames"``;
+            the timing rule's error; a frame range outside the video.
+
+    Warns:
+        TimingWarning: see the timing rule.
+    """
+    path = Path(path)
+    src = str(path)
+    start, stop = validate_range(src, start, stop)
+    if not path.exists():
+        raise ClipError(f"{src}: file not found")
+    if path.is_dir():
+        raise ClipError(f"{src}: is a folder, not a video file")
+
+    try:
+        cap = cv2.VideoCapture(
+            src, cv2.CAP_ANY, [cv2.CAP_PROP_OPEN_TIMEOUT_MSEC, _OPEN_TIMEOUT_MS, cv2.CAP_PROP_READ_TIMEOUT_MSEC, _OPEN_TIMEOUT_MS]
+        )
+    except cv2.error as exc:  # pragma: no cover - depends on the OpenCV build
+        raise ClipError(f"{src}: cannot decode video (OpenCV error: {str(exc).strip().splitlines()[-1]})") from exc
+    raw_ms: list[float] = []
+    try:
+        if not cap.isOpened():
+            raise ClipError(
+                f"{src}: cannot decode video (OpenCV/FFmpeg cannot open it: not a video, an unsupported codec, "
+                f"or the file is truncated or corrupt)"
+            )
+        container_fps = float(cap.get(cv2.CAP_PROP_FPS))
+        count = float(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+        container_count = int(count) if math.isfinite(count) and 0 < count < 2**31 else None
+        capacity = None
+        if container_count is not None:
+            capacity = max(0, min(container_count, stop if stop is not None else container_count) - start)
+        collector = FrameCollector(src, start, stop, transform, capacity=capacity)
+        width = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH))
+        height = int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
+        codec = _fourcc(cap)
+        backend = cap.getBackendName()
+        native: tuple[int, int] | None = None
+        i = 0
+        while True:
+            if not collector.wants(i):  # outside the range: demux + decode for the timestamp only
+                if not cap.grab():
+                    break
+                raw_ms.append(float(cap.get(cv2.CAP_PROP_POS_MSEC)))
+                i += 1
+                continue
+            ok, frame = cap.read()
+            if not ok or frame is None:
+                break
+            raw_ms.append(float(cap.get(cv2.CAP_PROP_POS_MSEC)))
+            rgb = cv_to_rgb(frame, src)
+            hw = rgb.shape[:2]
+            if native is None:
+                native = hw
+            elif hw != native:
+                raise ClipError(f"{src}: frame {i} is {hw[1]}x{hw[0]} but earlier frames are {native[1]}x{native[0]}")
+            collector.add(i, rgb)
+            i += 1
+    except cv2.error as exc:
+        raise ClipError(f"{src}: cannot decode video (OpenCV error: {str(exc).strip().splitlines()[-1]})") from exc
+    finally:
+        cap.release()
+
+    n = len(raw_ms)
+    if n == 0:
+        raise ClipError(f"{src}: cannot decode video (no frame could be decoded)")
+    if container_count is not None and n < _MIN_DECODED_FRACTION * container_count:
+        raise ClipError(f"{src}: video is truncated or corrupt: decoded {n} of {container_count} frames")
+    start, stop_ = check_range(src, start, stop, n)
+
+    t_all, info = resolve_timing(
+        np.asarray(raw_ms) / 1e3, src, fps=fps, container_fps=container_fps, max_fps=max_fps, jitter_tol=jitter_tol
+    )
+    t = t_all[start:stop_] - t_all[start]
+    frames = collector.result()
+    assert frames.shape[0] == t.shape[0]
+    info.update(
+        {
+            "reader": "video",
+            "backend": backend,
+            "codec": codec,
+            "container_frame_count": container_count,
+            "n_decoded": n,
+            "width": int(native[1]) if native else width,
+            "height": int(native[0]) if native else height,
+            "frames": [start, stop_],
+            "t_start_s": float(t_all[start]),
+        }
+    )
+    return frames, t, info

@@ -1,0 +1,360 @@
+"""A damped pendulum with known physics, rendered as a small video clip.
+
+The embedded default clip: every number a model should identify (natural
+frequency, damping ratio, the frequency actually visible on the held-out
+segment) is known exactly and stored under ``clip.meta["truth"]``.
+
+Physics
+-------
+The nonlinear damped pendulum, released from rest at ``theta0``::
+
+    theta'' + 2 zeta w0 theta' + w0^2 sin(theta) = 0,   w0 = 2 pi f_natural
+
+integrated with ``scipy.integrate.solve_ivp`` (DOP853, ``rtol = 1e-10``) and
+sampled at ``t_i = i / fps``. For small angles the free oscillation has
+frequency ``f_natural sqrt(1 - zeta^2)`` and an amplitude envelope
+``exp(-zeta w0 t)``; at finite amplitude the frequency is lower by about
+``theta_amp^2 / 16`` (relative).
+
+Picture
+-------
+Geometry is expressed in units of the frame height ``H`` (horizontal position
+relative to the centre), so any frame size works: the pivot sits at
+``(W/2, 0.14 H)``, the rod is ``0.58 H`` long and the bob radius ``0.09 H``;
+``theta`` is measured from the downward vertical, positive to the right of the
+image. For ``|theta| <= 25 deg`` the bob stays inside the frame as long as
+``W >= 0.7 H``. The bob is split along the rod axis into two colours, so its
+rotation with the rod is visible. The foreground is rendered at 4x the output
+resolution and reduced with ``cv2.INTER_AREA`` (anti-aliasing), then
+composited over a light background with a faint static texture (gradient,
+low-contrast grid and seeded smooth noise).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Sequence
+
+import cv2
+import numpy as np
+from scipy.integrate import solve_ivp
+
+from lagsplat.io.clip import HELD_OUT, TRAIN, Clip
+from lagsplat.metrics import spectral_peak_frequency
+
+__all__ = [
+    "simulate_pendulum",
+    "render_pendulum",
+    "make_pendulum_clip",
+    "PIVOT_Y",
+    "ROD_LENGTH",
+    "BOB_RADIUS",
+]
+
+#: Pivot height, rod length and bob radius, in units of the frame height.
+PIVOT_Y = 0.14
+ROD_LENGTH = 0.58
+BOB_RADIUS = 0.09
+_ROD_HALF_WIDTH = 0.018
+_PIVOT_RADIUS = 0.03
+_SUPERSAMPLE = 4
+
+# Colours, RGB in [0, 1].
+_ROD_RGB = (0.25, 0.25, 0.28)
+_PIVOT_RGB = (0.15, 0.15, 0.17)
+_BOB_LEFT_RGB = (0.85, 0.20, 0.15)  # left of the rod axis (seen hanging down)
+_BOB_RIGHT_RGB = (0.15, 0.35, 0.85)
+_BG_RGB = (0.90, 0.90, 0.88)
+
+
+def simulate_pendulum(
+    f_natural_hz: float,
+    zeta: float,
+    theta0_rad: float,
+    fps: float,
+    n_frames: int,
+    substeps: int = 4,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Integrate the nonlinear damped pendulum released from rest.
+
+    ``theta'' + 2 zeta w0 theta' + w0^2 sin(theta) = 0`` with
+    ``w0 = 2 pi f_natural_hz``, ``theta(0) = theta0_rad``, ``theta'(0) = 0``,
+    by DOP853 (``rtol = 1e-10``, ``atol = 1e-12``), with the step limited to
+    ``1 / (fps * substeps)`` seconds.
+
+    Args:
+        f_natural_hz: undamped small-angle natural frequency (Hz, > 0).
+        zeta: damping ratio (0 <= zeta < 1).
+        theta0_rad: release angle (rad), ``|theta0| < pi``.
+        fps: sampling rate (frames per second, > 0).
+        n_frames: number of samples ``T`` (>= 2).
+        substeps: at least this many integrator steps per frame interval (>= 1).
+
+    Returns:
+        ``(theta, t)``: float64 ``[T]`` angles in rad and float64 ``[T]`` times
+        ``t_i = i / fps`` in seconds.
+
+    Raises:
+        ValueError: on invalid arguments, or if the integrator fails.
+    """
+    f_n = float(f_natural_hz)
+    z = float(zeta)
+    th0 = float(theta0_rad)
+    fps_f = float(fps)
+    n = int(n_frames)
+    sub = int(substeps)
+    if not (math.isfinite(f_n) and f_n > 0):
+        raise ValueError(f"f_natural_hz must be positive, got {f_natural_hz!r}")
+    if not (math.isfinite(z) and 0.0 <= z < 1.0):
+        raise ValueError(f"zeta must be in [0, 1) (under-damped), got {zeta!r}")
+    if not (math.isfinite(th0) and abs(th0) < math.pi):
+        raise ValueError(f"theta0_rad must satisfy |theta0| < pi, got {theta0_rad!r}")
+    if not (math.isfinite(fps_f) and fps_f > 0):
+        raise ValueError(f"fps must be positive, got {fps!r}")
+    if n < 2 or n != n_frames:
+        raise ValueError(f"n_frames must be an integer >= 2, got {n_frames!r}")
+    if sub < 1:
+        raise ValueError(f"substeps must be >= 1, got {substeps!r}")
+
+    w0 = 2.0 * math.pi * f_n
+    t = np.arange(n, dtype=np.float64) / fps_f
+
+    def rhs(_t: float, y: np.ndarray) -> np.ndarray:
+        th, om = y
+        return np.array([om, -2.0 * z * w0 * om - w0 * w0 * math.sin(th)])
+
+    sol = solve_ivp(
+        rhs,
+        (0.0, float(t[-1])),
+        np.array([th0, 0.0]),
+        method="DOP853",
+        t_eval=t,
+        rtol=1e-10,
+        atol=1e-12,
+        max_step=1.0 / (fps_f * sub),
+    )
+    if not sol.success or sol.y.shape[1] != n:
+        raise ValueError(f"pendulum integration failed: {sol.message}")
+    return sol.y[0].astype(np.float64), t
+
+
+def _background(W: int, H: int, seed: int) -> np.ndarray:
+    """Light, faintly textured static background, float64 ``[H, W, 3]`` in [0, 1]."""
+    y = (np.arange(H) + 0.5) / H
+    x = (np.arange(W) + 0.5) / W
+    bg = np.empty((H, W, 3), np.float64)
+    bg[:] = np.asarray(_BG_RGB)
+    # Vertical gradient (slightly darker towards the bottom) and a faint diagonal tint.
+    bg -= 0.04 * y[:, None, None]
+    bg[..., 2] += 0.015 * (x[None, :] - 0.5)
+    # Low-contrast grid, every 1/8 of the height, about one output pixel wide.
+    pitch = H / 8.0
+    gx = np.abs(((np.arange(W) + 0.5 - W / 2.0) / pitch + 0.5) % 1.0 - 0.5) * pitch
+    gy = np.abs(((np.arange(H) + 0.5) / pitch + 0.5) % 1.0 - 0.5) * pitch
+    line = np.maximum(np.clip(1.0 - gx, 0, 1)[None, :], np.clip(1.0 - gy, 0, 1)[:, None])
+    bg -= 0.025 * line[..., None]
+    # Seeded smooth noise (the only thing the seed changes).
+    rng = np.random.default_rng(int(seed))
+    coarse = rng.standard_normal((6, 6, 3)).astype(np.float32)
+    smooth = cv2.resize(coarse, (W, H), interpolation=cv2.INTER_CUBIC).astype(np.float64)
+    bg += 0.012 * smooth
+    return np.clip(bg, 0.0, 1.0)
+
+
+def _foreground(theta: float, W: int, H: int, s: int) -> np.ndarray:
+    """Foreground at ``s`` x resolution: float32 ``[Hs, Ws, 4]``, RGB premultiplied and coverage.
+
+    Shapes are filled with OpenCV (no anti-aliasing at this resolution, 4
+    fractional bits for sub-pixel placement); coverage comes from the later
+    area reduction.
+    """
+    Hs, Ws = H * s, W * s
+    img = np.zeros((Hs, Ws, 4), np.float32)
+    shift = 4
+    one = 1 << shift
+
+    def pt(x: float, y: float) -> tuple[int, int]:
+        # Output-pixel units (centres at j + 0.5) -> supersampled OpenCV units
+        # (centres at integers), in fixed point.
+        return (int(round((x * s - 0.5) * one)), int(round((y * s - 0.5) * one)))
+
+    def rad(r: float) -> int:
+        return int(round(r * s * one))
+
+    px, py = W / 2.0, PIVOT_Y * H
+    ux, uy = math.sin(theta), math.cos(theta)  # rod direction (y down)
+    L, r, hw = ROD_LENGTH * H, BOB_RADIUS * H, _ROD_HALF_WIDTH * H
+    bx, by = px + L * ux, py + L * uy
+    nx, ny = uy, -ux  # unit normal pointing to the rod's image-right side when hanging
+
+    rod = np.array(
+        [
+            pt(px + hw * nx, py + hw * ny),
+            pt(bx + hw * nx, by + hw * ny),
+            pt(bx - hw * nx, by - hw * ny),
+            pt(px - hw * nx, py - hw * ny),
+        ],
+        np.int32,
+    )
+    cv2.fillConvexPoly(img, rod, (*_ROD_RGB, 1.0), cv2.LINE_8, shift)
+    cv2.circle(img, pt(px, py), rad(_PIVOT_RADIUS * H), (*_PIVOT_RGB, 1.0), -1, cv2.LINE_8, shift)
+    cv2.circle(img, pt(bx, by), rad(r), (*_BOB_LEFT_RGB, 1.0), -1, cv2.LINE_8, shift)
+    # Right half: the half-disc on the +normal side, i.e. angles [phi - 180, phi]
+    # (OpenCV angles, degrees, y down) with phi the rod direction.
+    phi = math.degrees(math.atan2(uy, ux))
+    R = rad(r)
+    cv2.ellipse(img, pt(bx, by), (R, R), 0.0, phi - 180.0, phi, (*_BOB_RIGHT_RGB, 1.0), -1, cv2.LINE_8, shift)
+    # Every pixel is either untouched (colour 0, coverage 0) or fully painted
+    # (coverage 1), so the colour channels are already premultiplied.
+    return img
+
+
+def render_pendulum(
+    theta: Sequence[float] | np.ndarray,
+    size: tuple[int, int] = (64, 64),
+    seed: int = 0,
+    supersample: int = _SUPERSAMPLE,
+) -> np.ndarray:
+    """Render pendulum frames for a sequence of angles.
+
+    Args:
+        theta: ``[T]`` angles (rad) from the downward vertical; positive swings
+            the bob to the right of the image.
+        size: output ``(W, H)`` in pixels (each >= 8).
+        seed: seed of the background's smooth noise (nothing else depends on it).
+        supersample: foreground supersampling factor (>= 1; 4 by default),
+            reduced with ``cv2.INTER_AREA``.
+
+    Returns:
+        uint8 ``[T, H, W, 3]`` RGB frames.
+
+    Raises:
+        ValueError: on a non-1-D or non-finite ``theta`` or a bad ``size``.
+    """
+    th = np.asarray(theta, dtype=np.float64)
+    if th.ndim != 1 or th.size < 1:
+        raise ValueError(f"theta must be a non-empty 1-D array of angles, got shape {th.shape}")
+    if not np.all(np.isfinite(th)):
+        raise ValueError("theta contains NaN or inf")
+    try:
+        W, H = (int(v) for v in size)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"size must be (W, H), got {size!r}") from exc
+    if W < 8 or H < 8:
+        raise ValueError(f"size must be at least (8, 8), got {(W, H)}")
+    s = int(supersample)
+    if s < 1:
+        raise ValueError(f"supersample must be >= 1, got {supersample!r}")
+
+    bg = _background(W, H, seed)
+    out = np.empty((th.size, H, W, 3), np.uint8)
+    for i, angle in enumerate(th):
+        fg = _foreground(float(angle), W, H, s)
+        if s > 1:
+            fg = cv2.resize(fg, (W, H), interpolation=cv2.INTER_AREA)
+        fg = fg.astype(np.float64)
+        img = fg[..., :3] + (1.0 - fg[..., 3:4]) * bg
+        out[i] = np.round(np.clip(img, 0.0, 1.0) * 255.0).astype(np.uint8)
+    return out
+
+
+def make_pendulum_clip(
+    size: Sequence[int] = (64, 64),
+    fps: float = 30.0,
+    duration_s: float = 20.0,
+    f_natural_hz: float = 0.8,
+    zeta: float = 0.02,
+    theta0_deg: float = 20.0,
+    train_fraction: float = 0.6,
+    seed: int = 0,
+) -> Clip:
+    """The synthetic damped-pendulum clip with its ground truth.
+
+    ``T = round(duration_s * fps)`` frames at ``t_i = i / fps``; the first
+    ``int(train_fraction * T)`` frames are training frames, the rest held out
+    (one contiguous split). No actuation (``n_u = 0``).
+
+    ``meta`` holds::
+
+        source: "lagsplat.synth.pendulum"
+        truth:  f_natural_hz, zeta,
+                f_damped_small_angle_hz = f_natural sqrt(1 - zeta^2),
+                f_observed_hz  (spectral peak of the true theta on the held-out
+                                segment, lagsplat.metrics.spectral_peak_frequency:
+                                what a perfect model shows at that amplitude),
+                theta0_rad, decay_rate_per_s = zeta w0
+        theta:  list of the true angle per frame (rad)
+        params: every argument of this function
+
+    The defaults give 8 s (6.4 periods) of held-out motion.
+
+    Args:
+        size: output ``(W, H)`` pixels.
+        fps: frame rate (Hz).
+        duration_s: clip length (s).
+        f_natural_hz: undamped small-angle natural frequency (Hz).
+        zeta: damping ratio in ``[0, 1)``.
+        theta0_deg: release angle (degrees), from rest.
+        train_fraction: share of frames used for training, in ``(0, 1)``.
+        seed: seed of the background texture only; everything else is fixed.
+
+    Returns:
+        A validated :class:`~lagsplat.io.clip.Clip`.
+
+    Raises:
+        ValueError: on invalid arguments (including a split that leaves fewer
+            than 2 training or 8 held-out frames).
+    """
+    fps_f = float(fps)
+    dur = float(duration_s)
+    if not (math.isfinite(fps_f) and fps_f > 0):
+        raise ValueError(f"fps must be positive, got {fps!r}")
+    if not (math.isfinite(dur) and dur > 0):
+        raise ValueError(f"duration_s must be positive, got {duration_s!r}")
+    tf = float(train_fraction)
+    if not (0.0 < tf < 1.0):
+        raise ValueError(f"train_fraction must be in (0, 1), got {train_fraction!r}")
+    try:
+        W, H = (int(v) for v in size)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"size must be (W, H), got {size!r}") from exc
+    T = int(round(dur * fps_f))
+    n_train = int(tf * T)
+    if n_train < 2 or T - n_train < 8:
+        raise ValueError(
+            f"split leaves {n_train} training and {T - n_train} held-out frames of {T}; "
+            "need at least 2 and 8 (increase duration_s or fps, or change train_fraction)"
+        )
+
+    theta0 = math.radians(float(theta0_deg))
+    theta, t = simulate_pendulum(f_natural_hz, zeta, theta0, fps_f, T)
+    images = render_pendulum(theta, size=(W, H), seed=seed)
+
+    split = np.full(T, HELD_OUT, np.int8)
+    split[:n_train] = TRAIN
+    f_obs = spectral_peak_frequency(theta[n_train:], 1.0 / fps_f)
+    w0 = 2.0 * math.pi * float(f_natural_hz)
+    meta: dict[str, Any] = {
+        "source": "lagsplat.synth.pendulum",
+        "truth": {
+            "f_natural_hz": float(f_natural_hz),
+            "zeta": float(zeta),
+            "f_damped_small_angle_hz": float(f_natural_hz) * math.sqrt(1.0 - float(zeta) ** 2),
+            "f_observed_hz": float(f_obs),
+            "theta0_rad": theta0,
+            "decay_rate_per_s": float(zeta) * w0,
+        },
+        "theta": [float(v) for v in theta],
+        "params": {
+            "size": [W, H],
+            "fps": fps_f,
+            "duration_s": dur,
+            "f_natural_hz": float(f_natural_hz),
+            "zeta": float(zeta),
+            "theta0_deg": float(theta0_deg),
+            "train_fraction": tf,
+            "seed": int(seed),
+        },
+    }
+    clip = Clip(images=images, t=t, split=split, meta=meta)
+    return clip.validate("lagsplat.synth.pendulum")

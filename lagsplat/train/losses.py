@@ -1,0 +1,68 @@
+"""Stage-1 reconstruction loss (paper Eq. 5) and its terms."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from pytorch_msssim import ssim
+from torch import Tensor
+
+from lagsplat.models.decoder import ConditionedGaussians
+
+__all__ = ["anisotropy_penalty", "reconstruction_loss"]
+
+
+def anisotropy_penalty(decoder: ConditionedGaussians, height: int, width: int, max_ratio: float = 5.0) -> Tensor:
+    """Aspect-ratio cap ``R_a`` of paper Eq. (5).
+
+    Mean over primitives of ``max(0, log r - log max_ratio)``, with ``r`` the
+    axis ratio ``sqrt(lambda_max / lambda_min)`` of the *marginal* spatial block
+    ``Sigma_ss`` in pixel units (so the cap means the same on non-square images).
+
+    Returns:
+        Scalar tensor.
+    """
+    d = decoder.d
+    L = decoder.cholesky()
+    L_s = L[:, d:, :]  # rows of the spatial coordinates: Sigma_ss = L_s L_s^T
+    scale = L.new_tensor([float(width), float(height)])
+    S = (L_s @ L_s.transpose(-1, -2)) * scale[None, :, None] * scale[None, None, :]
+    a, b, c = S[:, 0, 0], S[:, 0, 1], S[:, 1, 1]
+    m = 0.5 * (a + c)
+    p = torch.sqrt((0.5 * (a - c)) ** 2 + b * b + 1e-20)
+    lam_max, lam_min = m + p, (m - p).clamp_min(1e-8)
+    log_r = 0.5 * torch.log(lam_max / lam_min)
+    return torch.relu(log_r - math.log(max_ratio)).mean()
+
+
+def reconstruction_loss(
+    pred: Tensor,
+    target: Tensor,
+    decoder: ConditionedGaussians,
+    w_l1: float = 0.08,
+    w_ssim: float = 0.02,
+    w_aniso: float = 0.01,
+    ssim_window: int = 7,
+    max_ratio: float = 5.0,
+) -> tuple[Tensor, dict[str, float]]:
+    """``w_l1 L1 + w_ssim (1 - SSIM) + w_aniso R_a`` (paper Eq. 5, weights of App. C).
+
+    SSIM is ``pytorch_msssim.ssim`` with a ``ssim_window`` Gaussian window
+    (sigma 1.5, the paper's 7x7), data range 1. The window shrinks to the
+    largest odd size that fits very small images.
+
+    Args:
+        pred, target: ``[B,3,H,W]`` images in [0, 1].
+        decoder: the decoder, for the anisotropy term.
+
+    Returns:
+        ``(loss, parts)`` with the scalar loss and the float value of each term.
+    """
+    H, W = target.shape[-2:]
+    win = min(ssim_window, (min(H, W) - 1) | 1)
+    l1 = (pred - target).abs().mean()
+    s = ssim(pred, target, data_range=1.0, win_size=win, size_average=True)
+    an = anisotropy_penalty(decoder, H, W, max_ratio)
+    loss = w_l1 * l1 + w_ssim * (1.0 - s) + w_aniso * an
+    return loss, {"l1": float(l1), "ssim": float(s), "aniso": float(an)}

@@ -1,0 +1,234 @@
+"""Stage 1: joint encoder / conditioned-Gaussian decoder training (paper §3.2, App. C)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+from tqdm.auto import tqdm
+
+from lagsplat.io.atomic import save_torch
+from lagsplat.io.clip import Clip
+from lagsplat.models.decoder import ConditionedGaussians
+from lagsplat.models.encoder import CpAEEncoder, nonlocal_filter_penalty
+from lagsplat.train.losses import reconstruction_loss
+
+__all__ = ["Stage1Config", "AutoEncoder", "train_stage1", "save_stage1", "load_stage1", "frames_to_tensor"]
+
+
+@dataclass
+class Stage1Config:
+    """Stage-1 settings (``conf/config.yaml``, group ``stage1``).
+
+    Attributes mirror the paper's App. C: loss weights 0.08 L1 + 0.02 (1 - SSIM)
+    + 0.01 anisotropy with a 7x7 SSIM window, Adam, recycling of primitives
+    whose opacity falls below ``alpha_dead``.
+    """
+
+    n_gaussians: int = 1024
+    steps: int = 3000
+    batch: int = 16
+    lr_encoder: float = 1e-3
+    lr_decoder: float = 3e-3
+    w_l1: float = 0.08
+    w_ssim: float = 0.02
+    w_aniso: float = 0.01
+    w_nonlocal: float = 0.0
+    ssim_window: int = 7
+    aniso_max_ratio: float = 5.0
+    sigma_xy: float = 0.05
+    sigma_q_floor: float = 0.5
+    alpha_dead: float = 0.02
+    recycle_every: int = 250
+    recycle_warmup: int = 500
+    grad_clip: float = 1.0
+    encoder_channels: tuple[int, int, int] = (2, 2, 2)
+    encoder_kernel: int = 12
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    backend: str = "auto"
+    threads: int = 0
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @classmethod
+    def from_mapping(cls, m: Mapping[str, Any]) -> "Stage1Config":
+        """Build from a (Hydra) mapping; unknown keys raise ``KeyError``."""
+        known = {f for f in cls.__dataclass_fields__}
+        unknown = set(m) - known
+        if unknown:
+            raise KeyError(f"unknown stage1 settings: {sorted(unknown)}")
+        kw = {k: (tuple(v) if isinstance(v, (list, tuple)) or type(v).__name__ == "ListConfig" else v) for k, v in m.items()}
+        return cls(**kw)
+
+
+class AutoEncoder(nn.Module):
+    """Encoder + decoder pair with the image size they were trained at.
+
+    Args:
+        encoder: :class:`CpAEEncoder`.
+        decoder: :class:`ConditionedGaussians`.
+        height, width: training resolution in pixels.
+    """
+
+    def __init__(self, encoder: CpAEEncoder, decoder: ConditionedGaussians, height: int, width: int) -> None:
+        super().__init__()
+        self.encoder, self.decoder = encoder, decoder
+        self.height, self.width = int(height), int(width)
+
+    def encode(self, x: Tensor) -> Tensor:
+        """``[B,3,H,W]`` -> raw latent ``z [B,d]``."""
+        return self.encoder(x)
+
+    def decode(self, z: Tensor, height: int | None = None, width: int | None = None) -> Tensor:
+        """Raw latent ``z [B,d]`` -> ``[B,3,H,W]`` (training resolution by default)."""
+        return self.decoder(z, height or self.height, width or self.width)
+
+    @torch.no_grad()
+    def encode_frames(self, frames: np.ndarray, batch: int = 128) -> Tensor:
+        """Encode uint8 frames ``[T,H,W,3]`` to ``z [T,d]`` (eval mode, no grad)."""
+        out = [self.encoder(frames_to_tensor(frames[i : i + batch])) for i in range(0, len(frames), batch)]
+        return torch.cat(out)
+
+
+def frames_to_tensor(frames: np.ndarray) -> Tensor:
+    """uint8 ``[T,H,W,3]`` -> float32 ``[T,3,H,W]`` in [0, 1]."""
+    return torch.from_numpy(np.ascontiguousarray(frames)).permute(0, 3, 1, 2).float().div_(255.0)
+
+
+def _reset_adam_rows(opt: torch.optim.Optimizer, params: list[nn.Parameter], mask: Tensor) -> None:
+    for p in params:
+        st = opt.state.get(p)
+        if not st:
+            continue
+        for key in ("exp_avg", "exp_avg_sq"):
+            if key in st and st[key].shape[:1] == mask.shape:
+                st[key][mask] = 0.0
+
+
+def train_stage1(clip: Clip, cfg: Stage1Config, d: int, seed: int = 0, progress: bool = True) -> tuple[AutoEncoder, dict]:
+    """Fit encoder and decoder jointly on the clip's training frames.
+
+    Args:
+        clip: the ingested clip; only ``clip.train_idx`` frames are used.
+        cfg: settings.
+        d: latent dimension.
+        seed: RNG seed (torch and the batch sampler).
+        progress: show a tqdm bar with the running loss.
+
+    Returns:
+        ``(model, history)``, history holding per-step loss terms (every 10 steps)
+        and the recycling events.
+
+    Raises:
+        ValueError: if the clip has fewer training frames than 2.
+    """
+    if cfg.threads:
+        torch.set_num_threads(cfg.threads)
+    torch.manual_seed(seed)
+    gen = torch.Generator().manual_seed(seed)
+    rng = np.random.default_rng(seed)
+    frames = clip.images[clip.train_idx]
+    if len(frames) < 2:
+        raise ValueError("stage 1 needs at least 2 training frames")
+    X = frames_to_tensor(frames)
+    N, _, H, W = X.shape
+
+    enc = CpAEEncoder(d, cfg.encoder_channels, cfg.encoder_kernel)
+    dec = ConditionedGaussians(cfg.n_gaussians, d, backend=cfg.backend, background=cfg.background)
+    with torch.no_grad():
+        z0 = torch.cat([enc(X[i : i + 256]) for i in range(0, N, 256)])
+    dec.init_from_frame(X[0], z0, cfg.sigma_xy, cfg.sigma_q_floor, generator=gen)
+    model = AutoEncoder(enc, dec, H, W)
+
+    dec_params = list(dec.parameters())
+    opt = torch.optim.Adam(
+        [{"params": enc.parameters(), "lr": cfg.lr_encoder}, {"params": dec_params, "lr": cfg.lr_decoder}]
+    )
+    history: dict[str, list] = {"step": [], "loss": [], "l1": [], "ssim": [], "recycled": []}
+    bar = tqdm(range(cfg.steps), desc="stage1", disable=not progress, dynamic_ncols=True)
+    order = rng.permutation(N)
+    pos = 0
+    ema = None
+    for step in bar:
+        if pos + cfg.batch > N:
+            order, pos = rng.permutation(N), 0
+        idx = order[pos : pos + min(cfg.batch, N)]
+        pos += len(idx)
+        x = X[idx]
+        z = enc(x)
+        pred = dec(z, H, W)
+        loss, parts = reconstruction_loss(
+            pred, x, dec, cfg.w_l1, cfg.w_ssim, cfg.w_aniso, cfg.ssim_window, cfg.aniso_max_ratio
+        )
+        if cfg.w_nonlocal > 0:
+            loss = loss + cfg.w_nonlocal * nonlocal_filter_penalty(enc.large_kernels())
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        nn.utils.clip_grad_norm_(enc.parameters(), cfg.grad_clip)
+        nn.utils.clip_grad_norm_(dec_params, cfg.grad_clip)
+        opt.step()
+        ema = float(loss) if ema is None else 0.95 * ema + 0.05 * float(loss)
+        if step % 10 == 0:
+            history["step"].append(step)
+            history["loss"].append(float(loss))
+            history["l1"].append(parts["l1"])
+            history["ssim"].append(parts["ssim"])
+            bar.set_postfix(loss=f"{ema:.4f}", l1=f"{parts['l1']:.4f}", ssim=f"{parts['ssim']:.3f}")
+        # Recycling of dead primitives; never in the last period, so that every
+        # recycled primitive is trained before the model is saved (fixes the
+        # reference's prune-at-last-epoch, notes §12.2).
+        at_period = (step + 1) % cfg.recycle_every == 0
+        if step >= cfg.recycle_warmup and at_period and step + cfg.recycle_every < cfg.steps:
+            with torch.no_grad():
+                dead = torch.sigmoid(dec.logit_alpha) < cfg.alpha_dead
+                n_dead = int(dead.sum())
+                if n_dead:
+                    j = int(rng.integers(N))
+                    zj = enc(X[j : j + 1])
+                    rendered = dec(zj, H, W)[0]
+                    zs = torch.cat([enc(X[i : i + 256]) for i in range(0, N, 256)]).std(0)
+                    dec.recycle(dead, X[j], rendered, zj[0], zs, cfg.sigma_xy, generator=gen)
+                    _reset_adam_rows(opt, dec_params, dead)
+                history["recycled"].append((step, n_dead))
+    bar.close()
+    return model.eval(), history
+
+
+def save_stage1(path: str | Path, model: AutoEncoder, config: Mapping[str, Any], history: dict, d: int) -> Path:
+    """Write ``stage1.pt`` atomically: weights, sizes and the config that made them."""
+    return save_torch(
+        path,
+        {
+            "encoder": model.encoder.state_dict(),
+            "decoder": model.decoder.state_dict(),
+            "d": d,
+            "n_gaussians": model.decoder.K,
+            "height": model.height,
+            "width": model.width,
+            "encoder_channels": [m.out_channels for m in model.encoder.features if isinstance(m, nn.Conv2d)],
+            "encoder_kernel": model.encoder.features[0].kernel_size[0],
+            "config": dict(config),
+            "history": history,
+        },
+    )
+
+
+def load_stage1(path: str | Path) -> AutoEncoder:
+    """Rebuild the :class:`AutoEncoder` saved by :func:`save_stage1` (eval mode).
+
+    Raises:
+        FileNotFoundError: if ``path`` does not exist.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: stage-1 checkpoint not found")
+    ck = torch.load(path, map_location="cpu", weights_only=False)
+    enc = CpAEEncoder(ck["d"], tuple(ck["encoder_channels"]), ck["encoder_kernel"])
+    enc.load_state_dict(ck["encoder"])
+    backend = ck["config"].get("backend", "auto") if isinstance(ck.get("config"), dict) else "auto"
+    dec = ConditionedGaussians(ck["n_gaussians"], ck["d"], backend=backend)
+    dec.load_state_dict(ck["decoder"])
+    return AutoEncoder(enc, dec, ck["height"], ck["width"]).eval()

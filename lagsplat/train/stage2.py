@@ -1,0 +1,231 @@
+"""Stage 2: fit the latent Lagrangian to the encoded trajectory (paper §3.3, Eq. 8)."""
+
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from lagsplat import metrics
+from lagsplat.chart import Chart
+from lagsplat.dynamics.integrators import rollout, verlet_step
+from lagsplat.io.atomic import save_torch
+from lagsplat.models.lagrangian import Lagrangian
+
+__all__ = ["Stage2Config", "one_step_windows", "train_stage2", "save_stage2", "load_stage2", "segments"]
+
+
+@dataclass
+class Stage2Config:
+    """Stage-2 settings (``conf/config.yaml``, group ``stage2``).
+
+    Attributes:
+        mass: ``"scalar"`` or ``"constant"`` inertia.
+        c0: dissipation floor (App. C: 1).
+        dissipation_init: initial learned dissipation (0.2 I).
+        hidden: MLP / ICNN widths.
+        eps_V: quadratic floor of the potential.
+        learn_rest: train the rest state.
+        zeta_floor: damping ratio the floor alone gives at initialisation.
+        stride: frames per training step ``k`` (reference: 2).
+        sigma: Gaussian smoothing of the encoded trajectory, frames (reference: 1).
+        w_q, w_v: weights of position and velocity terms of Eq. 8.
+        lr, epochs, batch, windows_per_epoch, grad_clip: optimisation.
+        select_every: epochs between model-selection rollouts.
+        select_windows, select_periods: rollouts used for selection.
+    """
+
+    mass: str = "scalar"
+    c0: float = 1.0
+    dissipation_init: float = 0.2
+    hidden: tuple[int, ...] = (64, 64)
+    eps_V: float = 0.01
+    learn_rest: bool = True
+    zeta_floor: float = 0.01
+    stride: int = 2
+    sigma: float = 1.0
+    w_q: float = 0.1
+    w_v: float = 0.1
+    lr: float = 1e-3
+    epochs: int = 60
+    batch: int = 32
+    windows_per_epoch: int = 1000
+    grad_clip: float = 100.0
+    select_every: int = 5
+    select_windows: int = 16
+    select_periods: float = 2.0
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @classmethod
+    def from_mapping(cls, m: Mapping[str, Any]) -> "Stage2Config":
+        """Build from a (Hydra) mapping; unknown keys raise ``KeyError``."""
+        known = set(cls.__dataclass_fields__)
+        unknown = set(m) - known
+        if unknown:
+            raise KeyError(f"unknown stage2 settings: {sorted(unknown)}")
+        kw = {k: (tuple(v) if type(v).__name__ in ("ListConfig", "list") else v) for k, v in m.items()}
+        return cls(**kw)
+
+    def build(self, d: int) -> Lagrangian:
+        """The (untrained) :class:`Lagrangian` these settings describe."""
+        return Lagrangian(d, self.mass, self.c0, self.dissipation_init, tuple(self.hidden), self.eps_V, self.learn_rest)
+
+
+def segments(split: np.ndarray, which: int) -> list[np.ndarray]:
+    """Contiguous runs of frame indices whose split equals ``which``."""
+    idx = np.flatnonzero(split == which)
+    if len(idx) == 0:
+        return []
+    breaks = np.flatnonzero(np.diff(idx) > 1) + 1
+    return np.split(idx, breaks)
+
+
+def one_step_windows(q: np.ndarray, dt: float, k: int) -> tuple[np.ndarray, ...]:
+    """Training pairs of Eq. 8 from one contiguous trajectory (reference notes §8.6).
+
+    For every ``s``: state ``(q[s+k], (q[s+2k] - q[s]) / 2k dt)`` and target
+    ``(q[s+2k], (q[s+3k] - q[s+k]) / 2k dt)``, one step of ``h = k dt``.
+
+    Args:
+        q: ``[n,d]`` (smoothed) trajectory.
+        dt: frame interval, seconds.
+        k: stride in frames.
+
+    Returns:
+        ``(q0, v0, q1, v1)``, each ``[n - 3k, d]``.
+    """
+    n = len(q) - 3 * k
+    if n <= 0:
+        return tuple(np.zeros((0, q.shape[1])) for _ in range(4))
+    s = np.arange(n)
+    v = lambda a, b: (q[b] - q[a]) / (2 * k * dt)  # noqa: E731
+    return q[s + k], v(s, s + 2 * k), q[s + 2 * k], v(s + k, s + 3 * k)
+
+
+def _rollout_error(model: Lagrangian, q: np.ndarray, dt: float, G: np.ndarray, horizon: int, starts: np.ndarray, q_std: float) -> float:
+    """Latent NRMSE in ``G`` of free rollouts of ``horizon`` states from ``starts`` of ``q``."""
+    q0 = torch.as_tensor(q[starts], dtype=torch.float32)
+    v0 = torch.as_tensor(metrics.forward_difference_velocity(np.stack([q[starts], q[starts + 1], q[starts + 2]], 0), dt)[0], dtype=torch.float32)
+    pred, _ = rollout(model, q0, v0, dt, horizon)
+    true = np.stack([q[s : s + horizon] for s in starts])
+    pred = pred.numpy()
+    if not np.isfinite(pred).all():
+        return float("inf")
+    return metrics.latent_nrmse(pred, true, G, q_std)
+
+
+def train_stage2(chart: Chart, cfg: Stage2Config, seed: int = 0, progress: bool = True) -> tuple[Lagrangian, dict]:
+    """Fit the Lagrangian by one differentiable Verlet step per window (Eq. 8).
+
+    The loss is ``w_q |q1_hat - q1|_A^2 / d + w_v |h (v1_hat - v1)|_A^2 / d`` with ``A``
+    the chart's loss metric. Every ``select_every`` epochs the model is rolled
+    out freely over ``select_periods`` natural periods from seeded starts on the
+    *training* frames; the state with the lowest latent NRMSE is returned
+    (model selection on multi-step rollout error, paper §3.3).
+
+    Args:
+        chart: the frozen chart (only its training frames are used).
+        cfg: settings.
+        seed: RNG seed.
+        progress: tqdm bar with the loss.
+
+    Returns:
+        ``(model, history)``.
+
+    Raises:
+        ValueError: if the training segment is too short for one window.
+    """
+    torch.manual_seed(seed)
+    rng = np.random.default_rng(seed)
+    dt = float(np.median(np.diff(chart.t)))
+    d = chart.d
+    train_segs = [s for s in segments(chart.split, 0) if len(s) > 3 * cfg.stride + 3]
+    if not train_segs:
+        raise ValueError("no training segment is long enough for one stage-2 window")
+    q_smooth = [metrics.gaussian_smooth(chart.q[s], cfg.sigma) for s in train_segs]
+    wins = [one_step_windows(qs, dt, cfg.stride) for qs in q_smooth]
+    Q0, V0, Q1, V1 = (torch.as_tensor(np.concatenate([w[i] for w in wins]), dtype=torch.float32) for i in range(4))
+    A = torch.as_tensor(chart.A, dtype=torch.float32)
+    G_eval = metrics.normalise_trace(chart.G_bar)
+
+    # Observed natural frequency on the training frames fixes the energy gauge
+    # and the selection horizon (nothing from held-out frames is used here).
+    longest = max(q_smooth, key=len)
+    f_train = metrics.spectral_peak_frequency(metrics.project(longest, metrics.top_direction(chart.G_bar)), dt)
+    model = cfg.build(d)
+    with torch.no_grad():
+        model.potential_hat.q_rest.copy_(torch.as_tensor(np.concatenate(q_smooth).mean(0), dtype=torch.float32))
+    model.init_energy_scales(2 * math.pi * f_train, cfg.zeta_floor)
+
+    horizon = max(8, int(round(cfg.select_periods / (f_train * dt))))
+    sel_seg = longest
+    q_std = metrics.g_rms_spread(sel_seg, G_eval)
+    hi = len(sel_seg) - horizon - 2
+    sel_starts = metrics.window_starts(0, hi, cfg.select_windows, seed) if hi > 0 else np.zeros(1, int)
+    sel_h = min(horizon, len(sel_seg) - 2)
+
+    h = cfg.stride * dt
+    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
+    n = len(Q0)
+    hist: dict[str, list] = {"epoch": [], "loss": [], "select_nrmse": []}
+    best = (float("inf"), copy.deepcopy(model.state_dict()), -1)
+    bar = tqdm(range(cfg.epochs), desc="stage2", disable=not progress, dynamic_ncols=True)
+    for ep in bar:
+        model.train()
+        perm = rng.permutation(n)[: min(n, cfg.windows_per_epoch)]
+        tot, cnt = 0.0, 0
+        for i in range(0, len(perm), cfg.batch):
+            b = torch.as_tensor(perm[i : i + cfg.batch])
+            q1, v1 = verlet_step(model, Q0[b], V0[b], h)
+            eq, ev = q1 - Q1[b], h * (v1 - V1[b])
+            loss = (cfg.w_q * torch.einsum("bi,ij,bj->b", eq, A, eq) + cfg.w_v * torch.einsum("bi,ij,bj->b", ev, A, ev)).mean() / d
+            if not torch.isfinite(loss):
+                continue  # skip a diverged batch (reference notes §8.8)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
+            opt.step()
+            tot, cnt = tot + float(loss), cnt + 1
+        hist["epoch"].append(ep)
+        hist["loss"].append(tot / max(cnt, 1))
+        if (ep + 1) % cfg.select_every == 0 or ep == cfg.epochs - 1:
+            model.eval()
+            err = _rollout_error(model, sel_seg, dt, G_eval, sel_h, sel_starts, q_std)
+            hist["select_nrmse"].append((ep, err))
+            if err < best[0]:
+                best = (err, copy.deepcopy(model.state_dict()), ep)
+            bar.set_postfix(loss=f"{hist['loss'][-1]:.3e}", sel=f"{err:.3f}")
+    model.load_state_dict(best[1])
+    hist["selected_epoch"] = best[2]
+    hist["selected_nrmse"] = best[0]
+    hist["f_train_hz"] = f_train
+    return model.eval(), hist
+
+
+def save_stage2(path: str | Path, model: Lagrangian, cfg: Stage2Config, history: dict) -> Path:
+    """Write ``stage2.pt`` atomically: weights, settings and training history."""
+    from dataclasses import asdict
+
+    return save_torch(path, {"state_dict": model.state_dict(), "config": asdict(cfg), "d": model.d, "history": history})
+
+
+def load_stage2(path: str | Path) -> tuple[Lagrangian, dict]:
+    """Rebuild the Lagrangian saved by :func:`save_stage2` (eval mode).
+
+    Raises:
+        FileNotFoundError: if ``path`` does not exist.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: stage-2 checkpoint not found")
+    ck = torch.load(path, map_location="cpu", weights_only=False)
+    cfg = Stage2Config.from_mapping(ck["config"])
+    model = cfg.build(ck["d"])
+    model.load_state_dict(ck["state_dict"])
+    return model.eval(), ck
