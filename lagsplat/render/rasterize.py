@@ -69,13 +69,13 @@ def _prepare(means: Tensor, covs: Tensor, opacities: Tensor, colors: Tensor, eps
     B, K, _ = means.shape
     if opacities.shape != (B, K):
         raise ValueError(f"opacities must be [B,K]=[{B},{K}], got {tuple(opacities.shape)}")
-    if covs.dim() == 3:
+    if covs.dim() == 3 and covs.shape == (K, 2, 2):
         covs = covs.unsqueeze(0).expand(B, K, 2, 2)
     if covs.shape != (B, K, 2, 2):
         raise ValueError(f"covs must be [K,2,2] or [B,K,2,2], got {tuple(covs.shape)}")
-    if colors.dim() == 2:
+    if colors.dim() == 2 and colors.shape[0] == K:
         colors = colors.unsqueeze(0).expand(B, K, colors.shape[-1])
-    if colors.shape[:2] != (B, K):
+    if colors.dim() != 3 or colors.shape[:2] != (B, K):
         raise ValueError(f"colors must be [K,C] or [B,K,C], got {tuple(colors.shape)}")
     sxx = covs[..., 0, 0] + eps2d
     syy = covs[..., 1, 1] + eps2d

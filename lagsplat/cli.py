@@ -1,0 +1,243 @@
+"""Command line: ``python -m lagsplat <stage> system=<name> [hydra overrides]``.
+
+One stage per Snakemake rule; each reads only upstream artifacts under
+``${results_dir}/${system.name}/`` and writes its own atomically, with the
+resolved configuration saved beside it (``config/<stage>.yaml``).
+
+Stages: ``download``, ``ingest``, ``stage1``, ``chart``, ``stage2``,
+``evaluate``, ``figures``, ``table``, and ``all`` (ingest -> figures in one
+process).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+import warnings
+from pathlib import Path
+from typing import Callable
+
+from omegaconf import DictConfig, OmegaConf
+
+__all__ = ["main", "compose", "find_conf_dir", "STAGES"]
+
+USAGE = """usage: python -m lagsplat <stage> system=<name> [key=value ...]
+
+stages:
+  download   fetch the system's source clip (URL + SHA256 from conf/system/<name>.yaml)
+  ingest     source clip -> results/<name>/clip.npz
+  stage1     clip.npz -> stage1.pt           (encoder + conditioned-Gaussian decoder)
+  chart      stage1.pt -> chart.npz          (whitening, G_bar, A, AE floor)
+  stage2     chart.npz -> stage2.pt          (latent Lagrangian)
+  evaluate   -> metrics.json                 (eps_freq, eps_q, eps_I / eps_AE)
+  figures    -> figures/rollout.png
+  table      metrics.json of table.systems -> results/tables/<table.name>.tex/.csv
+  all        ingest .. figures for one system
+
+examples:
+  python -m lagsplat all system=toy
+  python -m lagsplat stage1 system=oscillating_cart stage1.steps=500
+  python -m lagsplat table table.name=physical 'table.systems=[toy,oscillating_cart]'
+"""
+
+
+def find_conf_dir() -> Path:
+    """Locate the Hydra ``conf/`` folder.
+
+    Order: ``$LAGSPLAT_CONF``, ``./conf`` in the working directory, then the
+    ``conf/`` beside the package (a source checkout / editable install).
+
+    Raises:
+        FileNotFoundError: if none has a ``config.yaml``.
+    """
+    cands = [os.environ.get("LAGSPLAT_CONF"), Path.cwd() / "conf", Path(__file__).resolve().parents[1] / "conf"]
+    for c in cands:
+        if c and (Path(c) / "config.yaml").exists():
+            return Path(c).resolve()
+    raise FileNotFoundError("no conf/config.yaml found: run from the project root or set LAGSPLAT_CONF")
+
+
+def compose(overrides: list[str]) -> DictConfig:
+    """Compose the configuration (``conf/config.yaml`` + system + overrides)."""
+    from hydra import compose as hcompose
+    from hydra import initialize_config_dir
+
+    with initialize_config_dir(config_dir=str(find_conf_dir()), version_base=None):
+        return hcompose(config_name="config", overrides=overrides)
+
+
+def _sysdir(cfg: DictConfig) -> Path:
+    return Path(cfg.results_dir) / cfg.system.name
+
+
+def _save_cfg(cfg: DictConfig, stage: str) -> None:
+    from lagsplat.io.atomic import atomic_write
+
+    with atomic_write(_sysdir(cfg) / "config" / f"{stage}.yaml") as tmp:
+        tmp.write_text(OmegaConf.to_yaml(cfg, resolve=True))
+
+
+def _container(node) -> dict:
+    return OmegaConf.to_container(node, resolve=True) if isinstance(node, DictConfig) else dict(node)
+
+
+# --------------------------------------------------------------------- stages
+def stage_download(cfg: DictConfig) -> None:
+    """Fetch the source clip to ``system.source.path`` and verify its SHA256."""
+    from lagsplat.io.download import fetch
+
+    src = cfg.system.source
+    if "url" not in src:
+        print(f"{cfg.system.name}: nothing to download (no source.url)")
+        return
+    fetch(src.url, Path(src.path), src.sha256)
+
+
+def stage_ingest(cfg: DictConfig) -> None:
+    """Source clip -> ``clip.npz``."""
+    from lagsplat.io.ingest import ingest_to_file
+
+    ingest_to_file(_container(cfg.system), _sysdir(cfg) / "clip.npz")
+    _save_cfg(cfg, "ingest")
+
+
+def stage_stage1(cfg: DictConfig) -> None:
+    """``clip.npz`` -> ``stage1.pt``."""
+    from lagsplat.io.clip import load_clip
+    from lagsplat.train.stage1 import Stage1Config, save_stage1, train_stage1
+
+    clip = load_clip(_sysdir(cfg) / "clip.npz")
+    s1 = Stage1Config.from_mapping(_container(cfg.stage1))
+    model, hist = train_stage1(clip, s1, int(cfg.system.d), seed=int(cfg.seed), progress=bool(cfg.progress))
+    save_stage1(_sysdir(cfg) / "stage1.pt", model, _container(cfg.stage1), hist, int(cfg.system.d))
+    _save_cfg(cfg, "stage1")
+
+
+def stage_chart(cfg: DictConfig) -> None:
+    """``stage1.pt`` -> ``chart.npz``."""
+    from lagsplat.chart import build_chart, save_chart
+    from lagsplat.io.clip import load_clip
+    from lagsplat.train.stage1 import load_stage1
+
+    d = _sysdir(cfg)
+    chart = build_chart(load_stage1(d / "stage1.pt"), load_clip(d / "clip.npz"), int(cfg.chart.n_metric_samples), float(cfg.chart.rho), int(cfg.seed))
+    save_chart(d / "chart.npz", chart)
+    _save_cfg(cfg, "chart")
+
+
+def stage_stage2(cfg: DictConfig) -> None:
+    """``chart.npz`` -> ``stage2.pt``."""
+    from lagsplat.chart import load_chart
+    from lagsplat.train.stage2 import Stage2Config, save_stage2, train_stage2
+
+    s2 = Stage2Config.from_mapping(_container(cfg.stage2))
+    model, hist = train_stage2(load_chart(_sysdir(cfg) / "chart.npz"), s2, seed=int(cfg.seed), progress=bool(cfg.progress))
+    save_stage2(_sysdir(cfg) / "stage2.pt", model, s2, hist)
+    _save_cfg(cfg, "stage2")
+
+
+def stage_evaluate(cfg: DictConfig) -> None:
+    """Upstream artifacts -> ``metrics.json``."""
+    from lagsplat.chart import load_chart
+    from lagsplat.evaluate import EvalConfig, evaluate
+    from lagsplat.io.atomic import write_json
+    from lagsplat.io.clip import load_clip
+    from lagsplat.train.stage1 import load_stage1
+    from lagsplat.train.stage2 import load_stage2
+
+    d = _sysdir(cfg)
+    clip = load_clip(d / "clip.npz")
+    chart = load_chart(d / "chart.npz")
+    model, ck = load_stage2(d / "stage2.pt")
+    ev = EvalConfig(**_container(cfg.evaluate))
+    m = evaluate(clip, load_stage1(d / "stage1.pt"), chart, model, ev, source=str(d / "clip.npz"))
+    write_json(
+        d / "metrics.json",
+        {
+            "system": cfg.system.name,
+            "title": cfg.system.get("title", cfg.system.name),
+            "d": int(cfg.system.d),
+            "provenance": cfg.system.get("provenance", ""),
+            "dt_s": float(clip.dt),
+            "n_train": int(len(clip.train_idx)),
+            "n_held_out": int(len(clip.held_out_idx)),
+            "image_size": [chart.width, chart.height],
+            "stage2_selected_epoch": ck["history"].get("selected_epoch"),
+            "metrics": m,
+        },
+    )
+    _save_cfg(cfg, "evaluate")
+
+
+def stage_figures(cfg: DictConfig) -> None:
+    """Upstream artifacts -> ``figures/rollout.png``."""
+    from lagsplat.viz.rollout import rollout_figure
+
+    rollout_figure(_sysdir(cfg), title=str(cfg.system.get("title", cfg.system.name)), provenance=str(cfg.system.get("provenance", "")))
+
+
+def stage_table(cfg: DictConfig) -> None:
+    """``metrics.json`` of ``table.systems`` -> ``results/tables/<table.name>.tex`` and ``.csv``."""
+    from lagsplat.report.tables import physical_table
+
+    t = cfg.get("table", {})
+    name = t.get("name", "physical")
+    systems = list(t.get("systems", [cfg.system.name]))
+    inputs = [Path(cfg.results_dir) / s / "metrics.json" for s in systems]
+    physical_table(inputs, Path(cfg.results_dir) / "tables" / f"{name}.tex")
+
+
+def stage_all(cfg: DictConfig) -> None:
+    """Run ingest .. figures for one system in this process."""
+    for name in ("ingest", "stage1", "chart", "stage2", "evaluate", "figures"):
+        t0 = time.time()
+        STAGES[name](cfg)
+        print(f"[lagsplat] {cfg.system.name}: {name} done in {time.time() - t0:.1f} s", flush=True)
+
+
+STAGES: dict[str, Callable[[DictConfig], None]] = {
+    "download": stage_download,
+    "ingest": stage_ingest,
+    "stage1": stage_stage1,
+    "chart": stage_chart,
+    "stage2": stage_stage2,
+    "evaluate": stage_evaluate,
+    "figures": stage_figures,
+    "table": stage_table,
+    "all": stage_all,
+}
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point. Returns the process exit code (0 ok, 1 error, 2 usage)."""
+    argv = sys.argv[1:] if argv is None else argv
+    if not argv or argv[0] in ("-h", "--help", "help"):
+        print(USAGE)
+        return 0 if argv else 2
+    stage, overrides = argv[0], argv[1:]
+    if stage not in STAGES:
+        print(f"lagsplat: unknown stage {stage!r}\n\n{USAGE}", file=sys.stderr)
+        return 2
+    from lagsplat.io.clip import ClipError
+    from lagsplat.io.download import DownloadError
+
+    try:
+        cfg = compose(overrides)
+        if int(cfg.threads) > 0:
+            import torch
+
+            torch.set_num_threads(int(cfg.threads))
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message="Converting a tensor with requires_grad=True to a scalar")
+            STAGES[stage](cfg)
+    except (ClipError, DownloadError, FileNotFoundError, KeyError, ValueError) as exc:
+        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        print(f"lagsplat {stage}: error: {msg}", file=sys.stderr)
+        return 1
+    except Exception as exc:  # hydra config errors etc.
+        if type(exc).__module__.startswith(("hydra", "omegaconf")):
+            print(f"lagsplat {stage}: configuration error: {str(exc).splitlines()[0]}", file=sys.stderr)
+            return 1
+        raise
+    return 0

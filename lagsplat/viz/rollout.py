@@ -1,0 +1,112 @@
+"""Rollout figure in the spirit of the paper's Fig. 3 (protocol of §4.1, "Reading the rollout figures")."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+
+from lagsplat import metrics  # noqa: E402
+from lagsplat.chart import load_chart  # noqa: E402
+from lagsplat.dynamics.integrators import rollout  # noqa: E402
+from lagsplat.evaluate import initial_state  # noqa: E402
+from lagsplat.io.atomic import atomic_write  # noqa: E402
+from lagsplat.io.clip import HELD_OUT, load_clip  # noqa: E402
+from lagsplat.train.stage1 import load_stage1  # noqa: E402
+from lagsplat.train.stage2 import load_stage2, segments  # noqa: E402
+
+__all__ = ["rollout_figure"]
+
+
+def rollout_figure(system_dir: str | Path, title: str = "", provenance: str = "", sigma: float = 1.0) -> Path:
+    """One free rollout across the train / held-out boundary, latent and images.
+
+    The model starts from the encoded state (position and velocity) one
+    natural period before the first held-out frame and is never re-anchored.
+    Top: each latent coordinate, ordered by decreasing visibility (share of
+    ``trace G_bar`` in the label), encoded vs predicted, held-out shaded.
+    Bottom: at three held-out times, the real frame, the render at the encoded
+    ``q`` (the autoencoder's own floor) and the render at the predicted ``q``.
+
+    Args:
+        system_dir: ``results/<system>`` holding clip, stage1, chart, stage2 and metrics.
+        title: figure title.
+        provenance: data source line printed under the figure.
+        sigma: latent smoothing (frames) used for the initial state.
+
+    Returns:
+        Path of ``figures/rollout.png``.
+    """
+    d = Path(system_dir)
+    clip = load_clip(d / "clip.npz")
+    chart = load_chart(d / "chart.npz")
+    ae = load_stage1(d / "stage1.pt")
+    model, _ = load_stage2(d / "stage2.pt")
+    import json
+
+    f_enc = json.loads((d / "metrics.json").read_text())["metrics"]["f_enc_segment_hz"]["value"]
+    dt = float(np.median(np.diff(chart.t)))
+    ho = max(segments(chart.split, HELD_OUT), key=len)
+    period = int(round(1.0 / (f_enc * dt)))
+    s0 = max(int(ho[0]) - period, 0)
+    idx = np.arange(s0, int(ho[-1]) + 1)
+    q_s = metrics.gaussian_smooth(chart.q[idx], sigma)
+    q0, v0 = initial_state(q_s, np.array([0]), dt)
+    pred, _ = rollout(model, q0, v0, dt, len(idx))
+    pred = pred[0].numpy()
+
+    G = 0.5 * (chart.G_bar + chart.G_bar.T)
+    lam, V = np.linalg.eigh(G)
+    order = np.argsort(lam)[::-1]
+    lam, V = lam[order], V[:, order]
+    share = lam / lam.sum()
+    enc_c, pred_c = q_s @ V, pred @ V
+    t = chart.t[idx]
+
+    picks = [int(ho[len(ho) // 3]), int(ho[2 * len(ho) // 3]), int(ho[-1])]
+    with torch.no_grad():
+        z_enc = chart.to_raw(torch.as_tensor(chart.q[picks], dtype=torch.float32))
+        z_pred = chart.to_raw(torch.as_tensor(pred[[p - s0 for p in picks]], dtype=torch.float32))
+        r_enc = ae.decode(z_enc).permute(0, 2, 3, 1).numpy()
+        r_pred = ae.decode(z_pred).permute(0, 2, 3, 1).numpy()
+    real = clip.images[picks] / 255.0
+
+    dd = chart.d
+    fig = plt.figure(figsize=(9, 2.2 * dd + 4.2))
+    gs = fig.add_gridspec(dd + 3, 3, height_ratios=[1.3] * dd + [1, 1, 1])
+    for k in range(dd):
+        ax = fig.add_subplot(gs[k, :])
+        ax.axvspan(chart.t[ho[0]], chart.t[ho[-1]], color="0.9", label="held out")
+        ax.plot(t, enc_c[:, k], ".", ms=2.5, color="k", label="encoded")
+        ax.plot(t, pred_c[:, k], "-", lw=1.2, color="tab:red", label="predicted (free rollout)")
+        ax.set_ylabel(f"q{k + 1}  ({100 * share[k]:.0f}% of tr G)")
+        for p in picks:
+            ax.axvline(chart.t[p], color="tab:blue", lw=0.6, ls=":")
+        if k == 0:
+            ax.legend(loc="upper right", fontsize=7, ncol=3)
+            ax.set_title(title)
+    ax.set_xlabel("time (s)")
+    labels = ["real", "render at encoded q", "render at predicted q"]
+    for r, imgs in enumerate([real, r_enc, r_pred]):
+        for c in range(3):
+            ax = fig.add_subplot(gs[dd + r, c])
+            ax.imshow(np.clip(imgs[c], 0, 1), interpolation="nearest")
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if c == 0:
+                ax.set_ylabel(labels[r], fontsize=8)
+            if r == 0:
+                ax.set_title(f"t = {chart.t[picks[c]]:.2f} s", fontsize=8)
+    if provenance:
+        fig.text(0.01, 0.005, f"data: {provenance}", fontsize=6, color="0.4")
+    fig.tight_layout(rect=(0, 0.015, 1, 1))
+    out = d / "figures" / "rollout.png"
+    with atomic_write(out) as tmp:
+        fig.savefig(tmp, dpi=120, format="png")
+    plt.close(fig)
+    return out

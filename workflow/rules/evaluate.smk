@@ -1,0 +1,12 @@
+rule evaluate:
+    """eps_freq, eps_q, eps_I / eps_AE on the held-out frames (paper §4.1)."""
+    input:
+        f"{RESULTS}/{{system}}/clip.npz",
+        f"{RESULTS}/{{system}}/stage1.pt",
+        f"{RESULTS}/{{system}}/chart.npz",
+        f"{RESULTS}/{{system}}/stage2.pt",
+    output:
+        f"{RESULTS}/{{system}}/metrics.json",
+    threads: 2
+    shell:
+        cli("evaluate")

@@ -1,0 +1,25 @@
+rule figures:
+    """Rollout figure (paper Fig. 3 protocol)."""
+    input:
+        f"{RESULTS}/{{system}}/metrics.json",
+    output:
+        f"{RESULTS}/{{system}}/figures/rollout.png",
+    threads: 1
+    shell:
+        cli("figures")
+
+
+rule table:
+    """A table rebuilt from metrics.json files (paper Table 2 layout)."""
+    input:
+        lambda w: [f"{RESULTS}/{s}/metrics.json" for s in TABLES[w.table]],
+        lambda w: [f"{RESULTS}/{s}/figures/rollout.png" for s in TABLES[w.table]],
+    output:
+        f"{RESULTS}/tables/{{table}}.tex",
+        f"{RESULTS}/tables/{{table}}.csv",
+    wildcard_constraints:
+        table="|".join(TABLES),
+    params:
+        systems=lambda w: ",".join(TABLES[w.table]),
+    shell:
+        f"python -m lagsplat table table.name={{wildcards.table}} 'table.systems=[{{params.systems}}]' results_dir={RESULTS} {OVR}"
