@@ -54,8 +54,8 @@ def _scene(
     lo = torch.tensor([-0.3 * W, -0.3 * H])
     span = torch.tensor([1.6 * W, 1.6 * H])
     means = lo + span * torch.rand(B, K, 2, generator=g)
-    means[:, 0] = torch.tensor([-40.0, 0.5 * H])  # fully off-screen (left)
-    means[:, 1] = torch.tensor([W + 60.0, H + 60.0])  # fully off-screen (bottom right)
+    means[:, 0] = torch.tensor([-200.0, 0.5 * H])  # fully off-screen (left), even at 20 px std
+    means[:, 1] = torch.tensor([W + 200.0, H + 200.0])  # fully off-screen (bottom right)
     cshape = (B, K) if cov_batched else (K,)
     std = torch.exp(torch.empty(*cshape, 2).uniform_(math.log(0.05), math.log(20.0), generator=g))
     theta = torch.rand(*cshape, generator=g) * math.pi
@@ -248,18 +248,22 @@ def test_cpu_gradients_match_finite_differences() -> None:
 
 
 # ----------------------------------------------------------------------------- first principles
-def _alpha_by_hand(px: float, py: float, mu, cov, o: float) -> float:
+def _d2_by_hand(px: float, py: float, mu, cov) -> float:
     sxx, sxy, syy = cov[0][0] + EPS2D, cov[0][1], cov[1][1] + EPS2D
     det = sxx * syy - sxy * sxy
     dx, dy = px - mu[0], py - mu[1]
-    d2 = (syy * dx * dx - 2 * sxy * dx * dy + sxx * dy * dy) / det
+    return (syy * dx * dx - 2 * sxy * dx * dy + sxx * dy * dy) / det
+
+
+def _alpha_by_hand(px: float, py: float, mu, cov, o: float) -> float:
+    d2 = _d2_by_hand(px, py, mu, cov)
     a = min(0.99, o * math.exp(-0.5 * d2))
     if d2 > 9.0 or a < 1.0 / 255.0:
         return 0.0
     return a
 
 
-@pytest.mark.parametrize("o", [0.8, 3.0])
+@pytest.mark.parametrize("o", [0.2, 0.8, 3.0])
 def test_dense_single_gaussian_by_hand(o: float) -> None:
     H, W = 9, 11
     mu = (4.3, 3.7)
@@ -275,18 +279,22 @@ def test_dense_single_gaussian_by_hand(o: float) -> None:
         W,
         torch.tensor(bg, dtype=torch.float64),
     )[0]
-    seen_cap = seen_support_cut = False
+    seen_cap = seen_alpha_cut = seen_support_cut = False
     for i in range(H):
         for j in range(W):
             a = _alpha_by_hand(j + 0.5, i + 0.5, mu, cov, o)
+            d2 = _d2_by_hand(j + 0.5, i + 0.5, mu, cov)
             seen_cap |= a == 0.99
-            raw = _alpha_by_hand(j + 0.5, i + 0.5, mu, cov, 1e9)  # 0 iff outside 3 sigma
-            seen_support_cut |= raw == 0.0 and a == 0.0
+            seen_alpha_cut |= d2 < 9.0 and a == 0.0  # inside 3 sigma, below 1/255
+            seen_support_cut |= d2 > 9.0 and o * math.exp(-0.5 * d2) >= 1.0 / 255.0  # visible but outside 3 sigma
             for c in range(3):
                 expect = col[c] * a + (1.0 - a) * bg[c]
                 assert img[c, i, j].item() == pytest.approx(expect, abs=1e-12), (i, j, c)
-    assert seen_support_cut
+    # every branch of the rule is exercised: the 1/255 cut lies inside 3 sigma iff o < e^4.5 / 255
+    o_switch = math.exp(4.5) / 255.0
     assert seen_cap == (o > 1.0)
+    assert seen_alpha_cut == (o < o_switch)
+    assert seen_support_cut == (o > o_switch)
 
 
 def test_dense_over_compositing_follows_index_order() -> None:

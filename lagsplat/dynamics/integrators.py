@@ -34,8 +34,10 @@ def verlet_step(model: HasAcceleration, q: Tensor, qdot: Tensor, h: float, f_ext
     ``a1 = a(q, qdot, f(t))``; ``v_half = qdot + h/2 a1``; ``q1 = q + h v_half``;
     ``a2 = a(q1, v_half, f(t + h))``; ``qdot1 = v_half + h/2 a2``. The second
     force evaluation uses the half-step velocity for the velocity-dependent
-    terms, as in the reference implementation (notes §8.7); for a
-    conservative model this is the symplectic Stormer-Verlet scheme.
+    terms, as in the reference implementation (notes §8.7). For a
+    conservative model this is the symplectic, second-order Stormer-Verlet
+    scheme; the dissipative terms are integrated to first order (the error
+    halves with ``h``, tests/test_dynamics.py).
 
     Args:
         model: exposes ``acceleration``.

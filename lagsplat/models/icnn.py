@@ -71,8 +71,10 @@ class ConvexPotential(nn.Module):
 
     def forward(self, q: Tensor) -> Tensor:
         """Potential energy ``V(q) >= 0``."""
-        qr = self.q_rest.unsqueeze(0)
+        # Build the view with grad enabled: made under no_grad it would be cut off
+        # from q_rest's graph and the gradient below would fail.
         with torch.enable_grad():
+            qr = self.q_rest.unsqueeze(0)
             qr_ = qr if qr.requires_grad else qr.detach().requires_grad_(True)
             g_r = self.g(qr_)
             (grad_r,) = torch.autograd.grad(g_r.sum(), qr_, create_graph=True)
