@@ -65,4 +65,4 @@ def reconstruction_loss(
     s = ssim(pred, target, data_range=1.0, win_size=win, size_average=True)
     an = anisotropy_penalty(decoder, H, W, max_ratio)
     loss = w_l1 * l1 + w_ssim * (1.0 - s) + w_aniso * an
-    return loss, {"l1": float(l1), "ssim": float(s), "aniso": float(an)}
+    return loss, {"l1": float(l1.detach()), "ssim": float(s.detach()), "aniso": float(an.detach())}

@@ -170,10 +170,11 @@ def train_stage1(clip: Clip, cfg: Stage1Config, d: int, seed: int = 0, progress:
         nn.utils.clip_grad_norm_(enc.parameters(), cfg.grad_clip)
         nn.utils.clip_grad_norm_(dec_params, cfg.grad_clip)
         opt.step()
-        ema = float(loss) if ema is None else 0.95 * ema + 0.05 * float(loss)
+        lv = float(loss.detach())
+        ema = lv if ema is None else 0.95 * ema + 0.05 * lv
         if step % 10 == 0:
             history["step"].append(step)
-            history["loss"].append(float(loss))
+            history["loss"].append(lv)
             history["l1"].append(parts["l1"])
             history["ssim"].append(parts["ssim"])
             bar.set_postfix(loss=f"{ema:.4f}", l1=f"{parts['l1']:.4f}", ssim=f"{parts['ssim']:.3f}")

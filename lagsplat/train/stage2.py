@@ -191,7 +191,7 @@ def train_stage2(chart: Chart, cfg: Stage2Config, seed: int = 0, progress: bool 
             loss.backward()
             torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
             opt.step()
-            tot, cnt = tot + float(loss), cnt + 1
+            tot, cnt = tot + float(loss.detach()), cnt + 1
         hist["epoch"].append(ep)
         hist["loss"].append(tot / max(cnt, 1))
         if (ep + 1) % cfg.select_every == 0 or ep == cfg.epochs - 1:

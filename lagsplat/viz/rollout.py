@@ -77,8 +77,9 @@ def rollout_figure(system_dir: str | Path, title: str = "", provenance: str = ""
     real = clip.images[picks] / 255.0
 
     dd = chart.d
-    fig = plt.figure(figsize=(9, 2.2 * dd + 4.2))
-    gs = fig.add_gridspec(dd + 3, 3, height_ratios=[1.3] * dd + [1, 1, 1])
+    img_h = max(0.45, 2.8 * chart.height / chart.width)  # inches per image row (panels ~2.8 in wide)
+    fig = plt.figure(figsize=(9, 2.0 * dd + 3 * (img_h + 0.3) + 0.6))
+    gs = fig.add_gridspec(dd + 3, 3, height_ratios=[2.0] * dd + [img_h + 0.3] * 3)
     for k in range(dd):
         ax = fig.add_subplot(gs[k, :])
         ax.axvspan(chart.t[ho[0]], chart.t[ho[-1]], color="0.9", label="held out")
@@ -91,7 +92,7 @@ def rollout_figure(system_dir: str | Path, title: str = "", provenance: str = ""
             ax.legend(loc="upper right", fontsize=7, ncol=3)
             ax.set_title(title)
     ax.set_xlabel("time (s)")
-    labels = ["real", "render at encoded q", "render at predicted q"]
+    labels = ["real", "at encoded q", "at predicted q"]
     for r, imgs in enumerate([real, r_enc, r_pred]):
         for c in range(3):
             ax = fig.add_subplot(gs[dd + r, c])
