@@ -31,7 +31,18 @@ from lagsplat.io.atomic import atomic_write
 from lagsplat.io.clip import Clip
 from lagsplat.train.stage1 import AutoEncoder, frames_to_tensor
 
-__all__ = ["Chart", "fit_whitening", "visibility_metric", "loss_metric", "build_chart", "save_chart", "load_chart"]
+__all__ = [
+    "Chart",
+    "fit_whitening",
+    "visibility_metric",
+    "loss_metric",
+    "chart_continuity",
+    "build_chart",
+    "save_chart",
+    "load_chart",
+]
+
+FOLD_WARNING = 5.0
 
 
 @dataclass
@@ -158,6 +169,34 @@ def loss_metric(G_bar: np.ndarray, rho: float = 0.01) -> np.ndarray:
     return A * d / np.trace(A)
 
 
+def chart_continuity(q: np.ndarray, split: np.ndarray, G_bar: np.ndarray) -> float:
+    """Jump statistic of the encoded trajectory: ``max |D^2 p| / median |D p|``.
+
+    ``p`` is the projection of ``q`` on ``G_bar``'s most visible direction and
+    ``D`` the frame difference, taken within each contiguous split segment. A
+    smooth oscillation sampled at ``N`` frames per period gives about
+    ``pi^2 / N`` (well below 1); a chart that folds or tears (the encoder maps
+    nearby images to distant states, or the reverse) shows isolated jumps and
+    values of 5 and above. Stage 2 reads velocities and accelerations off this
+    trajectory, so a torn chart cannot give a correct model.
+
+    Returns:
+        The statistic (dimensionless).
+    """
+    lam, V = np.linalg.eigh(0.5 * (G_bar + G_bar.T))
+    p = q @ V[:, np.argmax(lam)]
+    d1, d2 = [], []
+    for k in (0, 1):
+        idx = np.flatnonzero(split == k)
+        for seg in np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1):
+            if len(seg) > 3:
+                d1.append(np.abs(np.diff(p[seg])))
+                d2.append(np.abs(np.diff(p[seg], 2)))
+    if not d1:
+        return float("nan")
+    return float(np.concatenate(d2).max() / max(np.median(np.concatenate(d1)), 1e-12))
+
+
 @torch.no_grad()
 def build_chart(model: AutoEncoder, clip: Clip, n_metric_samples: int = 64, rho: float = 0.01, seed: int = 0) -> Chart:
     """Encode the clip, whiten, compute ``G_bar``, ``A`` and the AE floor.
@@ -185,6 +224,16 @@ def build_chart(model: AutoEncoder, clip: Clip, n_metric_samples: int = 64, rho:
         rec = model.decode(torch.as_tensor(z[i : i + 64], dtype=torch.float32))
         ae[i : i + 64] = ((rec - x) ** 2).mean(dim=(1, 2, 3)).numpy()
     ho = clip.held_out_idx
+    jump = chart_continuity(q, clip.split, G_bar)
+    if jump > FOLD_WARNING:
+        import warnings
+
+        warnings.warn(
+            f"the encoded trajectory jumps (max second difference {jump:.1f}x the median step): the latent "
+            "chart may fold or tear and Stage 2 will be unreliable; consider more stage1.steps, "
+            "stage1.w_nonlocal > 0, or a crop that keeps the object away from the image border",
+            stacklevel=2,
+        )
     return Chart(
         mean=mean,
         W=W,
@@ -199,7 +248,13 @@ def build_chart(model: AutoEncoder, clip: Clip, n_metric_samples: int = 64, rho:
         ae_floor_held_out=float(ae[ho].mean()) if len(ho) else float("nan"),
         height=model.height,
         width=model.width,
-        meta={"n_metric_samples": int(len(pick)), "rho": rho, "seed": seed, "G_singular_values_mean": svals.mean(0).tolist()},
+        meta={
+            "n_metric_samples": int(len(pick)),
+            "rho": rho,
+            "seed": seed,
+            "G_singular_values_mean": svals.mean(0).tolist(),
+            "continuity_jump_ratio": jump,
+        },
     )
 
 

@@ -165,6 +165,14 @@ def evaluate(clip: Clip, ae: AutoEncoder, chart: Chart, model: Lagrangian, cfg: 
         "eps_I_over_AE": _entry(eps_I / eps_AE, "eps_I / eps_AE", horizon, "ratio"),
         "n_diverged": _entry(int((~finite).sum()), "rollouts that became non-finite (excluded, counted here)", horizon, "count"),
     }
+    if "continuity_jump_ratio" in chart.meta:
+        out["chart_jump_ratio"] = _entry(
+            chart.meta["continuity_jump_ratio"],
+            "max |second difference| / median |first difference| of the encoded trajectory on G_bar's top direction; "
+            "well below 1 for a smooth chart, >= 5 flags a folded or torn chart (lagsplat.chart.chart_continuity)",
+            "all frames",
+            "ratio",
+        )
     truth = clip.meta.get("truth", {})
     if "f_observed_hz" in truth:
         f_true = float(truth["f_observed_hz"])
