@@ -74,12 +74,15 @@ class CholeskyField(nn.Module):
 
 
 class Lagrangian(nn.Module):
-    """Latent dissipative Lagrangian with constant inertia (scalar for ``d = 1``).
+    """Latent dissipative Lagrangian (paper §3.3).
 
     Args:
         d: latent dimension.
-        mass: ``"scalar"`` (``M = m I``, the paper's d = 1 model) or
-            ``"constant"`` (a learned constant SPD matrix).
+        mass: ``"scalar"`` (``M = m I``, the paper's d = 1 model),
+            ``"constant"`` (a learned constant SPD matrix, ablation) or
+            ``"learned"`` (``M(q) = L(q) L(q)^T + eps I`` from an MLP Cholesky
+            factor, SPD floor ``eps = 0.1``; its Coriolis terms come from
+            ``d(M qdot)/dq`` by autograd, paper §3.3 "Inertia").
         c0: isotropic dissipation floor (paper App. C: 1).
         dissipation_init: initial learned dissipation ``L_C L_C^T`` (0.2 I).
         hidden: MLP / ICNN widths.
@@ -100,13 +103,14 @@ class Lagrangian(nn.Module):
         learn_rest: bool = True,
     ) -> None:
         super().__init__()
-        if mass not in ("scalar", "constant"):
-            raise ValueError(f"mass must be 'scalar' or 'constant', got {mass!r}")
+        if mass not in ("scalar", "constant", "learned"):
+            raise ValueError(f"mass must be 'scalar', 'constant' or 'learned', got {mass!r}")
         self.d, self.mass_kind, self.c0 = int(d), mass, float(c0)
         self.s_M = nn.Parameter(torch.zeros(()))
         self.s_V = nn.Parameter(torch.zeros(()))
         n_tri = d * (d + 1) // 2
         self.M_raw = nn.Parameter(torch.zeros(n_tri)) if mass == "constant" else None
+        self.mass_field = CholeskyField(d, hidden, 1.0) if mass == "learned" else None
         self.dissipation = CholeskyField(d, hidden, dissipation_init)
         self.potential_hat = ConvexPotential(d, hidden, eps_V, learn_rest=learn_rest)
         ii, jj = torch.tril_indices(d, d)
@@ -115,9 +119,12 @@ class Lagrangian(nn.Module):
 
     # ------------------------------------------------------------ components
     def mass_matrix(self, q: Tensor) -> Tensor:
-        """Inertia ``M [B,d,d]`` (constant in ``q`` for this model class)."""
+        """Inertia ``M(q) [B,d,d]``, SPD."""
         B = q.shape[0]
         m = torch.exp(self.s_M)
+        eye = torch.eye(self.d, dtype=q.dtype, device=q.device)
+        if self.mass_field is not None:  # L L^T = I at initialisation, so M = m I there
+            return m * (self.mass_field(q) + 0.1 * eye) / 1.1
         if self.M_raw is None:
             M = m * torch.eye(self.d, dtype=q.dtype, device=q.device)
         else:
@@ -172,6 +179,20 @@ class Lagrangian(nn.Module):
         force = -self.potential_grad(q) - torch.einsum("bij,bj->bi", self.dissipation_matrix(q), qdot)
         if f_ext is not None:
             force = force + f_ext
+        if self.mass_field is not None:
+            # M qddot = dT/dq - (d(M qdot)/dq) qdot + ...   (paper Eq. 7 with M(q))
+            cg = self.training
+            with torch.enable_grad():
+                q_ = q if q.requires_grad else q.detach().requires_grad_(True)
+                M = self.mass_matrix(q_)
+                p = torch.einsum("bij,bj->bi", M, qdot)
+                (dT,) = torch.autograd.grad(0.5 * (p * qdot).sum(), q_, create_graph=cg, retain_graph=True)
+                rows = [torch.autograd.grad(p[:, i].sum(), q_, create_graph=cg, retain_graph=True)[0] for i in range(self.d)]
+            coriolis = torch.einsum("bij,bj->bi", torch.stack(rows, 1), qdot)
+            force = force + dT - coriolis
+            if not cg:
+                M, force = M.detach(), force.detach()
+            return torch.linalg.solve(M, force.unsqueeze(-1)).squeeze(-1)
         M = self.mass_matrix(q)
         if self.M_raw is None:
             return force / M[:, 0, 0:1]

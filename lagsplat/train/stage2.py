@@ -26,7 +26,7 @@ class Stage2Config:
     """Stage-2 settings (``conf/config.yaml``, group ``stage2``).
 
     Attributes:
-        mass: ``"scalar"`` or ``"constant"`` inertia.
+        mass: ``"scalar"``, ``"constant"`` or ``"learned"`` inertia (see :class:`Lagrangian`).
         c0: dissipation floor (App. C: 1).
         dissipation_init: initial learned dissipation (0.2 I).
         hidden: MLP / ICNN widths.
