@@ -321,3 +321,26 @@ def test_potential_hessian_at_rest_includes_the_floor() -> None:
     Hg = torch.autograd.functional.hessian(lambda z: _POT.g(z).sum(), qr)[0, :, 0, :]
     torch.testing.assert_close(H, Hg + _POT.eps * torch.eye(_D, dtype=F64), rtol=1e-9, atol=1e-12)
     assert np.all(np.linalg.eigvalsh(H.numpy()) >= _POT.eps - 1e-9)
+
+
+@pytest.mark.parametrize("d", [1, 2])
+def test_learned_inertia_obeys_the_energy_balance(d):
+    """With M(q) learned, dE/dt = f^T qdot - qdot^T C qdot exactly (paper App. A.2),
+    which checks the Coriolis terms d(M qdot)/dq qdot - dT/dq."""
+    torch.manual_seed(1)
+    lag = Lagrangian(d, mass="learned").eval()
+    with torch.no_grad():
+        for p in lag.mass_field.parameters():
+            p.add_(0.3 * torch.randn_like(p))
+    q, v, f = torch.randn(6, d), torch.randn(6, d), torch.randn(6, d)
+    a = lag.acceleration(q, v, f)
+    q_, v_ = q.clone().requires_grad_(True), v.clone().requires_grad_(True)
+    T, V, D = lag.energies(q_, v_)
+    gq, gv = torch.autograd.grad((T + V).sum(), [q_, v_])
+    dEdt = (gq * v).sum(1) + (gv * a).sum(1)
+    torch.testing.assert_close(dEdt, (f * v).sum(1) - 2 * D.detach(), rtol=1e-4, atol=1e-5)
+    M = lag.mass_matrix(q)
+    assert torch.all(torch.linalg.eigvalsh(M) > 0)
+    qs, _ = rollout(lag, q[:2], v[:2], 0.01, 2000)
+    assert torch.isfinite(qs).all()
+    assert (qs[:, -1] - lag.q_rest).norm(dim=-1).max() < 0.1 * (qs[:, 0] - lag.q_rest).norm(dim=-1).max()
