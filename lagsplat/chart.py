@@ -28,7 +28,7 @@ import torch
 from torch import Tensor
 
 from lagsplat.io.atomic import atomic_write
-from lagsplat.io.clip import Clip
+from lagsplat.io.clip import HELD_OUT, TRAIN, Clip, segments
 from lagsplat.train.stage1 import AutoEncoder, frames_to_tensor
 
 __all__ = [
@@ -186,12 +186,10 @@ def chart_continuity(q: np.ndarray, split: np.ndarray, G_bar: np.ndarray) -> flo
     lam, V = np.linalg.eigh(0.5 * (G_bar + G_bar.T))
     p = q @ V[:, np.argmax(lam)]
     d1, d2 = [], []
-    for k in (0, 1):
-        idx = np.flatnonzero(split == k)
-        for seg in np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1):
-            if len(seg) > 3:
-                d1.append(np.abs(np.diff(p[seg])))
-                d2.append(np.abs(np.diff(p[seg], 2)))
+    for seg in segments(split, TRAIN) + segments(split, HELD_OUT):
+        if len(seg) > 3:
+            d1.append(np.abs(np.diff(p[seg])))
+            d2.append(np.abs(np.diff(p[seg], 2)))
     if not d1:
         return float("nan")
     return float(np.concatenate(d2).max() / max(np.median(np.concatenate(d1)), 1e-12))

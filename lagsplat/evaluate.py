@@ -29,13 +29,12 @@ import torch
 
 from lagsplat import metrics
 from lagsplat.chart import Chart
-from lagsplat.dynamics.integrators import rollout
-from lagsplat.io.clip import HELD_OUT, Clip, ClipError
+from lagsplat.dynamics.integrators import initial_state, rollout
+from lagsplat.io.clip import HELD_OUT, Clip, ClipError, segments
 from lagsplat.models.lagrangian import Lagrangian
 from lagsplat.train.stage1 import AutoEncoder, frames_to_tensor
-from lagsplat.train.stage2 import segments
 
-__all__ = ["EvalConfig", "evaluate", "initial_state"]
+__all__ = ["EvalConfig", "evaluate"]
 
 
 @dataclass
@@ -49,14 +48,6 @@ class EvalConfig:
     freq_window_periods: float = 8.0
     min_amplitude: float = 0.05
     render_batch: int = 64
-
-
-def initial_state(q_s: np.ndarray, starts: np.ndarray, dt: float) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(q0, qdot0)`` at ``starts`` of a smoothed trajectory ``q_s [n,d]``; velocity by the
-    second-order forward difference (reference notes §9.1)."""
-    q0 = q_s[starts]
-    v0 = metrics.forward_difference_velocity(np.stack([q_s[starts], q_s[starts + 1], q_s[starts + 2]]), dt)[0]
-    return torch.as_tensor(q0, dtype=torch.float32), torch.as_tensor(v0, dtype=torch.float32)
 
 
 def _entry(value: Any, definition: str, horizon: str = "", units: str = "") -> dict:

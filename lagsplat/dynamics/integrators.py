@@ -8,10 +8,13 @@ from __future__ import annotations
 
 from typing import Callable, Protocol
 
+import numpy as np
 import torch
 from torch import Tensor
 
-__all__ = ["HasAcceleration", "verlet_step", "rollout"]
+from lagsplat.metrics import forward_difference_velocity
+
+__all__ = ["HasAcceleration", "verlet_step", "rollout", "initial_state"]
 
 Force = Callable[[float], Tensor] | Tensor | None
 
@@ -81,3 +84,19 @@ def rollout(
         qs.append(q)
         vs.append(v)
     return torch.stack(qs, 1), torch.stack(vs, 1)
+
+
+def initial_state(q: np.ndarray, starts: np.ndarray, dt: float) -> tuple[Tensor, Tensor]:
+    """Initial state ``(q0 [N,d], qdot0 [N,d])`` read off an encoded trajectory.
+
+    Position at each start, velocity by the second-order forward difference
+    over the next two frames (reference notes §9.1), the convention of every
+    rollout that is scored or plotted.
+
+    Args:
+        q: ``[n,d]`` (smoothed) trajectory, frames ``dt`` seconds apart.
+        starts: ``[N]`` start indices, each ``<= n - 3``.
+        dt: frame interval, seconds.
+    """
+    v0 = forward_difference_velocity(np.stack([q[starts], q[starts + 1], q[starts + 2]]), dt)[0]
+    return torch.as_tensor(q[starts], dtype=torch.float32), torch.as_tensor(v0, dtype=torch.float32)

@@ -29,10 +29,26 @@ import numpy as np
 
 from lagsplat.io.atomic import atomic_write
 
-__all__ = ["Clip", "ClipError", "save_clip", "load_clip", "TRAIN", "HELD_OUT"]
+__all__ = ["Clip", "ClipError", "save_clip", "load_clip", "segments", "TRAIN", "HELD_OUT"]
 
 TRAIN = 0
 HELD_OUT = 1
+
+
+def segments(split: np.ndarray, which: int) -> list[np.ndarray]:
+    """Contiguous runs of frame indices whose ``split`` value equals ``which``.
+
+    Args:
+        split: int ``[T]`` split labels (``TRAIN`` / ``HELD_OUT``).
+        which: the label to select.
+
+    Returns:
+        List of int64 index arrays, in time order (empty if none).
+    """
+    idx = np.flatnonzero(np.asarray(split) == which)
+    if len(idx) == 0:
+        return []
+    return np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
 
 
 class ClipError(ValueError):

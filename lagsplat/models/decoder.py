@@ -195,6 +195,20 @@ class ConditionedGaussians(nn.Module):
         return img.clamp(0.0, 1.0)
 
     # ----------------------------------------------------------- initialisation
+    @staticmethod
+    def _raw_positions(idx: Tensor, height: int, width: int) -> Tensor:
+        """Raw spatial parameters ``[n,2]`` placing primitives at the centres of flat pixel indices ``idx``."""
+        pos = torch.stack([((idx % width).float() + 0.5) / width, ((idx // width).float() + 0.5) / height], -1)
+        return torch.logit(((pos + 0.1) / 1.2).clamp(0.01, 0.99))
+
+    def _raw_diagonal(self, sigma_q: Tensor, sigma_xy: float, n: int) -> Tensor:
+        """Raw Cholesky entries ``[n, (2+d)(3+d)/2]`` of a diagonal factor (latent stds ``sigma_q [d]``, spatial ``sigma_xy``)."""
+        m = 2 + self.d
+        raw = torch.zeros(n, m * (m + 1) // 2)
+        is_diag = (self.tril_i == self.tril_j).cpu()
+        raw[:, is_diag] = inverse_softplus(torch.cat([sigma_q, torch.full((2,), sigma_xy)]) - _DIAG_FLOOR)
+        return raw
+
     @torch.no_grad()
     def init_from_frame(
         self,
@@ -228,20 +242,12 @@ class ConditionedGaussians(nn.Module):
         mag = torch.sqrt(gx**2 + gy**2).flatten()
         prob = 0.8 * mag / mag.max().clamp_min(1e-12) + 0.2
         idx = torch.multinomial(prob, self.K, replacement=self.K > H * W, generator=generator)
-        py, px = idx // W, idx % W
-        pos = torch.stack([(px.float() + 0.5) / W, (py.float() + 0.5) / H], -1)
-        self.mu_raw.copy_(torch.logit(((pos + 0.1) / 1.2).clamp(0.01, 0.99)))
+        self.mu_raw.copy_(self._raw_positions(idx, H, W))
         mean, std = z.mean(0), z.std(0).clamp_min(1e-3)
         self.mu_q.copy_(mean + std * torch.randn(self.K, self.d, generator=generator))
-        sigma_q = torch.clamp(std.max(), min=sigma_q_floor)
-        n = 2 + self.d
-        diag_vals = torch.cat([sigma_q.repeat(self.d), torch.full((2,), sigma_xy)])
-        raw = torch.zeros(self.K, n * (n + 1) // 2)
-        is_diag = (self.tril_i == self.tril_j).cpu()
-        raw[:, is_diag] = inverse_softplus(diag_vals - _DIAG_FLOOR)
-        self.L_raw.copy_(raw)
-        cols = frame[:, py, px].T.clamp(0.01, 0.99)
-        self.logit_color.copy_(torch.logit(cols))
+        sigma_q = torch.clamp(std.max(), min=sigma_q_floor).repeat(self.d)
+        self.L_raw.copy_(self._raw_diagonal(sigma_q, sigma_xy, self.K))
+        self.logit_color.copy_(torch.logit(frame[:, idx // W, idx % W].T.clamp(0.01, 0.99)))
         self.logit_alpha.zero_()
 
     @torch.no_grad()
@@ -275,15 +281,8 @@ class ConditionedGaussians(nn.Module):
         err = (rendered - frame).abs().mean(0).flatten()
         prob = err if float(err.sum()) > 1e-10 else torch.ones_like(err)
         idx = torch.multinomial(prob, n_dead, replacement=True, generator=generator)
-        py, px = idx // W, idx % W
-        pos = torch.stack([(px.float() + 0.5) / W, (py.float() + 0.5) / H], -1)
-        self.mu_raw[dead] = torch.logit(((pos + 0.1) / 1.2).clamp(0.01, 0.99))
+        self.mu_raw[dead] = self._raw_positions(idx, H, W)
         self.mu_q[dead] = z_frame.expand(n_dead, -1)
-        n = 2 + self.d
-        diag_vals = torch.cat([z_std.clamp_min(1e-3), torch.full((2,), sigma_xy)])
-        raw = torch.zeros(n_dead, n * (n + 1) // 2)
-        is_diag = (self.tril_i == self.tril_j).cpu()
-        raw[:, is_diag] = inverse_softplus(diag_vals - _DIAG_FLOOR)
-        self.L_raw[dead] = raw
-        self.logit_color[dead] = torch.logit(frame[:, py, px].T.clamp(0.01, 0.99))
+        self.L_raw[dead] = self._raw_diagonal(z_std.clamp_min(1e-3), sigma_xy, n_dead)
+        self.logit_color[dead] = torch.logit(frame[:, idx // W, idx % W].T.clamp(0.01, 0.99))
         self.logit_alpha[dead] = -3.0

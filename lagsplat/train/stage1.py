@@ -15,6 +15,7 @@ from lagsplat.io.atomic import save_torch
 from lagsplat.io.clip import Clip
 from lagsplat.models.decoder import ConditionedGaussians
 from lagsplat.models.encoder import CpAEEncoder, nonlocal_filter_penalty
+from lagsplat.train.config import dataclass_from_mapping
 from lagsplat.train.losses import reconstruction_loss
 
 __all__ = ["Stage1Config", "AutoEncoder", "train_stage1", "save_stage1", "load_stage1", "frames_to_tensor"]
@@ -56,12 +57,7 @@ class Stage1Config:
     @classmethod
     def from_mapping(cls, m: Mapping[str, Any]) -> "Stage1Config":
         """Build from a (Hydra) mapping; unknown keys raise ``KeyError``."""
-        known = {f for f in cls.__dataclass_fields__}
-        unknown = set(m) - known
-        if unknown:
-            raise KeyError(f"unknown stage1 settings: {sorted(unknown)}")
-        kw = {k: (tuple(v) if isinstance(v, (list, tuple)) or type(v).__name__ == "ListConfig" else v) for k, v in m.items()}
-        return cls(**kw)
+        return dataclass_from_mapping(cls, m, "stage1")
 
 
 class AutoEncoder(nn.Module):

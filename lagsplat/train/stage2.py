@@ -14,11 +14,13 @@ from tqdm.auto import tqdm
 
 from lagsplat import metrics
 from lagsplat.chart import Chart
-from lagsplat.dynamics.integrators import rollout, verlet_step
+from lagsplat.dynamics.integrators import initial_state, rollout, verlet_step
 from lagsplat.io.atomic import save_torch
+from lagsplat.io.clip import TRAIN, segments
+from lagsplat.train.config import dataclass_from_mapping
 from lagsplat.models.lagrangian import Lagrangian
 
-__all__ = ["Stage2Config", "one_step_windows", "train_stage2", "save_stage2", "load_stage2", "segments"]
+__all__ = ["Stage2Config", "one_step_windows", "train_stage2", "save_stage2", "load_stage2"]
 
 
 @dataclass
@@ -65,25 +67,11 @@ class Stage2Config:
     @classmethod
     def from_mapping(cls, m: Mapping[str, Any]) -> "Stage2Config":
         """Build from a (Hydra) mapping; unknown keys raise ``KeyError``."""
-        known = set(cls.__dataclass_fields__)
-        unknown = set(m) - known
-        if unknown:
-            raise KeyError(f"unknown stage2 settings: {sorted(unknown)}")
-        kw = {k: (tuple(v) if type(v).__name__ in ("ListConfig", "list") else v) for k, v in m.items()}
-        return cls(**kw)
+        return dataclass_from_mapping(cls, m, "stage2")
 
     def build(self, d: int) -> Lagrangian:
         """The (untrained) :class:`Lagrangian` these settings describe."""
         return Lagrangian(d, self.mass, self.c0, self.dissipation_init, tuple(self.hidden), self.eps_V, self.learn_rest)
-
-
-def segments(split: np.ndarray, which: int) -> list[np.ndarray]:
-    """Contiguous runs of frame indices whose split equals ``which``."""
-    idx = np.flatnonzero(split == which)
-    if len(idx) == 0:
-        return []
-    breaks = np.flatnonzero(np.diff(idx) > 1) + 1
-    return np.split(idx, breaks)
 
 
 def one_step_windows(q: np.ndarray, dt: float, k: int) -> tuple[np.ndarray, ...]:
@@ -110,8 +98,7 @@ def one_step_windows(q: np.ndarray, dt: float, k: int) -> tuple[np.ndarray, ...]
 
 def _rollout_error(model: Lagrangian, q: np.ndarray, dt: float, G: np.ndarray, horizon: int, starts: np.ndarray, q_std: float) -> float:
     """Latent NRMSE in ``G`` of free rollouts of ``horizon`` states from ``starts`` of ``q``."""
-    q0 = torch.as_tensor(q[starts], dtype=torch.float32)
-    v0 = torch.as_tensor(metrics.forward_difference_velocity(np.stack([q[starts], q[starts + 1], q[starts + 2]], 0), dt)[0], dtype=torch.float32)
+    q0, v0 = initial_state(q, starts, dt)
     pred, _ = rollout(model, q0, v0, dt, horizon)
     true = np.stack([q[s : s + horizon] for s in starts])
     pred = pred.numpy()
@@ -145,7 +132,7 @@ def train_stage2(chart: Chart, cfg: Stage2Config, seed: int = 0, progress: bool 
     rng = np.random.default_rng(seed)
     dt = float(np.median(np.diff(chart.t)))
     d = chart.d
-    train_segs = [s for s in segments(chart.split, 0) if len(s) > 3 * cfg.stride + 3]
+    train_segs = [s for s in segments(chart.split, TRAIN) if len(s) > 3 * cfg.stride + 3]
     if not train_segs:
         raise ValueError("no training segment is long enough for one stage-2 window")
     q_smooth = [metrics.gaussian_smooth(chart.q[s], cfg.sigma) for s in train_segs]

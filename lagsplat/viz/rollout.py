@@ -13,12 +13,11 @@ import torch  # noqa: E402
 
 from lagsplat import metrics  # noqa: E402
 from lagsplat.chart import load_chart  # noqa: E402
-from lagsplat.dynamics.integrators import rollout  # noqa: E402
-from lagsplat.evaluate import initial_state  # noqa: E402
+from lagsplat.dynamics.integrators import initial_state, rollout  # noqa: E402
 from lagsplat.io.atomic import atomic_write  # noqa: E402
-from lagsplat.io.clip import HELD_OUT, load_clip  # noqa: E402
+from lagsplat.io.clip import HELD_OUT, load_clip, segments  # noqa: E402
 from lagsplat.train.stage1 import load_stage1  # noqa: E402
-from lagsplat.train.stage2 import load_stage2, segments  # noqa: E402
+from lagsplat.train.stage2 import load_stage2  # noqa: E402
 
 __all__ = ["rollout_figure"]
 
