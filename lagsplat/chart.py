@@ -62,6 +62,8 @@ class Chart:
         ae_floor_train, ae_floor_held_out: mean of ``ae_mse`` over each split.
         height, width: resolution of the images the numbers refer to.
         meta: provenance (sample count, rho, ...).
+        episode: ``[T]`` recording index of each frame (multi-clip systems).
+        u: ``[T,n_u]`` measured actuation per frame (copied from the clip; ``n_u`` may be 0).
     """
 
     mean: np.ndarray
@@ -78,6 +80,23 @@ class Chart:
     height: int
     width: int
     meta: dict[str, Any] = field(default_factory=dict)
+    episode: np.ndarray | None = None
+    u: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.episode is None:
+            self.episode = np.zeros(len(self.t), np.int16)
+        if self.u is None:
+            self.u = np.zeros((len(self.t), 0), np.float32)
+
+    @property
+    def n_u(self) -> int:
+        """Number of actuation channels."""
+        return int(self.u.shape[1])
+
+    def segments(self, which: int) -> list[np.ndarray]:
+        """Contiguous runs of frames with split ``which`` inside one episode."""
+        return segments(self.split, which, self.episode)
 
     @property
     def d(self) -> int:
@@ -169,7 +188,7 @@ def loss_metric(G_bar: np.ndarray, rho: float = 0.01) -> np.ndarray:
     return A * d / np.trace(A)
 
 
-def chart_continuity(q: np.ndarray, split: np.ndarray, G_bar: np.ndarray) -> float:
+def chart_continuity(q: np.ndarray, split: np.ndarray, G_bar: np.ndarray, episode: np.ndarray | None = None) -> float:
     """Jump statistic of the encoded trajectory: ``max |D^2 p| / median |D p|``.
 
     ``p`` is the projection of ``q`` on ``G_bar``'s most visible direction and
@@ -186,7 +205,7 @@ def chart_continuity(q: np.ndarray, split: np.ndarray, G_bar: np.ndarray) -> flo
     lam, V = np.linalg.eigh(0.5 * (G_bar + G_bar.T))
     p = q @ V[:, np.argmax(lam)]
     d1, d2 = [], []
-    for seg in segments(split, TRAIN) + segments(split, HELD_OUT):
+    for seg in segments(split, TRAIN, episode) + segments(split, HELD_OUT, episode):
         if len(seg) > 3:
             d1.append(np.abs(np.diff(p[seg])))
             d2.append(np.abs(np.diff(p[seg], 2)))
@@ -222,7 +241,7 @@ def build_chart(model: AutoEncoder, clip: Clip, n_metric_samples: int = 64, rho:
         rec = model.decode(torch.as_tensor(z[i : i + 64], dtype=torch.float32))
         ae[i : i + 64] = ((rec - x) ** 2).mean(dim=(1, 2, 3)).numpy()
     ho = clip.held_out_idx
-    jump = chart_continuity(q, clip.split, G_bar)
+    jump = chart_continuity(q, clip.split, G_bar, clip.episode)
     if jump > FOLD_WARNING:
         import warnings
 
@@ -239,6 +258,8 @@ def build_chart(model: AutoEncoder, clip: Clip, n_metric_samples: int = 64, rho:
         q=q,
         t=clip.t.copy(),
         split=clip.split.copy(),
+        episode=clip.episode.copy(),
+        u=clip.u.copy(),
         G_bar=G_bar,
         A=loss_metric(G_bar, rho),
         ae_mse=ae,
@@ -270,6 +291,8 @@ def save_chart(path: str | Path, chart: Chart) -> Path:
                 q=chart.q,
                 t=chart.t,
                 split=chart.split,
+                episode=chart.episode,
+                u=chart.u,
                 G_bar=chart.G_bar,
                 A=chart.A,
                 ae_mse=chart.ae_mse,
@@ -309,4 +332,6 @@ def load_chart(path: str | Path) -> Chart:
             height=int(z["height"]),
             width=int(z["width"]),
             meta=json.loads(str(z["meta"])),
+            episode=z["episode"] if "episode" in z.files else None,
+            u=z["u"] if "u" in z.files else None,
         )

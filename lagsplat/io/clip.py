@@ -14,6 +14,10 @@ key            dtype / shape         meaning
 ``u``          float32 ``[T,n_u]``   actuation channels (``n_u`` may be 0)
 ``u_names``    str ``[n_u]``         channel names, e.g. ``p1..p4``
 ``split``      int8 ``[T]``          0 = training frame, 1 = held-out frame
+``episode``    int16 ``[T]``         recording each frame comes from (optional
+                                     key, zeros if absent): several clips of
+                                     one system are stored back to back and no
+                                     window may cross an episode boundary
 ``meta``       str (JSON)            provenance, timing rule, known physics
 =============  ====================  ==========================================
 """
@@ -35,12 +39,14 @@ TRAIN = 0
 HELD_OUT = 1
 
 
-def segments(split: np.ndarray, which: int) -> list[np.ndarray]:
+def segments(split: np.ndarray, which: int, episode: np.ndarray | None = None) -> list[np.ndarray]:
     """Contiguous runs of frame indices whose ``split`` value equals ``which``.
 
     Args:
         split: int ``[T]`` split labels (``TRAIN`` / ``HELD_OUT``).
         which: the label to select.
+        episode: optional int ``[T]`` recording index; a run also ends where
+            the episode changes (multi-clip training, issue 4).
 
     Returns:
         List of int64 index arrays, in time order (empty if none).
@@ -48,7 +54,11 @@ def segments(split: np.ndarray, which: int) -> list[np.ndarray]:
     idx = np.flatnonzero(np.asarray(split) == which)
     if len(idx) == 0:
         return []
-    return np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
+    cut = np.diff(idx) > 1
+    if episode is not None:
+        ep = np.asarray(episode)[idx]
+        cut |= np.diff(ep) != 0
+    return np.split(idx, np.flatnonzero(cut) + 1)
 
 
 class ClipError(ValueError):
@@ -69,6 +79,8 @@ class Clip:
         u: float32 ``[T, n_u]`` actuation (e.g. chamber pressures); ``n_u`` may be 0.
         u_names: names of the ``n_u`` actuation channels.
         split: int8 ``[T]``, ``TRAIN`` (0) or ``HELD_OUT`` (1) per frame.
+        episode: int16 ``[T]``, the recording each frame comes from (several
+            clips of one system concatenated; zeros for a single recording).
         meta: JSON-serialisable provenance and known physics (e.g. the
             synthetic generator's natural frequency under ``"truth"``).
 
@@ -83,6 +95,7 @@ class Clip:
     u_names: list[str] = field(default_factory=list)
     split: np.ndarray | None = None
     meta: dict[str, Any] = field(default_factory=dict)
+    episode: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.t = np.asarray(self.t, dtype=np.float64)
@@ -93,6 +106,9 @@ class Clip:
         if self.split is None:
             self.split = np.zeros(T, np.int8)
         self.split = np.asarray(self.split, dtype=np.int8)
+        if self.episode is None:
+            self.episode = np.zeros(T, np.int16)
+        self.episode = np.asarray(self.episode, dtype=np.int16)
         self.u_names = [str(n) for n in self.u_names]
 
     # ------------------------------------------------------------------ views
@@ -152,7 +168,13 @@ class Clip:
             raise ClipError(f"{src}: actuation channel '{ch}' contains NaN or inf ({int(bad.sum())} values)")
         if self.split.shape != (T,) or not np.isin(self.split, (TRAIN, HELD_OUT)).all():
             raise ClipError(f"{src}: split must be int8 [T] of 0 (train) / 1 (held-out)")
+        if self.episode.shape != (T,) or (T and self.episode.min() < 0):
+            raise ClipError(f"{src}: episode must be int16 [T] of non-negative recording indices")
         return self
+
+    def segments(self, which: int) -> list[np.ndarray]:
+        """Contiguous runs of frames with split ``which`` inside one episode."""
+        return segments(self.split, which, self.episode)
 
 
 def save_clip(path: str | Path, clip: Clip) -> Path:
@@ -179,6 +201,7 @@ def save_clip(path: str | Path, clip: Clip) -> Path:
                 u=clip.u,
                 u_names=np.array(clip.u_names, dtype=str),
                 split=clip.split,
+                episode=clip.episode,
                 meta=np.array(json.dumps(clip.meta, sort_keys=True)),
             )
     return path
@@ -205,6 +228,7 @@ def load_clip(path: str | Path) -> Clip:
                 u_names=list(z["u_names"]),
                 split=z["split"],
                 meta=json.loads(str(z["meta"])),
+                episode=z["episode"] if "episode" in z.files else None,
             )
     except ClipError:
         raise

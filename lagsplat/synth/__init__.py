@@ -7,6 +7,8 @@
       params: {zeta: 0.02, ...} # keyword arguments of the generator
     split:
       train_fraction: 0.6      # optional, overrides params.train_fraction
+                               # (coupled_carts: used only with n_episodes = 1;
+                               # several episodes are split by episode)
     resize: [64, 64]           # optional [W, H], overrides params.size
 """
 
@@ -17,13 +19,30 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from lagsplat.io.clip import Clip
+from lagsplat.synth.coupled_carts import (
+    CoupledCarts,
+    make_coupled_carts_clip,
+    render_coupled_carts,
+    simulate_coupled_carts,
+)
 from lagsplat.synth.pendulum import make_pendulum_clip, render_pendulum, simulate_pendulum
 
-__all__ = ["make_clip", "GENERATORS", "make_pendulum_clip", "render_pendulum", "simulate_pendulum"]
+__all__ = [
+    "make_clip",
+    "GENERATORS",
+    "make_pendulum_clip",
+    "render_pendulum",
+    "simulate_pendulum",
+    "CoupledCarts",
+    "make_coupled_carts_clip",
+    "render_coupled_carts",
+    "simulate_coupled_carts",
+]
 
 #: Generator name (``source.synth``) -> clip factory.
 GENERATORS: dict[str, Callable[..., Clip]] = {
     "pendulum": make_pendulum_clip,
+    "coupled_carts": make_coupled_carts_clip,
 }
 
 
@@ -45,8 +64,9 @@ def make_clip(system_cfg: Any) -> Clip:
         system_cfg: mapping (plain ``dict`` or OmegaConf ``DictConfig``) with
             ``source.synth`` (generator name, e.g. ``"pendulum"``) and optional
             ``source.params`` (keyword arguments of the generator),
-            ``split.train_fraction`` (overrides the parameter of the same name)
-            and ``resize`` (``[W, H]``, sets ``size``).
+            ``split.train_fraction`` (overrides the parameter of the same name;
+            ``coupled_carts`` uses it only for a single episode, several
+            episodes are split by episode) and ``resize`` (``[W, H]``, sets ``size``).
 
     Returns:
         The validated :class:`~lagsplat.io.clip.Clip`.
