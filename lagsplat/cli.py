@@ -132,7 +132,15 @@ def stage_stage2(cfg: DictConfig) -> None:
     from lagsplat.train.stage2 import Stage2Config, save_stage2, train_stage2
 
     s2 = Stage2Config.from_mapping(_container(cfg.stage2))
-    model, hist = train_stage2(load_chart(_sysdir(cfg) / "chart.npz"), s2, seed=int(cfg.seed), progress=bool(cfg.progress))
+    chart = load_chart(_sysdir(cfg) / "chart.npz")
+    inertia = None
+    if s2.mass == "decoder":  # parameter-free inertia from the frozen Stage-1 decoder (paper Eq. 7)
+        from lagsplat.models.lagrangian import DecoderInertia
+        from lagsplat.train.stage1 import load_stage1
+
+        ae = load_stage1(_sysdir(cfg) / "stage1.pt")
+        inertia = DecoderInertia.from_decoder(ae.decoder, chart.W_inv, chart.mean, chart.height, chart.width)
+    model, hist = train_stage2(chart, s2, seed=int(cfg.seed), progress=bool(cfg.progress), inertia=inertia)
     save_stage2(_sysdir(cfg) / "stage2.pt", model, s2, hist)
     _save_cfg(cfg, "stage2")
 

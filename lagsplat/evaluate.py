@@ -30,7 +30,7 @@ import torch
 from lagsplat import metrics
 from lagsplat.chart import Chart
 from lagsplat.dynamics.integrators import initial_state, rollout
-from lagsplat.io.clip import HELD_OUT, Clip, ClipError, segments
+from lagsplat.io.clip import HELD_OUT, Clip, ClipError
 from lagsplat.models.lagrangian import Lagrangian
 from lagsplat.train.stage1 import AutoEncoder, frames_to_tensor
 
@@ -89,7 +89,7 @@ def evaluate(clip: Clip, ae: AutoEncoder, chart: Chart, model: Lagrangian, cfg: 
     dt = float(np.median(np.diff(chart.t)))
     G = metrics.normalise_trace(chart.G_bar)
     top = metrics.top_direction(G)
-    held = segments(chart.split, HELD_OUT)
+    held = chart.segments(HELD_OUT)
     if not held:
         raise ClipError(f"{source}: the clip has no held-out frames to evaluate on")
     ho = max(held, key=len)

@@ -31,7 +31,15 @@ def _force_at(f: Force, t: float) -> Tensor | None:
     return f(t)
 
 
-def verlet_step(model: HasAcceleration, q: Tensor, qdot: Tensor, h: float, f_ext: Force = None, t: float = 0.0) -> tuple[Tensor, Tensor]:
+def _accel(model: HasAcceleration, q: Tensor, qdot: Tensor, f: Tensor | None, u: Tensor | None) -> Tensor:
+    if u is None:
+        return model.acceleration(q, qdot, f)
+    return model.acceleration(q, qdot, f, u=u)  # type: ignore[call-arg]
+
+
+def verlet_step(
+    model: HasAcceleration, q: Tensor, qdot: Tensor, h: float, f_ext: Force = None, t: float = 0.0, u: Force = None
+) -> tuple[Tensor, Tensor]:
     """One velocity-Verlet step of size ``h`` seconds (paper Eq. 8).
 
     ``a1 = a(q, qdot, f(t))``; ``v_half = qdot + h/2 a1``; ``q1 = q + h v_half``;
@@ -48,19 +56,28 @@ def verlet_step(model: HasAcceleration, q: Tensor, qdot: Tensor, h: float, f_ext
         h: step in seconds.
         f_ext: ``[B,d]`` constant generalized force, a callable ``t -> [B,d]``, or ``None``.
         t: time at the start of the step, seconds.
+        u: measured actuation ``[B,n_u]``, a callable ``t -> [B,n_u]``, or
+            ``None``; passed to ``model.acceleration(..., u=...)`` (paper Eq. 6).
 
     Returns:
         ``(q1, qdot1)``, each ``[B,d]``; differentiable when the model is.
     """
-    a1 = model.acceleration(q, qdot, _force_at(f_ext, t))
+    a1 = _accel(model, q, qdot, _force_at(f_ext, t), _force_at(u, t))
     v_half = qdot + 0.5 * h * a1
     q1 = q + h * v_half
-    a2 = model.acceleration(q1, v_half, _force_at(f_ext, t + h))
+    a2 = _accel(model, q1, v_half, _force_at(f_ext, t + h), _force_at(u, t + h))
     return q1, v_half + 0.5 * h * a2
 
 
 def rollout(
-    model: HasAcceleration, q0: Tensor, qdot0: Tensor, h: float, n_states: int, f_ext: Force = None, t0: float = 0.0
+    model: HasAcceleration,
+    q0: Tensor,
+    qdot0: Tensor,
+    h: float,
+    n_states: int,
+    f_ext: Force = None,
+    t0: float = 0.0,
+    u: Force = None,
 ) -> tuple[Tensor, Tensor]:
     """Free (or forced) rollout with :func:`verlet_step`, no gradient.
 
@@ -69,7 +86,7 @@ def rollout(
         q0, qdot0: ``[B,d]`` initial state.
         h: step in seconds.
         n_states: number of states returned, the initial one included.
-        f_ext: as in :func:`verlet_step`.
+        f_ext, u: as in :func:`verlet_step` (callables receive absolute time ``t0 + i h``).
         t0: start time, seconds.
 
     Returns:
@@ -79,7 +96,7 @@ def rollout(
     qs, vs = [q0.detach()], [qdot0.detach()]
     q, v = q0.detach(), qdot0.detach()
     for i in range(n_states - 1):
-        q, v = verlet_step(model, q, v, h, f_ext, t0 + i * h)
+        q, v = verlet_step(model, q, v, h, f_ext, t0 + i * h, u)
         q, v = q.detach(), v.detach()
         qs.append(q)
         vs.append(v)

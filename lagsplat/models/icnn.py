@@ -1,4 +1,13 @@
-"""Input-convex network (Amos et al. 2017) and the anchored convex potential (paper §3.3)."""
+"""Input-convex networks and the potentials built on them (paper §3.3, App. A.2).
+
+* :class:`ICNN`: scalar input-convex network (Amos et al. 2017).
+* :class:`IResNet`: invertible residual map (Behrmann et al. 2019), the
+  diffeomorphism of the invex potential.
+* :class:`ConvexPotential`: Bregman-anchored ICNN plus a quadratic floor,
+  optionally composed with an :class:`IResNet` (the invex potential).
+* :class:`ConcaveMap`: the concave chamber-volume map ``nu(q)`` of the
+  measured actuation (paper Eq. 6).
+"""
 
 from __future__ import annotations
 
@@ -6,7 +15,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-__all__ = ["ICNN", "ConvexPotential"]
+__all__ = ["ICNN", "IResNet", "ConvexPotential", "ConcaveMap"]
 
 
 class ICNN(nn.Module):
@@ -39,13 +48,75 @@ class ICNN(nn.Module):
         return h @ F.softplus(self.out)
 
 
-class ConvexPotential(nn.Module):
-    """Coercive convex potential with a unique minimum at ``q_rest`` (paper §3.3, App. A.2 (A2)).
+def _spectral_norm(w: Tensor) -> Tensor:
+    """Largest singular value of a matrix (exact, differentiable)."""
+    return torch.linalg.matrix_norm(w, ord=2)
 
-    ``V(q) = g(q) - g(q*) - grad g(q*)^T (q - q*) + eps/2 |q - q*|^2``, the Bregman
-    divergence of an :class:`ICNN` ``g`` anchored at the rest state ``q*``, plus
-    the quadratic floor that makes ``V`` strongly convex, hence coercive with
-    ``q*`` its only stationary point.
+
+class IResNet(nn.Module):
+    """Invertible residual map ``phi = (id + g_B) o ... o (id + g_1)`` (i-ResNet).
+
+    Each block is ``g(x) = W_2 elu(W_1 x + b_1) + b_2`` with the weights rescaled
+    at every call to ``|W_1|_2 <= 1`` and ``|W_2|_2 <= lip`` (exact spectral
+    norms, not a power-iteration estimate), so ``Lip(g) <= lip < 1``. Hence
+    each block, and ``phi``, is a bi-Lipschitz diffeomorphism of ``R^d``:
+    ``(1 - lip)^B |x - y| <= |phi(x) - phi(y)| <= (1 + lip)^B |x - y|`` and its
+    Jacobian ``I + J_g`` is invertible everywhere (paper §3.3 "Potential",
+    App. C: 2 blocks, width 64, Lipschitz cap 0.9).
+
+    Shapes: ``x [B,d] -> [B,d]``. Starts near the identity (last layer 1e-2 scale).
+    """
+
+    def __init__(self, d: int, blocks: int = 2, width: int = 64, lip: float = 0.9) -> None:
+        super().__init__()
+        if not 0.0 < lip < 1.0:
+            raise ValueError(f"IResNet Lipschitz cap must be in (0, 1), got {lip}")
+        self.lip = float(lip)
+        self.l1 = nn.ModuleList([nn.Linear(d, width) for _ in range(blocks)])
+        self.l2 = nn.ModuleList([nn.Linear(width, d) for _ in range(blocks)])
+        for lin in self.l2:
+            with torch.no_grad():
+                lin.weight.mul_(1e-2)
+                lin.bias.zero_()
+
+    def forward(self, x: Tensor) -> Tensor:
+        """``phi(x)``."""
+        for a, b in zip(self.l1, self.l2):
+            w1 = a.weight / _spectral_norm(a.weight).clamp_min(1.0)
+            w2 = b.weight * (self.lip / _spectral_norm(b.weight).clamp_min(self.lip))
+            x = x + F.linear(F.elu(F.linear(x, w1, a.bias)), w2, b.bias)
+        return x
+
+    @torch.no_grad()
+    def inverse(self, y: Tensor, iters: int = 100, tol: float = 1e-7) -> Tensor:
+        """``phi^-1(y)`` by the contraction ``x <- y_b - g(x)`` block by block (converges as ``lip^n``)."""
+        for a, b in reversed(list(zip(self.l1, self.l2))):
+            w1 = a.weight / _spectral_norm(a.weight).clamp_min(1.0)
+            w2 = b.weight * (self.lip / _spectral_norm(b.weight).clamp_min(self.lip))
+            x = y.clone()
+            for _ in range(iters):
+                x_new = y - F.linear(F.elu(F.linear(x, w1, a.bias)), w2, b.bias)
+                done = (x_new - x).abs().max() < tol
+                x = x_new
+                if done:
+                    break
+            y = x
+        return y
+
+
+class ConvexPotential(nn.Module):
+    """Coercive potential with a unique minimum at ``q_rest`` (paper §3.3, App. A.2 (A2)).
+
+    Convex form: ``V(q) = g(q) - g(q*) - grad g(q*)^T (q - q*) + eps/2 |q - q*|^2``,
+    the Bregman divergence of an :class:`ICNN` ``g`` anchored at the rest state
+    ``q*``, plus the quadratic floor that makes ``V`` strongly convex, hence
+    coercive with ``q*`` its only stationary point.
+
+    Invex form (``invex=True``): the same expression evaluated at ``phi(q)`` and
+    ``phi(q*)`` with ``phi`` an :class:`IResNet`. ``grad V = Dphi^T grad V_cvx``
+    with ``Dphi`` invertible, so ``q*`` is still the only stationary point and
+    ``V`` is coercive (``phi`` is bi-Lipschitz), while its level sets need not
+    be convex (Sapkota & Bhattacharya 2021).
 
     Args:
         d: latent dimension.
@@ -53,15 +124,27 @@ class ConvexPotential(nn.Module):
         eps: quadratic floor (in whitened latent units).
         q_rest: initial rest state ``[d]`` (default 0).
         learn_rest: whether ``q*`` is trained (for clips with no rest frame).
+        invex: compose with an i-ResNet.
+        iresnet_blocks, iresnet_width, iresnet_lip: its settings (App. C: 2, 64, 0.9).
 
     Shapes: ``q [B,d] -> V [B]``.
     """
 
     def __init__(
-        self, d: int, hidden: tuple[int, ...] = (64, 64), eps: float = 0.01, q_rest: Tensor | None = None, learn_rest: bool = True
+        self,
+        d: int,
+        hidden: tuple[int, ...] = (64, 64),
+        eps: float = 0.01,
+        q_rest: Tensor | None = None,
+        learn_rest: bool = True,
+        invex: bool = False,
+        iresnet_blocks: int = 2,
+        iresnet_width: int = 64,
+        iresnet_lip: float = 0.9,
     ) -> None:
         super().__init__()
         self.g = ICNN(d, hidden)
+        self.phi = IResNet(d, iresnet_blocks, iresnet_width, iresnet_lip) if invex else None
         self.eps = float(eps)
         rest = torch.zeros(d) if q_rest is None else torch.as_tensor(q_rest, dtype=torch.float32).clone()
         if learn_rest:
@@ -75,8 +158,44 @@ class ConvexPotential(nn.Module):
         # from q_rest's graph and the gradient below would fail.
         with torch.enable_grad():
             qr = self.q_rest.unsqueeze(0)
+            if self.phi is not None:
+                qr = self.phi(qr)
             qr_ = qr if qr.requires_grad else qr.detach().requires_grad_(True)
             g_r = self.g(qr_)
             (grad_r,) = torch.autograd.grad(g_r.sum(), qr_, create_graph=True)
-        diff = q - qr
-        return self.g(q) - g_r - (diff * grad_r).sum(-1) + 0.5 * self.eps * (diff * diff).sum(-1)
+        y = q if self.phi is None else self.phi(q)
+        diff = y - qr
+        return self.g(y) - g_r - (diff * grad_r).sum(-1) + 0.5 * self.eps * (diff * diff).sum(-1)
+
+
+class ConcaveMap(nn.Module):
+    """Concave chamber-volume map ``nu: R^d -> R^{n_u}`` (paper Eq. 6).
+
+    ``nu_j(q) = a_j^T q - g_j(q) + g_j(0)`` with ``g_j`` an :class:`ICNN` (one head
+    per channel), concave by construction, so the loaded potential
+    ``V - P^T nu`` stays coercive and, with the convex ``V``, strongly convex
+    for every ``P >= 0``. ``a`` starts small and random (seeded by the caller),
+    ``g_j`` at its default initialisation.
+
+    Shapes: ``q [B,d] -> nu [B,n_u]``; :meth:`force` gives ``f_P = b(q)^T P``
+    with ``b = d nu / d q`` ``[B,n_u,d]``.
+    """
+
+    def __init__(self, d: int, n_u: int, hidden: tuple[int, ...] = (32, 32), init_scale: float = 0.1) -> None:
+        super().__init__()
+        self.d, self.n_u = int(d), int(n_u)
+        self.a = nn.Parameter(init_scale * torch.randn(n_u, d))
+        self.heads = nn.ModuleList([ICNN(d, hidden) for _ in range(n_u)])
+
+    def forward(self, q: Tensor) -> Tensor:
+        """``nu(q) [B,n_u]``."""
+        zero = q.new_zeros(1, self.d)
+        g = torch.stack([h(q) - h(zero) for h in self.heads], -1)
+        return q @ self.a.T - g
+
+    def force(self, q: Tensor, P: Tensor, create_graph: bool = False) -> Tensor:
+        """Generalized actuation force ``f_P = b(q)^T P`` ``[B,d]`` for pressures ``P [B,n_u]``."""
+        with torch.enable_grad():
+            q_ = q if q.requires_grad else q.detach().requires_grad_(True)
+            (f,) = torch.autograd.grad((self(q_) * P).sum(), q_, create_graph=create_graph)
+        return f

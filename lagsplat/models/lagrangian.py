@@ -22,16 +22,24 @@ free trajectory settles at the minimum of ``V``.
 
 from __future__ import annotations
 
+import copy
 import math
 from typing import Literal
+
+import numpy as np
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from lagsplat.models.icnn import ConvexPotential
+from lagsplat.models.icnn import ConcaveMap, ConvexPotential
 
-__all__ = ["CholeskyField", "Lagrangian"]
+__all__ = ["CholeskyField", "DecoderInertia", "Lagrangian", "MASS_KINDS"]
+
+#: Inertia forms selectable by ``stage2.mass`` (paper §3.3 "Inertia").
+MASS_KINDS = ("scalar", "constant", "learned", "decoder")
+
+_GATE_CLAMP = 20.0  # same clamp of the Mahalanobis distance as the decoder's gate
 
 
 class CholeskyField(nn.Module):
@@ -73,6 +81,77 @@ class CholeskyField(nn.Module):
         return L @ L.transpose(-1, -2)
 
 
+class DecoderInertia(nn.Module):
+    """Parameter-free inertia pulled back through the decoder (paper Eq. 7, App. A.1).
+
+    ``M_hat(q) = sum_i w_hat_i(q) J_i^T J_i / s``, with ``J_i [2,d]`` the constant
+    Jacobian of primitive ``i``'s conditioned mean with respect to the
+    *whitened* chart coordinate, in pixels, ``w_hat_i(q)`` its latent opacity
+    (paper Eq. 4) normalised over primitives, and ``s`` the mean eigenvalue of
+    the sum at the chart origin (so ``M_hat(0)`` has trace ``d``; the mass
+    ``m`` of Eq. 7 is the model's ``exp(s_M)``, fixed from the observed
+    frequency). Everything is a frozen buffer: no learned parameter.
+
+    Built from a trained decoder with :meth:`from_decoder`; the empty
+    constructor (shapes only) is for loading a checkpoint.
+
+    Shapes: ``q [B,d] -> [B,d,d]``.
+    """
+
+    def __init__(self, n_gaussians: int, d: int) -> None:
+        super().__init__()
+        K = int(n_gaussians)
+        self.register_buffer("J", torch.zeros(K, 2, d))
+        self.register_buffer("mu_q", torch.zeros(K, d))
+        self.register_buffer("L_qq", torch.eye(d).expand(K, d, d).clone())
+        self.register_buffer("alpha", torch.ones(K))
+        self.register_buffer("W_inv", torch.eye(d))
+        self.register_buffer("mean", torch.zeros(d))
+        self.register_buffer("scale", torch.ones(()))
+
+    @classmethod
+    @torch.no_grad()
+    def from_decoder(cls, decoder: nn.Module, W_inv: Tensor, mean: Tensor, height: int, width: int) -> "DecoderInertia":
+        """Freeze the geometry of a :class:`~lagsplat.models.decoder.ConditionedGaussians`.
+
+        Args:
+            decoder: the trained Stage-1 decoder.
+            W_inv, mean: the chart's de-whitening, ``z = q @ W_inv + mean`` (``[d,d]``, ``[d]``).
+            height, width: training resolution (pixels), the units of ``J``.
+        """
+        g = decoder.geometry()
+        K, d = g.mu_q.shape
+        out = cls(K, d)
+        W_inv = torch.as_tensor(W_inv, dtype=torch.float32)
+        J_px, _ = decoder.pixel_geometry(height, width, g)
+        out.J.copy_(torch.einsum("kij,lj->kil", J_px, W_inv))  # d mu / d q = J_z dz/dq, dz/dq = W_inv^T
+        out.mu_q.copy_(g.mu_q)
+        out.L_qq.copy_(g.L_qq)
+        out.alpha.copy_(g.alpha)
+        out.W_inv.copy_(W_inv)
+        out.mean.copy_(torch.as_tensor(mean, dtype=torch.float32))
+        M0 = out._raw(torch.zeros(1, d))[0]
+        out.scale.fill_(float(torch.linalg.eigvalsh(M0).mean().clamp_min(1e-12)))
+        return out
+
+    def presence(self, q: Tensor) -> Tensor:
+        """``w_hat_i(q) [B,K]``, summing to 1 (latent opacity, paper Eq. 4, normalised)."""
+        z = q @ self.W_inv + self.mean
+        diff = z[:, None, :] - self.mu_q[None]
+        y = torch.linalg.solve_triangular(self.L_qq[None].expand(q.shape[0], -1, -1, -1), diff.unsqueeze(-1), upper=False)
+        m2 = (y.squeeze(-1) ** 2).sum(-1).clamp(max=_GATE_CLAMP)
+        w = self.alpha[None] * torch.exp(-0.5 * m2)
+        return w / w.sum(-1, keepdim=True).clamp_min(1e-12)
+
+    def _raw(self, q: Tensor) -> Tensor:
+        JtJ = torch.einsum("kai,kaj->kij", self.J, self.J)
+        return torch.einsum("bk,kij->bij", self.presence(q), JtJ)
+
+    def forward(self, q: Tensor) -> Tensor:
+        """``M_hat(q) [B,d,d]`` (before the floor and the mass ``m``)."""
+        return self._raw(q) / self.scale
+
+
 class Lagrangian(nn.Module):
     """Latent dissipative Lagrangian (paper §3.3).
 
@@ -82,37 +161,63 @@ class Lagrangian(nn.Module):
             ``"constant"`` (a learned constant SPD matrix, ablation) or
             ``"learned"`` (``M(q) = L(q) L(q)^T + eps I`` from an MLP Cholesky
             factor, SPD floor ``eps = 0.1``; its Coriolis terms come from
-            ``d(M qdot)/dq`` by autograd, paper §3.3 "Inertia").
+            ``d(M qdot)/dq`` by autograd, paper §3.3 "Inertia") or
+            ``"decoder"`` (``M(q) = m (M_hat(q) + 0.1 I) / 1.1`` with ``M_hat`` the
+            :class:`DecoderInertia` passed as ``inertia``; ``m = exp(s_M)`` is
+            frozen after :meth:`init_energy_scales`, so the form has no learned
+            parameter, paper Eq. 7).
         c0: isotropic dissipation floor (paper App. C: 1).
         dissipation_init: initial learned dissipation ``L_C L_C^T`` (0.2 I).
         hidden: MLP / ICNN widths.
         eps_V: quadratic floor of the potential.
         learn_rest: train the rest state ``q*``.
+        potential: ``"convex"`` (ICNN) or ``"invex"`` (ICNN o i-ResNet), paper §3.3.
+        n_u: number of measured actuation channels (``0``: none). With
+            ``n_u > 0`` a :class:`~lagsplat.models.icnn.ConcaveMap` ``nu(q)``
+            turns pressures ``u >= 0`` into ``f_P = b(q)^T u`` (paper Eq. 6).
+        inertia: the :class:`DecoderInertia` (``mass="decoder"`` only).
 
     The single physics entry point is :meth:`acceleration`.
+
+    Raises:
+        ValueError: on an unknown ``mass`` / ``potential`` or a missing ``inertia``.
     """
 
     def __init__(
         self,
         d: int,
-        mass: Literal["scalar", "constant"] = "scalar",
+        mass: Literal["scalar", "constant", "learned", "decoder"] = "scalar",
         c0: float = 1.0,
         dissipation_init: float = 0.2,
         hidden: tuple[int, ...] = (64, 64),
         eps_V: float = 0.01,
         learn_rest: bool = True,
+        potential: Literal["convex", "invex"] = "convex",
+        n_u: int = 0,
+        inertia: DecoderInertia | None = None,
     ) -> None:
         super().__init__()
-        if mass not in ("scalar", "constant", "learned"):
-            raise ValueError(f"mass must be 'scalar', 'constant' or 'learned', got {mass!r}")
-        self.d, self.mass_kind, self.c0 = int(d), mass, float(c0)
-        self.s_M = nn.Parameter(torch.zeros(()))
+        if mass not in MASS_KINDS:
+            raise ValueError(f"mass must be one of {MASS_KINDS}, got {mass!r}")
+        if potential not in ("convex", "invex"):
+            raise ValueError(f"potential must be 'convex' or 'invex', got {potential!r}")
+        if mass == "decoder" and inertia is None:
+            raise ValueError("mass='decoder' needs the DecoderInertia built from the trained decoder")
+        self.d, self.mass_kind, self.c0, self.potential_kind = int(d), mass, float(c0), potential
+        self.s_M = nn.Parameter(torch.zeros(()), requires_grad=mass != "decoder")
         self.s_V = nn.Parameter(torch.zeros(()))
         n_tri = d * (d + 1) // 2
         self.M_raw = nn.Parameter(torch.zeros(n_tri)) if mass == "constant" else None
-        self.mass_field = CholeskyField(d, hidden, 1.0) if mass == "learned" else None
+        if mass == "learned":
+            self.mass_field: nn.Module | None = CholeskyField(d, hidden, 1.0)
+        elif mass == "decoder":
+            self.mass_field = inertia
+        else:
+            self.mass_field = None
         self.dissipation = CholeskyField(d, hidden, dissipation_init)
-        self.potential_hat = ConvexPotential(d, hidden, eps_V, learn_rest=learn_rest)
+        self.potential_hat = ConvexPotential(d, hidden, eps_V, learn_rest=learn_rest, invex=potential == "invex")
+        self.n_u = int(n_u)
+        self.actuation = ConcaveMap(d, n_u) if n_u > 0 else None
         ii, jj = torch.tril_indices(d, d)
         self.register_buffer("ii", ii, persistent=False)
         self.register_buffer("jj", jj, persistent=False)
@@ -123,7 +228,7 @@ class Lagrangian(nn.Module):
         B = q.shape[0]
         m = torch.exp(self.s_M)
         eye = torch.eye(self.d, dtype=q.dtype, device=q.device)
-        if self.mass_field is not None:  # L L^T = I at initialisation, so M = m I there
+        if self.mass_field is not None:  # L L^T = I (learned) / trace-d M_hat (decoder) at start
             return m * (self.mass_field(q) + 0.1 * eye) / 1.1
         if self.M_raw is None:
             M = m * torch.eye(self.d, dtype=q.dtype, device=q.device)
@@ -166,17 +271,42 @@ class Lagrangian(nn.Module):
         return T, self.potential(q), D
 
     # --------------------------------------------------------------- physics
-    def acceleration(self, q: Tensor, qdot: Tensor, f_ext: Tensor | None = None) -> Tensor:
+    def actuation_force(self, q: Tensor, u: Tensor) -> Tensor:
+        """``f_P = b(q)^T u [B,d]`` for actuation ``u [B,n_u]`` (paper Eq. 6).
+
+        Raises:
+            ValueError: if the model has no actuation channels or ``u`` has the wrong width.
+        """
+        if self.actuation is None:
+            raise ValueError("this model has no actuation channels (n_u = 0) but an actuation u was given")
+        if u.shape[-1] != self.n_u:
+            raise ValueError(f"actuation u has {u.shape[-1]} channels, the model {self.n_u}")
+        return torch.exp(self.s_V) * self.actuation.force(q, u, create_graph=self.training)
+
+    def generalized_force(self, q: Tensor, f_ext: Tensor | None = None, u: Tensor | None = None) -> Tensor | None:
+        """Total external generalized force ``f_ext + b(q)^T u`` (``None`` when both are absent)."""
+        if u is not None and self.actuation is not None:
+            fp = self.actuation_force(q, u)
+            return fp if f_ext is None else f_ext + fp
+        if u is not None:
+            self.actuation_force(q, u)  # raises
+        return f_ext
+
+    def acceleration(self, q: Tensor, qdot: Tensor, f_ext: Tensor | None = None, u: Tensor | None = None) -> Tensor:
         """Solve the Euler-Lagrange equation (paper Eq. 7) for ``qddot``.
+
+        ``M(q) qddot = dT/dq - (d(M qdot)/dq) qdot - dV/dq - C(q) qdot + f_ext + b(q)^T u``.
 
         Args:
             q, qdot: ``[B,d]`` state (whitened latent units, per second).
             f_ext: ``[B,d]`` generalized external force, or ``None``.
+            u: ``[B,n_u]`` measured actuation (e.g. pressures), or ``None``.
 
         Returns:
             ``qddot [B,d]``. Differentiable (second order) in training mode.
         """
         force = -self.potential_grad(q) - torch.einsum("bij,bj->bi", self.dissipation_matrix(q), qdot)
+        f_ext = self.generalized_force(q, f_ext, u)
         if f_ext is not None:
             force = force + f_ext
         if self.mass_field is not None:
@@ -198,13 +328,108 @@ class Lagrangian(nn.Module):
             return force / M[:, 0, 0:1]
         return torch.linalg.solve(M, force.unsqueeze(-1)).squeeze(-1)
 
+    def loaded_potential(self, q: Tensor, f_ext: Tensor | None = None, u: Tensor | None = None) -> Tensor:
+        """``V(q) - f^T q - e^{s_V} u^T nu(q)`` ``[B]``: the potential under a constant load.
+
+        Its unique minimum is the loaded equilibrium (strongly convex for the
+        convex potential and ``u >= 0``; coercive with one stationary point
+        ``dV/dq = f`` for the invex one).
+        """
+        Vf = self.potential(q)
+        if f_ext is not None:
+            Vf = Vf - (f_ext * q).sum(-1)
+        if u is not None:
+            if self.actuation is None:
+                raise ValueError("this model has no actuation channels (n_u = 0) but an actuation u was given")
+            Vf = Vf - torch.exp(self.s_V) * (self.actuation(q) * u).sum(-1)
+        return Vf
+
+    def loaded_energy(self, q: Tensor, qdot: Tensor, f_ext: Tensor | None = None, u: Tensor | None = None) -> Tensor:
+        """``E_f = T + V - f^T q (- u^T nu)`` ``[B]``; non-increasing under a constant load (App. A.2)."""
+        T, _, _ = self.energies(q, qdot)
+        return T + self.loaded_potential(q, f_ext, u)
+
+    def loaded_equilibrium(
+        self,
+        f_ext: Tensor | None = None,
+        u: Tensor | None = None,
+        q0: Tensor | None = None,
+        tol: float = 1e-6,
+        max_iter: int = 200,
+    ) -> Tensor:
+        """Solve ``dV/dq = f_ext + b(q)^T u`` for ``q`` (the loaded equilibrium).
+
+        Damped Newton on the loaded potential (Levenberg-regularised Hessian,
+        backtracking on the loaded potential, which has a single stationary
+        point, so the minimiser found is the equilibrium), in float64 on a copy
+        of the model.
+
+        Args:
+            f_ext: ``[B,d]`` constant generalized force (or ``None``).
+            u: ``[B,n_u]`` constant actuation (or ``None``).
+            q0: ``[B,d]`` start (default: the rest state).
+            tol: stop when ``|grad|_inf <= tol * (1 + |f|_inf + |e^{s_V} b^T u|_inf)``.
+            max_iter: Newton iterations.
+
+        Returns:
+            ``q_eq [B,d]`` (no gradient).
+
+        Raises:
+            RuntimeError: if it has not converged after ``max_iter`` iterations.
+        """
+        ref = f_ext if f_ext is not None else u
+        B = 1 if ref is None else ref.shape[0]
+        dtype = self.s_V.dtype
+        model = copy.deepcopy(self).double().eval()
+        q = (self.q_rest.detach()[None].expand(B, self.d) if q0 is None else q0.detach()).double().clone()
+        eye = torch.eye(self.d, dtype=q.dtype)
+        fd = None if f_ext is None else f_ext.detach().double()
+        ud = None if u is None else u.detach().double()
+        scale = 1.0
+        if fd is not None:
+            scale += float(fd.abs().max())
+        if ud is not None:
+            scale += float(model.actuation_force(q, ud).detach().abs().max())
+        tol = tol * scale
+
+        def value_grad_hess(x: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+            with torch.enable_grad():
+                x = x.detach().requires_grad_(True)
+                v = model.loaded_potential(x, fd, ud)
+                (g,) = torch.autograd.grad(v.sum(), x, create_graph=True)
+                H = torch.stack([torch.autograd.grad(g[:, i].sum(), x, retain_graph=True)[0] for i in range(self.d)], 1)
+            return v.detach(), g.detach(), H.detach()
+
+        lam = torch.full((B, 1, 1), 1e-6, dtype=q.dtype)
+        for _ in range(max_iter):
+            v, g, H = value_grad_hess(q)
+            if float(g.abs().max()) < tol:
+                return q.to(dtype)
+            Hs = 0.5 * (H + H.transpose(1, 2))
+            shift = (-torch.linalg.eigvalsh(Hs)[:, :1]).clamp_min(0.0)[..., None] * 1.01
+            step = torch.linalg.solve(Hs + (shift + lam * (1 + Hs.diagonal(dim1=1, dim2=2).abs().amax(-1, keepdim=True)[..., None])) * eye, g.unsqueeze(-1)).squeeze(-1)
+            t = torch.ones(B, 1, dtype=q.dtype)
+            for _ls in range(30):
+                q_new = q - t * step
+                v_new = model.loaded_potential(q_new, fd, ud).detach()
+                ok = (v_new <= v - 1e-4 * t[:, 0] * (g * step).sum(-1)) | ((g * step).sum(-1) <= 0)
+                if bool(ok.all()):
+                    break
+                t = torch.where(ok[:, None], t, 0.5 * t)
+            q = q - t * step
+        _, g, _ = value_grad_hess(q)
+        if float(g.abs().max()) < 10 * tol:
+            return q.to(dtype)
+        raise RuntimeError(f"loaded equilibrium not found after {max_iter} Newton steps (|grad| = {float(g.abs().max()):.2e})")
+
     @torch.no_grad()
     def init_energy_scales(self, omega: float, zeta_floor: float = 0.01) -> None:
         """Fix the energy gauge from data (see module docstring).
 
         Sets ``s_M`` so that the floor alone gives damping ratio ``zeta_floor``
-        at angular frequency ``omega`` (rad/s), then ``s_V`` so that the
-        curvature of ``V`` at rest over the inertia equals ``omega^2``.
+        at angular frequency ``omega`` (rad/s) for a unit inertia, then ``s_V``
+        so that the mean eigenvalue of ``M(q*)^-1 d2V/dq2(q*)`` equals
+        ``omega^2`` (the untrained model's mean squared natural frequency).
 
         Raises:
             ValueError: if ``omega`` or ``zeta_floor`` is not positive.
@@ -214,9 +439,61 @@ class Lagrangian(nn.Module):
         m = self.c0 / (2.0 * zeta_floor * omega)
         self.s_M.fill_(math.log(m))
         self.s_V.zero_()
+        H = self.potential_hessian(self.q_rest.detach()[None])[0]
+        M = self.mass_matrix(self.q_rest.detach()[None])[0]
+        lam = torch.linalg.eigvals(torch.linalg.solve(M, H)).real.mean()
+        self.s_V.fill_(math.log(omega**2 / max(float(lam), 1e-12)))
+
+    def potential_hessian(self, q: Tensor) -> Tensor:
+        """``d2V/dq2 [B,d,d]`` by double autograd (no graph kept)."""
         with torch.enable_grad():
-            q = self.q_rest.detach().clone()[None].requires_grad_(True)
-            (g,) = torch.autograd.grad(self.potential(q).sum(), q, create_graph=True)
-            H = torch.stack([torch.autograd.grad(g[0, i], q, retain_graph=True)[0][0] for i in range(self.d)])
-        k = float(torch.linalg.eigvalsh(0.5 * (H + H.T)).mean())
-        self.s_V.fill_(math.log(m * omega**2 / max(k, 1e-12)))
+            x = q.detach().clone().requires_grad_(True)
+            (g,) = torch.autograd.grad(self.potential(x).sum(), x, create_graph=True)
+            H = torch.stack([torch.autograd.grad(g[:, i].sum(), x, retain_graph=True)[0] for i in range(self.d)], 1)
+        return 0.5 * (H + H.transpose(1, 2)).detach()
+
+    @torch.no_grad()
+    def modal_analysis(self, q: Tensor | None = None) -> dict[str, np.ndarray]:
+        """Linearised modes at ``q`` (default: the rest state).
+
+        Solves the quadratic eigenproblem ``(lambda^2 M + lambda C + K) phi = 0``
+        with ``M, C, K`` the inertia, dissipation and potential Hessian at
+        ``q``, through its first-order companion form.
+
+        Returns:
+            ``{"f_hz": [d], "zeta": [d], "f_damped_hz": [d]}``, sorted by
+            frequency: undamped-equivalent natural frequency ``|lambda| / 2 pi``,
+            damping ratio ``-Re(lambda) / |lambda|`` and damped frequency
+            ``Im(lambda) / 2 pi`` of each under-damped pair (over-damped real
+            roots are reported with ``f_damped_hz = 0``).
+        """
+        q = self.q_rest.detach()[None] if q is None else q.detach().reshape(1, self.d)
+        M = self.mass_matrix(q)[0].double()
+        C = self.dissipation_matrix(q)[0].double()
+        K = self.potential_hessian(q)[0].double()
+        d = self.d
+        Minv = torch.linalg.inv(M)
+        A = torch.zeros(2 * d, 2 * d, dtype=torch.float64)
+        A[:d, d:] = torch.eye(d, dtype=torch.float64)
+        A[d:, :d] = -Minv @ K
+        A[d:, d:] = -Minv @ C
+        lam = torch.linalg.eigvals(A).numpy()
+        # one root per mode: the upper half-plane of each complex pair, else the pair of real roots
+        cplx = lam[lam.imag > 1e-9]
+        real = np.sort(lam[np.abs(lam.imag) <= 1e-9].real)
+        roots = list(cplx)
+        for i in range(0, len(real) - 1, 2):  # pair real roots: |lambda| = sqrt(r1 r2), zeta from their mean
+            r1, r2 = real[i], real[i + 1]
+            wn = math.sqrt(max(r1 * r2, 0.0))
+            roots.append(complex(-(abs(r1) + abs(r2)) / 2, 0.0) if wn == 0 else complex(-0.5 * abs(r1 + r2), 0.0) + 0j)
+            roots[-1] = (wn, -0.5 * (r1 + r2) / max(wn, 1e-300), 0.0)
+        out = []
+        for r in roots:
+            if isinstance(r, tuple):
+                out.append(r)
+            else:
+                wn = abs(r)
+                out.append((wn, -r.real / wn, r.imag))
+        out.sort(key=lambda x: x[0])
+        arr = np.array(out[:d], dtype=np.float64).reshape(-1, 3)
+        return {"f_hz": arr[:, 0] / (2 * math.pi), "zeta": arr[:, 1], "f_damped_hz": arr[:, 2] / (2 * math.pi)}

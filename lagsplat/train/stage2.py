@@ -10,15 +10,16 @@ from typing import Any, Mapping
 
 import numpy as np
 import torch
+from torch import Tensor
 from tqdm.auto import tqdm
 
 from lagsplat import metrics
 from lagsplat.chart import Chart
 from lagsplat.dynamics.integrators import initial_state, rollout, verlet_step
 from lagsplat.io.atomic import save_torch
-from lagsplat.io.clip import TRAIN, segments
+from lagsplat.io.clip import TRAIN
 from lagsplat.train.config import dataclass_from_mapping
-from lagsplat.models.lagrangian import Lagrangian
+from lagsplat.models.lagrangian import DecoderInertia, Lagrangian
 
 __all__ = ["Stage2Config", "one_step_windows", "train_stage2", "save_stage2", "load_stage2"]
 
@@ -28,7 +29,9 @@ class Stage2Config:
     """Stage-2 settings (``conf/config.yaml``, group ``stage2``).
 
     Attributes:
-        mass: ``"scalar"``, ``"constant"`` or ``"learned"`` inertia (see :class:`Lagrangian`).
+        mass: ``"scalar"``, ``"constant"``, ``"learned"`` or ``"decoder"`` inertia
+            (see :class:`Lagrangian`; ``"decoder"`` needs the Stage-1 decoder).
+        potential: ``"convex"`` (ICNN) or ``"invex"`` (ICNN o i-ResNet).
         c0: dissipation floor (App. C: 1).
         dissipation_init: initial learned dissipation (0.2 I).
         hidden: MLP / ICNN widths.
@@ -44,6 +47,7 @@ class Stage2Config:
     """
 
     mass: str = "scalar"
+    potential: str = "convex"
     c0: float = 1.0
     dissipation_init: float = 0.2
     hidden: tuple[int, ...] = (64, 64)
@@ -69,12 +73,21 @@ class Stage2Config:
         """Build from a (Hydra) mapping; unknown keys raise ``KeyError``."""
         return dataclass_from_mapping(cls, m, "stage2")
 
-    def build(self, d: int) -> Lagrangian:
-        """The (untrained) :class:`Lagrangian` these settings describe."""
-        return Lagrangian(d, self.mass, self.c0, self.dissipation_init, tuple(self.hidden), self.eps_V, self.learn_rest)
+    def build(self, d: int, n_u: int = 0, inertia: DecoderInertia | None = None) -> Lagrangian:
+        """The (untrained) :class:`Lagrangian` these settings describe.
+
+        Args:
+            d: latent dimension.
+            n_u: actuation channels of the clip.
+            inertia: the frozen decoder inertia (``mass="decoder"`` only).
+        """
+        return Lagrangian(
+            d, self.mass, self.c0, self.dissipation_init, tuple(self.hidden), self.eps_V, self.learn_rest,
+            potential=self.potential, n_u=n_u, inertia=inertia,
+        )  # fmt: skip
 
 
-def one_step_windows(q: np.ndarray, dt: float, k: int) -> tuple[np.ndarray, ...]:
+def one_step_windows(q: np.ndarray, dt: float, k: int, u: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
     """Training pairs of Eq. 8 from one contiguous trajectory (reference notes §8.6).
 
     For every ``s``: state ``(q[s+k], (q[s+2k] - q[s]) / 2k dt)`` and target
@@ -84,22 +97,48 @@ def one_step_windows(q: np.ndarray, dt: float, k: int) -> tuple[np.ndarray, ...]
         q: ``[n,d]`` (smoothed) trajectory.
         dt: frame interval, seconds.
         k: stride in frames.
+        u: ``[n,n_u]`` actuation per frame, or ``None``.
 
     Returns:
-        ``(q0, v0, q1, v1)``, each ``[n - 3k, d]``.
+        ``(q0, v0, q1, v1, u0, u1)``, each ``[n - 3k, .]``: ``u0``/``u1`` the
+        actuation at the start / end of the step (``[n - 3k, 0]`` without actuation).
     """
     n = len(q) - 3 * k
+    if u is None:
+        u = np.zeros((len(q), 0), np.float32)
     if n <= 0:
-        return tuple(np.zeros((0, q.shape[1])) for _ in range(4))
+        return tuple(np.zeros((0, q.shape[1])) for _ in range(4)) + (np.zeros((0, u.shape[1])),) * 2
     s = np.arange(n)
     v = lambda a, b: (q[b] - q[a]) / (2 * k * dt)  # noqa: E731
-    return q[s + k], v(s, s + 2 * k), q[s + 2 * k], v(s + k, s + 3 * k)
+    return q[s + k], v(s, s + 2 * k), q[s + 2 * k], v(s + k, s + 3 * k), u[s + k], u[s + 2 * k]
 
 
-def _rollout_error(model: Lagrangian, q: np.ndarray, dt: float, G: np.ndarray, horizon: int, starts: np.ndarray, q_std: float) -> float:
-    """Latent NRMSE in ``G`` of free rollouts of ``horizon`` states from ``starts`` of ``q``."""
+def actuation_schedule(u: np.ndarray | None, dt: float):
+    """Piecewise-linear actuation ``t -> [B,n_u]`` from per-frame samples ``u [B,n,n_u]`` (``t = 0`` at frame 0).
+
+    Returns ``None`` when there is no actuation (``u`` is ``None`` or has no channel).
+    """
+    if u is None or u.shape[-1] == 0:
+        return None
+    U = torch.as_tensor(u, dtype=torch.float32)
+    n = U.shape[1]
+
+    def at(t: float) -> Tensor:
+        x = min(max(t / dt, 0.0), n - 1.0)
+        i = min(int(x), n - 2) if n > 1 else 0
+        w = x - i
+        return U[:, i] if n == 1 else (1 - w) * U[:, i] + w * U[:, i + 1]
+
+    return at
+
+
+def _rollout_error(
+    model: Lagrangian, q: np.ndarray, dt: float, G: np.ndarray, horizon: int, starts: np.ndarray, q_std: float, u: np.ndarray | None = None
+) -> float:
+    """Latent NRMSE in ``G`` of rollouts of ``horizon`` states from ``starts`` of ``q`` (driven by ``u [n,n_u]`` if given)."""
     q0, v0 = initial_state(q, starts, dt)
-    pred, _ = rollout(model, q0, v0, dt, horizon)
+    u_w = None if u is None or u.shape[1] == 0 else np.stack([u[s : s + horizon] for s in starts])
+    pred, _ = rollout(model, q0, v0, dt, horizon, u=actuation_schedule(u_w, dt))
     true = np.stack([q[s : s + horizon] for s in starts])
     pred = pred.numpy()
     if not np.isfinite(pred).all():
@@ -107,7 +146,9 @@ def _rollout_error(model: Lagrangian, q: np.ndarray, dt: float, G: np.ndarray, h
     return metrics.latent_nrmse(pred, true, G, q_std)
 
 
-def train_stage2(chart: Chart, cfg: Stage2Config, seed: int = 0, progress: bool = True) -> tuple[Lagrangian, dict]:
+def train_stage2(
+    chart: Chart, cfg: Stage2Config, seed: int = 0, progress: bool = True, inertia: DecoderInertia | None = None
+) -> tuple[Lagrangian, dict]:
     """Fit the Lagrangian by one differentiable Verlet step per window (Eq. 8).
 
     The loss is ``w_q |q1_hat - q1|_A^2 / d + w_v |h (v1_hat - v1)|_A^2 / d`` with ``A``
@@ -117,41 +158,48 @@ def train_stage2(chart: Chart, cfg: Stage2Config, seed: int = 0, progress: bool 
     (model selection on multi-step rollout error, paper §3.3).
 
     Args:
-        chart: the frozen chart (only its training frames are used).
+        chart: the frozen chart (only its training frames are used; several
+            training episodes give one model, multi-clip training). Its
+            actuation ``chart.u`` (if any) drives the model (paper Eq. 6).
         cfg: settings.
         seed: RNG seed.
         progress: tqdm bar with the loss.
+        inertia: the :class:`DecoderInertia` when ``cfg.mass == "decoder"``.
 
     Returns:
         ``(model, history)``.
 
     Raises:
-        ValueError: if the training segment is too short for one window.
+        ValueError: if the training segment is too short for one window, or
+            ``mass="decoder"`` without ``inertia``.
     """
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     dt = float(np.median(np.diff(chart.t)))
     d = chart.d
-    train_segs = [s for s in segments(chart.split, TRAIN) if len(s) > 3 * cfg.stride + 3]
+    train_segs = [s for s in chart.segments(TRAIN) if len(s) > 3 * cfg.stride + 3]
     if not train_segs:
         raise ValueError("no training segment is long enough for one stage-2 window")
     q_smooth = [metrics.gaussian_smooth(chart.q[s], cfg.sigma) for s in train_segs]
-    wins = [one_step_windows(qs, dt, cfg.stride) for qs in q_smooth]
-    Q0, V0, Q1, V1 = (torch.as_tensor(np.concatenate([w[i] for w in wins]), dtype=torch.float32) for i in range(4))
+    u_segs = [chart.u[s] for s in train_segs]
+    wins = [one_step_windows(qs, dt, cfg.stride, us) for qs, us in zip(q_smooth, u_segs)]
+    Q0, V0, Q1, V1, U0, U1 = (torch.as_tensor(np.concatenate([w[i] for w in wins]), dtype=torch.float32) for i in range(6))
+    n_u = chart.n_u
     A = torch.as_tensor(chart.A, dtype=torch.float32)
     G_eval = metrics.normalise_trace(chart.G_bar)
 
     # Observed natural frequency on the training frames fixes the energy gauge
     # and the selection horizon (nothing from held-out frames is used here).
-    longest = max(q_smooth, key=len)
+    i_long = int(np.argmax([len(x) for x in q_smooth]))
+    longest = q_smooth[i_long]
     f_train = metrics.spectral_peak_frequency(metrics.project(longest, metrics.top_direction(chart.G_bar)), dt)
-    model = cfg.build(d)
+    model = cfg.build(d, n_u, inertia)
     with torch.no_grad():
         model.potential_hat.q_rest.copy_(torch.as_tensor(np.concatenate(q_smooth).mean(0), dtype=torch.float32))
     model.init_energy_scales(2 * math.pi * f_train, cfg.zeta_floor)
 
     horizon = max(8, int(round(cfg.select_periods / (f_train * dt))))
-    sel_seg = longest
+    sel_seg, sel_u = longest, u_segs[i_long]
     q_std = metrics.g_rms_spread(sel_seg, G_eval)
     hi = len(sel_seg) - horizon - 2
     sel_starts = metrics.window_starts(0, hi, cfg.select_windows, seed) if hi > 0 else np.zeros(1, int)
@@ -169,7 +217,8 @@ def train_stage2(chart: Chart, cfg: Stage2Config, seed: int = 0, progress: bool 
         tot, cnt = 0.0, 0
         for i in range(0, len(perm), cfg.batch):
             b = torch.as_tensor(perm[i : i + cfg.batch])
-            q1, v1 = verlet_step(model, Q0[b], V0[b], h)
+            u_b = None if n_u == 0 else (lambda t, u0=U0[b], u1=U1[b]: u0 if t < 0.5 * h else u1)  # noqa: E731
+            q1, v1 = verlet_step(model, Q0[b], V0[b], h, u=u_b)
             eq, ev = q1 - Q1[b], h * (v1 - V1[b])
             loss = (cfg.w_q * torch.einsum("bi,ij,bj->b", eq, A, eq) + cfg.w_v * torch.einsum("bi,ij,bj->b", ev, A, ev)).mean() / d
             if not torch.isfinite(loss):
@@ -183,7 +232,7 @@ def train_stage2(chart: Chart, cfg: Stage2Config, seed: int = 0, progress: bool 
         hist["loss"].append(tot / max(cnt, 1))
         if (ep + 1) % cfg.select_every == 0 or ep == cfg.epochs - 1:
             model.eval()
-            err = _rollout_error(model, sel_seg, dt, G_eval, sel_h, sel_starts, q_std)
+            err = _rollout_error(model, sel_seg, dt, G_eval, sel_h, sel_starts, q_std, sel_u)
             hist["select_nrmse"].append((ep, err))
             if err < best[0]:
                 best = (err, copy.deepcopy(model.state_dict()), ep)
@@ -199,7 +248,10 @@ def save_stage2(path: str | Path, model: Lagrangian, cfg: Stage2Config, history:
     """Write ``stage2.pt`` atomically: weights, settings and training history."""
     from dataclasses import asdict
 
-    return save_torch(path, {"state_dict": model.state_dict(), "config": asdict(cfg), "d": model.d, "history": history})
+    extra = {"n_u": model.n_u}
+    if isinstance(model.mass_field, DecoderInertia):
+        extra["n_gaussians"] = int(model.mass_field.J.shape[0])
+    return save_torch(path, {"state_dict": model.state_dict(), "config": asdict(cfg), "d": model.d, "history": history, **extra})
 
 
 def load_stage2(path: str | Path) -> tuple[Lagrangian, dict]:
@@ -213,6 +265,7 @@ def load_stage2(path: str | Path) -> tuple[Lagrangian, dict]:
         raise FileNotFoundError(f"{path}: stage-2 checkpoint not found")
     ck = torch.load(path, map_location="cpu", weights_only=False)
     cfg = Stage2Config.from_mapping(ck["config"])
-    model = cfg.build(ck["d"])
+    inertia = DecoderInertia(ck["n_gaussians"], ck["d"]) if cfg.mass == "decoder" else None
+    model = cfg.build(ck["d"], int(ck.get("n_u", 0)), inertia)
     model.load_state_dict(ck["state_dict"])
     return model.eval(), ck

@@ -15,7 +15,7 @@ from lagsplat import metrics  # noqa: E402
 from lagsplat.chart import load_chart  # noqa: E402
 from lagsplat.dynamics.integrators import initial_state, rollout  # noqa: E402
 from lagsplat.io.atomic import atomic_write  # noqa: E402
-from lagsplat.io.clip import HELD_OUT, load_clip, segments  # noqa: E402
+from lagsplat.io.clip import HELD_OUT, load_clip  # noqa: E402
 from lagsplat.train.stage1 import load_stage1  # noqa: E402
 from lagsplat.train.stage2 import load_stage2  # noqa: E402
 
@@ -50,7 +50,7 @@ def rollout_figure(system_dir: str | Path, title: str = "", provenance: str = ""
 
     f_enc = json.loads((d / "metrics.json").read_text())["metrics"]["f_enc_segment_hz"]["value"]
     dt = float(np.median(np.diff(chart.t)))
-    ho = max(segments(chart.split, HELD_OUT), key=len)
+    ho = max(chart.segments(HELD_OUT), key=len)
     period = int(round(1.0 / (f_enc * dt)))
     s0 = max(int(ho[0]) - period, 0)
     idx = np.arange(s0, int(ho[-1]) + 1)
