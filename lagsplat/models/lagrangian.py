@@ -331,9 +331,11 @@ class Lagrangian(nn.Module):
     def loaded_potential(self, q: Tensor, f_ext: Tensor | None = None, u: Tensor | None = None) -> Tensor:
         """``V(q) - f^T q - e^{s_V} u^T nu(q)`` ``[B]``: the potential under a constant load.
 
-        Its unique minimum is the loaded equilibrium (strongly convex for the
-        convex potential and ``u >= 0``; coercive with one stationary point
-        ``dV/dq = f`` for the invex one).
+        With the convex potential and ``u >= 0`` it is strongly convex and its
+        unique minimum is the loaded equilibrium. The invex potential has a
+        single stationary point only without load: ``V - f^T q`` stays coercive
+        but may have several stationary points (tests/test_properties.py
+        records a case), so a load can give several equilibria.
         """
         Vf = self.potential(q)
         if f_ext is not None:
@@ -360,9 +362,10 @@ class Lagrangian(nn.Module):
         """Solve ``dV/dq = f_ext + b(q)^T u`` for ``q`` (the loaded equilibrium).
 
         Damped Newton on the loaded potential (Levenberg-regularised Hessian,
-        backtracking on the loaded potential, which has a single stationary
-        point, so the minimiser found is the equilibrium), in float64 on a copy
-        of the model.
+        backtracking on the loaded potential or on the gradient norm), in
+        float64 on a copy of the model. For the convex potential the result is
+        the unique loaded equilibrium; for the invex one it is a local minimum
+        of the loaded potential reached from ``q0`` (possibly one of several).
 
         Args:
             f_ext: ``[B,d]`` constant generalized force (or ``None``).
@@ -411,8 +414,10 @@ class Lagrangian(nn.Module):
             t = torch.ones(B, 1, dtype=q.dtype)
             for _ls in range(30):
                 q_new = q - t * step
-                v_new = model.loaded_potential(q_new, fd, ud).detach()
-                ok = (v_new <= v - 1e-4 * t[:, 0] * (g * step).sum(-1)) | ((g * step).sum(-1) <= 0)
+                v_new, g_new, _ = value_grad_hess(q_new)
+                # Armijo on the value, or (near the solution, where the value's rounding
+                # error exceeds the decrease sought) a smaller gradient
+                ok = (v_new <= v - 1e-4 * t[:, 0] * (g * step).sum(-1)) | (g_new.norm(dim=-1) < 0.9 * g.norm(dim=-1))
                 if bool(ok.all()):
                     break
                 t = torch.where(ok[:, None], t, 0.5 * t)

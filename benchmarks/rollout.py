@@ -1,0 +1,150 @@
+"""Throughput of free rollouts of the latent Lagrangian (steps per second, batch 1).
+
+Paths: ``torch`` (:func:`lagsplat.dynamics.integrators.rollout` with
+``fast=False``: autograd ``dV/dq`` at every force evaluation) and ``fast``
+(the compiled numba kernels of :mod:`lagsplat.dynamics.fast`, the default for
+scalar/constant-inertia models in eval mode). Both integrate the same
+velocity-Verlet scheme (paper Eq. 8).
+
+Models are untrained :class:`~lagsplat.models.lagrangian.Lagrangian` s with the
+paper's widths (ICNN / dissipation MLP ``--hidden``, default 64 64; i-ResNet 2
+blocks of width 64 for ``--potential invex``), float32, ``init_energy_scales(2 pi,
+0.01)`` (1 Hz, floor damping ratio 1 %), released from 1 unit off the rest state.
+
+Also times the issue-4 target: a ``--seconds`` (1000 s) free rollout at
+``--rate`` (30 Hz) at d = 1 on the compiled path. numba's compilation is timed
+separately (a first 1-step call; ``--warm-cache`` keeps numba's on-disk cache,
+otherwise a fresh temporary cache directory forces a real compilation), then
+the export of the weights (first :func:`~lagsplat.dynamics.fast.cached_export`),
+then the first full rollout.
+
+Usage::
+
+    python benchmarks/rollout.py [--dims 1 2 4] [--threads 2] [--repeats 3]
+
+Steps per second are ``steps / median time`` over ``--repeats`` calls after one
+warm-up call.
+"""
+
+from __future__ import annotations
+
+import argparse
+import atexit
+import math
+import os
+import shutil
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout without installing
+
+
+def _parse(argv: list[str] | None) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--dims", type=int, nargs="+", default=[1, 2, 4], help="latent dimensions")
+    ap.add_argument("--mass", default="auto", choices=["auto", "scalar", "constant"], help="auto: scalar at d = 1, constant above")
+    ap.add_argument("--potential", default="convex", choices=["convex", "invex"])
+    ap.add_argument("--hidden", type=int, nargs="+", default=[64, 64], help="ICNN / dissipation widths")
+    ap.add_argument("--torch-steps", type=int, default=200, help="steps per timed torch rollout")
+    ap.add_argument("--fast-steps", type=int, default=30_000, help="steps per timed compiled rollout")
+    ap.add_argument("--repeats", type=int, default=3, help="timed calls per configuration (median reported)")
+    ap.add_argument("--threads", type=int, default=2, help="torch threads")
+    ap.add_argument("--seconds", type=float, default=1000.0, help="length of the long rollout (s)")
+    ap.add_argument("--rate", type=float, default=30.0, help="frame rate of the long rollout (Hz)")
+    ap.add_argument("--warm-cache", action="store_true", help="keep numba's on-disk cache (compile time = cache load)")
+    return ap.parse_args(argv)
+
+
+def main(argv: list[str] | None = None):
+    args = _parse(argv)
+    if not args.warm_cache:  # before numba is imported: a fresh cache directory, so the first call compiles
+        cache_dir = tempfile.mkdtemp(prefix="lagsplat-numba-")
+        atexit.register(shutil.rmtree, cache_dir, ignore_errors=True)
+        os.environ["NUMBA_CACHE_DIR"] = cache_dir
+
+    import lagsplat  # noqa: F401, I001  (first: sets OMP_WAIT_POLICY=PASSIVE before torch starts its threads)
+    import pandas as pd
+    import torch
+
+    from lagsplat.dynamics.integrators import rollout
+    from lagsplat.models.lagrangian import Lagrangian
+
+    torch.set_num_threads(args.threads)
+
+    def make(d: int) -> Lagrangian:
+        torch.manual_seed(0)
+        mass = args.mass if args.mass != "auto" else ("scalar" if d == 1 else "constant")
+        model = Lagrangian(d, mass=mass, hidden=tuple(args.hidden), potential=args.potential).eval()
+        model.init_energy_scales(2 * math.pi, 0.01)
+        return model
+
+    def state(model: Lagrangian):
+        q0 = model.q_rest.detach()[None] + 1.0
+        return q0, torch.zeros_like(q0)
+
+    def time_call(fn, repeats: int) -> float:
+        fn()  # warm-up
+        times = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            fn()
+            times.append(time.perf_counter() - t0)
+        return statistics.median(times)
+
+    import numba
+
+    print(f"torch {torch.__version__}: {torch.get_num_threads()} threads; numba {numba.__version__}; machine CPUs: {os.cpu_count()}")
+    print(f"batch 1, h = 1/{args.rate:g} s, widths {tuple(args.hidden)}, potential {args.potential}; median of {args.repeats} timed calls after one warm-up\n")
+
+    # ---- issue 4: the long rollout at d = 1, compile time apart
+    h = 1.0 / args.rate
+    n_long = round(args.seconds * args.rate) + 1
+    model = make(1)
+    q0, v0 = state(model)
+    from lagsplat.dynamics import fast as fast_mod
+
+    t0 = time.perf_counter()  # the export itself runs two of the kernels: compile time includes it
+    fast_mod.fast_rollout(fast_mod.export_model(model), q0.numpy(), v0.numpy(), h, 2)
+    t_compile = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    fast_mod.cached_export(model)
+    t_export = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    q, _ = rollout(model, q0, v0, h, n_long)
+    t_long = time.perf_counter() - t0
+    assert torch.isfinite(q).all()
+    print(f"numba compilation ({'cache load' if args.warm_cache else 'fresh cache'}): {t_compile:.2f} s; weight export: {t_export * 1e3:.1f} ms")
+    print(f"{args.seconds:g} s free rollout at {args.rate:g} Hz, d = 1 ({n_long - 1} steps), compiled path, first call: {t_long:.3f} s\n")
+
+    rows = []
+    for d in args.dims:
+        model = make(d)
+        q0, v0 = state(model)
+        t_torch = time_call(lambda m=model, q=q0, v=v0: rollout(m, q, v, h, args.torch_steps + 1, fast=False), args.repeats)
+        t_fast = time_call(lambda m=model, q=q0, v=v0: rollout(m, q, v, h, args.fast_steps + 1, fast=True), args.repeats)
+        sps_torch, sps_fast = args.torch_steps / t_torch, args.fast_steps / t_fast
+        row = {
+            "d": d,
+            "mass": model.mass_kind,
+            "torch steps/s": f"{sps_torch:.0f}",
+            "fast steps/s": f"{sps_fast:.0f}",
+            "speed-up": f"{sps_fast / sps_torch:.0f}x",
+            f"{args.seconds:g} s @ {args.rate:g} Hz, torch (est.)": f"{(n_long - 1) / sps_torch:.1f} s",
+            f"{args.seconds:g} s @ {args.rate:g} Hz, fast": f"{(n_long - 1) / sps_fast:.2f} s",
+        }
+        rows.append(row)
+        print(f"  done: {row}", flush=True)
+    table = pd.DataFrame(rows)
+    print()
+    try:
+        print(table.to_markdown(index=False))
+    except ImportError:  # tabulate missing
+        print(table.to_string(index=False))
+    return table
+
+
+if __name__ == "__main__":
+    main()
