@@ -33,7 +33,7 @@ import numpy as np
 
 from lagsplat.io.atomic import atomic_write
 
-__all__ = ["Clip", "ClipError", "save_clip", "load_clip", "segments", "TRAIN", "HELD_OUT"]
+__all__ = ["Clip", "ClipError", "save_clip", "load_clip", "segments", "concatenate_clips", "TRAIN", "HELD_OUT"]
 
 TRAIN = 0
 HELD_OUT = 1
@@ -175,6 +175,43 @@ class Clip:
     def segments(self, which: int) -> list[np.ndarray]:
         """Contiguous runs of frames with split ``which`` inside one episode."""
         return segments(self.split, which, self.episode)
+
+
+def concatenate_clips(clips: list[Clip], held_out: list[bool], source: str = "<clips>") -> Clip:
+    """Several recordings of one system as one clip of episodes (multi-clip training).
+
+    Episode ``i`` is ``clips[i]``, every frame of it ``HELD_OUT`` if
+    ``held_out[i]`` else ``TRAIN``. Times are shifted so that each episode
+    starts one median frame interval after the previous one ends.
+
+    Raises:
+        ClipError: naming ``source`` if the recordings differ in frame size or
+            actuation channels, or the lists differ in length.
+    """
+    if len(clips) != len(held_out) or not clips:
+        raise ClipError(f"{source}: need one held_out flag per recording, got {len(clips)} clips and {len(held_out)} flags")
+    first = clips[0]
+    for i, c in enumerate(clips[1:], 1):
+        if c.images.shape[1:] != first.images.shape[1:]:
+            raise ClipError(f"{source}: recording {i} has frames {c.images.shape[1:3]}, recording 0 {first.images.shape[1:3]}")
+        if c.u_names != first.u_names:
+            raise ClipError(f"{source}: recording {i} has actuation {c.u_names}, recording 0 {first.u_names}")
+    t, off = [], 0.0
+    for c in clips:
+        t.append(c.t - c.t[0] + off)
+        off = t[-1][-1] + c.dt
+    meta = {"episodes": [dict(c.meta, held_out=h, n_frames=c.n_frames) for c, h in zip(clips, held_out)]}
+    meta.update({k: v for k, v in first.meta.items() if k in ("system", "crop", "resize", "size")})
+    meta["split"] = {"kind": "episodes", "held_out": [i for i, h in enumerate(held_out) if h]}
+    return Clip(
+        images=np.concatenate([c.images for c in clips]),
+        t=np.concatenate(t),
+        u=np.concatenate([c.u for c in clips]),
+        u_names=list(first.u_names),
+        split=np.concatenate([np.full(c.n_frames, HELD_OUT if h else TRAIN, np.int8) for c, h in zip(clips, held_out)]),
+        meta=meta,
+        episode=np.concatenate([np.full(c.n_frames, i, np.int16) for i, c in enumerate(clips)]),
+    ).validate(source)
 
 
 def save_clip(path: str | Path, clip: Clip) -> Path:
