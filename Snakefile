@@ -5,6 +5,7 @@
 #   snakemake -c2 results/tables/physical.tex      # paper Table 2 rows for all systems
 #   snakemake -c2 results/tables/physical.tex --config raw_dir=/path/to/clips
 #   snakemake -c2 toy --config overrides="stage1.steps=200"
+#   snakemake -c2 results/tables/two_carts_inertia.tex   # inertia ablation on one frozen chart
 #
 # Config keys (--config k=v): raw_dir (where source clips are kept / downloaded),
 # overrides (extra Hydra overrides for every stage), results_dir.
@@ -18,6 +19,8 @@ TABLES = {
     "physical": ["toy", "oscillating_cart", "red_apple_pendulum"],
     "smoke": ["toy_tiny"],
 }
+# ablation name -> variants compared on one frozen chart (conf/config.yaml `ablations`)
+ABLATIONS = yaml.safe_load(Path("conf/config.yaml").read_text())["ablations"]
 
 
 def system_conf(name):
@@ -28,18 +31,22 @@ def system_conf(name):
     return yaml.safe_load(path.read_text())["system"]
 
 
+def source_entries(s):
+    """The source mapping(s) of a system block: ``source``, or every entry of ``sources`` (multi-clip)."""
+    return list(s.get("sources") or []) or [s.get("source", {})]
+
+
 def raw_input(name):
-    """Source file of a system, or nothing for procedural (synth) systems."""
-    src = system_conf(name)["source"]
-    return [f"{RAW}/{src['file']}"] if "file" in src else []
+    """Source file(s) of a system, or nothing for procedural (synth) systems."""
+    return [f"{RAW}/{e['file']}" for e in source_entries(system_conf(name)) if "file" in e]
 
 
 # downloadable source file -> system that describes it
 RAW_FILES = {}
 for _p in sorted(Path("conf/system").glob("*.yaml")):
-    _s = yaml.safe_load(_p.read_text())["system"]
-    if "file" in _s.get("source", {}):
-        RAW_FILES[_s["source"]["file"]] = _p.stem
+    for _e in source_entries(yaml.safe_load(_p.read_text())["system"]):
+        if "file" in _e:
+            RAW_FILES[_e["file"]] = _p.stem
 
 
 def cli(stage):

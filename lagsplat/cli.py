@@ -33,12 +33,17 @@ stages:
   evaluate   -> metrics.json                 (eps_freq, eps_q, eps_I / eps_AE)
   figures    -> figures/rollout.png
   table      metrics.json of table.systems -> results/tables/<table.name>.tex/.csv
+  ablation   variants' metrics.json of one system -> results/tables/<name>_<ablation>.tex/.csv
   all        ingest .. figures for one system
+
+  variant=<name> (see `variants` in conf/config.yaml) runs stage2 / evaluate / figures
+  as an ablation on the same frozen chart, into results/<name>/variants/<variant>/.
 
 examples:
   python -m lagsplat all system=toy
   python -m lagsplat stage1 system=oscillating_cart stage1.steps=500
   python -m lagsplat table table.name=physical 'table.systems=[toy,oscillating_cart]'
+  python -m lagsplat stage2 system=two_carts variant=mass_decoder
 """
 
 
@@ -71,10 +76,31 @@ def _sysdir(cfg: DictConfig) -> Path:
     return Path(cfg.results_dir) / cfg.system.name
 
 
+def _outdir(cfg: DictConfig) -> Path:
+    """Where stage2 / evaluate / figures write: the system folder, or ``variants/<name>/`` under it."""
+    v = cfg.get("variant")
+    return _sysdir(cfg) / "variants" / str(v) if v else _sysdir(cfg)
+
+
+def apply_variant(cfg: DictConfig) -> DictConfig:
+    """Merge ``variants[cfg.variant]`` into ``cfg`` (no-op without a variant).
+
+    Raises:
+        KeyError: naming the unknown variant and the known ones.
+    """
+    v = cfg.get("variant")
+    if not v:
+        return cfg
+    known = cfg.get("variants") or {}
+    if v not in known:
+        raise KeyError(f"unknown variant {v!r}; known: {sorted(known)} (conf/config.yaml, key variants)")
+    return OmegaConf.merge(cfg, known[v])
+
+
 def _save_cfg(cfg: DictConfig, stage: str) -> None:
     from lagsplat.io.atomic import atomic_write
 
-    with atomic_write(_sysdir(cfg) / "config" / f"{stage}.yaml") as tmp:
+    with atomic_write(_outdir(cfg) / "config" / f"{stage}.yaml") as tmp:
         tmp.write_text(OmegaConf.to_yaml(cfg, resolve=True))
 
 
@@ -84,14 +110,21 @@ def _container(node) -> dict:
 
 # --------------------------------------------------------------------- stages
 def stage_download(cfg: DictConfig) -> None:
-    """Fetch the source clip to ``system.source.path`` and verify its SHA256."""
+    """Fetch the source clip(s) to ``source.path`` and verify their SHA256.
+
+    With ``sources`` (several recordings) every entry with a ``url`` is
+    fetched, or only the one whose ``file`` is ``download.file`` when set.
+    """
     from lagsplat.io.download import fetch
 
-    src = cfg.system.source
-    if "url" not in src:
+    entries = list(cfg.system.get("sources") or []) or [cfg.system.source]
+    only = (cfg.get("download") or {}).get("file")
+    todo = [e for e in entries if "url" in e and (not only or e.get("file") == only)]
+    if not todo:
         print(f"{cfg.system.name}: nothing to download (no source.url)")
         return
-    fetch(src.url, Path(src.path), src.sha256)
+    for src in todo:
+        fetch(src.url, Path(src.path), src.sha256)
 
 
 def stage_ingest(cfg: DictConfig) -> None:
@@ -141,7 +174,7 @@ def stage_stage2(cfg: DictConfig) -> None:
         ae = load_stage1(_sysdir(cfg) / "stage1.pt")
         inertia = DecoderInertia.from_decoder(ae.decoder, chart.W_inv, chart.mean, chart.height, chart.width)
     model, hist = train_stage2(chart, s2, seed=int(cfg.seed), progress=bool(cfg.progress), inertia=inertia)
-    save_stage2(_sysdir(cfg) / "stage2.pt", model, s2, hist)
+    save_stage2(_outdir(cfg) / "stage2.pt", model, s2, hist)
     _save_cfg(cfg, "stage2")
 
 
@@ -157,13 +190,15 @@ def stage_evaluate(cfg: DictConfig) -> None:
     d = _sysdir(cfg)
     clip = load_clip(d / "clip.npz")
     chart = load_chart(d / "chart.npz")
-    model, ck = load_stage2(d / "stage2.pt")
+    model, ck = load_stage2(_outdir(cfg) / "stage2.pt")
     ev = EvalConfig(**_container(cfg.evaluate))
     m = evaluate(clip, load_stage1(d / "stage1.pt"), chart, model, ev, source=str(d / "clip.npz"))
     write_json(
-        d / "metrics.json",
+        _outdir(cfg) / "metrics.json",
         {
             "system": cfg.system.name,
+            "variant": cfg.get("variant"),
+            "stage2": _container(cfg.stage2),
             "title": cfg.system.get("title", cfg.system.name),
             "d": int(cfg.system.d),
             "provenance": cfg.system.get("provenance", ""),
@@ -182,7 +217,8 @@ def stage_figures(cfg: DictConfig) -> None:
     """Upstream artifacts -> ``figures/rollout.png``."""
     from lagsplat.viz.rollout import rollout_figure
 
-    rollout_figure(_sysdir(cfg), title=str(cfg.system.get("title", cfg.system.name)), provenance=str(cfg.system.get("provenance", "")))
+    title = str(cfg.system.get("title", cfg.system.name)) + (f" [{cfg.variant}]" if cfg.get("variant") else "")
+    rollout_figure(_sysdir(cfg), title=title, provenance=str(cfg.system.get("provenance", "")), model_dir=_outdir(cfg))
 
 
 def stage_table(cfg: DictConfig) -> None:
@@ -194,6 +230,17 @@ def stage_table(cfg: DictConfig) -> None:
     systems = list(t.get("systems", [cfg.system.name]))
     inputs = [Path(cfg.results_dir) / s / "metrics.json" for s in systems]
     physical_table(inputs, Path(cfg.results_dir) / "tables" / f"{name}.tex")
+
+
+def stage_ablation(cfg: DictConfig) -> None:
+    """Variant ``metrics.json`` of one system -> ``results/tables/<system>_<ablation>.tex`` and ``.csv``."""
+    from lagsplat.report.tables import ablation_table
+
+    key = str(cfg.ablation)
+    if key not in cfg.ablations:
+        raise KeyError(f"unknown ablation {key!r}; known: {sorted(cfg.ablations)} (conf/config.yaml, key ablations)")
+    inputs = [_sysdir(cfg) / "variants" / v / "metrics.json" for v in cfg.ablations[key]]
+    ablation_table(inputs, Path(cfg.results_dir) / "tables" / f"{cfg.system.name}_{key}.tex")
 
 
 def stage_all(cfg: DictConfig) -> None:
@@ -213,6 +260,7 @@ STAGES: dict[str, Callable[[DictConfig], None]] = {
     "evaluate": stage_evaluate,
     "figures": stage_figures,
     "table": stage_table,
+    "ablation": stage_ablation,
     "all": stage_all,
 }
 
@@ -231,7 +279,7 @@ def main(argv: list[str] | None = None) -> int:
     from lagsplat.io.download import DownloadError
 
     try:
-        cfg = compose(overrides)
+        cfg = apply_variant(compose(overrides))
         if int(cfg.threads) > 0:
             import torch
 

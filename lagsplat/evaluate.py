@@ -29,7 +29,7 @@ import torch
 
 from lagsplat import metrics
 from lagsplat.chart import Chart
-from lagsplat.dynamics.integrators import initial_state, rollout
+from lagsplat.dynamics.integrators import actuation_schedule, initial_state, rollout
 from lagsplat.io.clip import HELD_OUT, Clip, ClipError
 from lagsplat.models.lagrangian import Lagrangian
 from lagsplat.train.stage1 import AutoEncoder, frames_to_tensor
@@ -94,6 +94,7 @@ def evaluate(clip: Clip, ae: AutoEncoder, chart: Chart, model: Lagrangian, cfg: 
         raise ClipError(f"{source}: the clip has no held-out frames to evaluate on")
     ho = max(held, key=len)
     q_s = metrics.gaussian_smooth(chart.q[ho], cfg.sigma)
+    u_ho = chart.u[ho]  # measured actuation drives every rollout (paper Eq. 6); [n, 0] if none
     n = len(q_s)
     if n < 16:
         raise ClipError(f"{source}: held-out segment has {n} frames, too short to measure a frequency")
@@ -116,7 +117,7 @@ def evaluate(clip: Clip, ae: AutoEncoder, chart: Chart, model: Lagrangian, cfg: 
             continue
         a_ = np.array([min(a, n - 3)])
         q0, v0 = initial_state(q_s, a_, dt)
-        sim, _ = rollout(model, q0, v0, dt, w)
+        sim, _ = rollout(model, q0, v0, dt, w, u=actuation_schedule(u_ho[a : a + w][None], dt))
         sim = sim[0].numpy()
         if not np.isfinite(sim).all():
             rows.append((metrics.spectral_peak_frequency(metrics.project(seg, top), dt), float("nan")))
@@ -134,7 +135,8 @@ def evaluate(clip: Clip, ae: AutoEncoder, chart: Chart, model: Lagrangian, cfg: 
     # ---- latent NRMSE and image error over two periods
     starts = metrics.window_starts(0, n - H - 2, cfg.n_windows, cfg.seed)
     q0, v0 = initial_state(q_s, starts, dt)
-    pred, _ = rollout(model, q0, v0, dt, H)
+    u_w = np.stack([u_ho[s : s + H] for s in starts])
+    pred, _ = rollout(model, q0, v0, dt, H, u=actuation_schedule(u_w, dt))
     pred = pred.numpy()
     true = np.stack([q_s[s : s + H] for s in starts])
     finite = np.isfinite(pred).all(axis=(1, 2))
@@ -164,7 +166,24 @@ def evaluate(clip: Clip, ae: AutoEncoder, chart: Chart, model: Lagrangian, cfg: 
             "all frames",
             "ratio",
         )
+    modes = model.modal_analysis()
+    out["f_modes_hz"] = _entry(
+        modes["f_hz"].tolist(),
+        "natural frequencies of the model linearised at its rest state: |lambda| / 2 pi of the quadratic "
+        "eigenproblem (lambda^2 M + lambda C + K) phi = 0, K = Hessian of V; chart-independent",
+        "rest state",
+        "Hz",
+    )
+    out["zeta_modes"] = _entry(modes["zeta"].tolist(), "damping ratio -Re(lambda) / |lambda| of each mode (same eigenproblem)", "rest state", "1")
     truth = clip.meta.get("truth", {})
+    if "f_modes_hz" in truth and len(truth["f_modes_hz"]) == chart.d:
+        f_t, z_t = np.sort(np.asarray(truth["f_modes_hz"], float)), np.asarray(truth["zeta_modes"], float)[np.argsort(truth["f_modes_hz"])]
+        out["eps_modes_freq"] = _entry(
+            (np.abs(modes["f_hz"] - f_t) / f_t).tolist(), "|f_mode - f_mode_truth| / f_mode_truth per mode (sorted by frequency)", "rest state", "fraction"
+        )
+        out["eps_modes_zeta"] = _entry(
+            (np.abs(modes["zeta"] - z_t) / z_t).tolist(), "|zeta_mode - zeta_mode_truth| / zeta_mode_truth per mode", "rest state", "fraction"
+        )
     if "f_observed_hz" in truth:
         f_true = float(truth["f_observed_hz"])
         out["f_truth_hz"] = _entry(f_true, "generator's true frequency on the held-out segment (lagsplat.synth)", "", "Hz")

@@ -10,12 +10,11 @@ from typing import Any, Mapping
 
 import numpy as np
 import torch
-from torch import Tensor
 from tqdm.auto import tqdm
 
 from lagsplat import metrics
 from lagsplat.chart import Chart
-from lagsplat.dynamics.integrators import initial_state, rollout, verlet_step
+from lagsplat.dynamics.integrators import actuation_schedule, initial_state, rollout, verlet_step
 from lagsplat.io.atomic import save_torch
 from lagsplat.io.clip import TRAIN
 from lagsplat.train.config import dataclass_from_mapping
@@ -65,7 +64,7 @@ class Stage2Config:
     grad_clip: float = 100.0
     select_every: int = 5
     select_windows: int = 16
-    select_periods: float = 2.0
+    select_periods: float = 4.0
     extra: dict[str, Any] = field(default_factory=dict)
 
     @classmethod
@@ -111,25 +110,6 @@ def one_step_windows(q: np.ndarray, dt: float, k: int, u: np.ndarray | None = No
     s = np.arange(n)
     v = lambda a, b: (q[b] - q[a]) / (2 * k * dt)  # noqa: E731
     return q[s + k], v(s, s + 2 * k), q[s + 2 * k], v(s + k, s + 3 * k), u[s + k], u[s + 2 * k]
-
-
-def actuation_schedule(u: np.ndarray | None, dt: float):
-    """Piecewise-linear actuation ``t -> [B,n_u]`` from per-frame samples ``u [B,n,n_u]`` (``t = 0`` at frame 0).
-
-    Returns ``None`` when there is no actuation (``u`` is ``None`` or has no channel).
-    """
-    if u is None or u.shape[-1] == 0:
-        return None
-    U = torch.as_tensor(u, dtype=torch.float32)
-    n = U.shape[1]
-
-    def at(t: float) -> Tensor:
-        x = min(max(t / dt, 0.0), n - 1.0)
-        i = min(int(x), n - 2) if n > 1 else 0
-        w = x - i
-        return U[:, i] if n == 1 else (1 - w) * U[:, i] + w * U[:, i + 1]
-
-    return at
 
 
 def _rollout_error(

@@ -13,7 +13,7 @@ import torch  # noqa: E402
 
 from lagsplat import metrics  # noqa: E402
 from lagsplat.chart import load_chart  # noqa: E402
-from lagsplat.dynamics.integrators import initial_state, rollout  # noqa: E402
+from lagsplat.dynamics.integrators import actuation_schedule, initial_state, rollout  # noqa: E402
 from lagsplat.io.atomic import atomic_write  # noqa: E402
 from lagsplat.io.clip import HELD_OUT, load_clip  # noqa: E402
 from lagsplat.train.stage1 import load_stage1  # noqa: E402
@@ -22,7 +22,9 @@ from lagsplat.train.stage2 import load_stage2  # noqa: E402
 __all__ = ["rollout_figure"]
 
 
-def rollout_figure(system_dir: str | Path, title: str = "", provenance: str = "", sigma: float = 1.0) -> Path:
+def rollout_figure(
+    system_dir: str | Path, title: str = "", provenance: str = "", sigma: float = 1.0, model_dir: str | Path | None = None
+) -> Path:
     """One free rollout across the train / held-out boundary, latent and images.
 
     The model starts from the encoded state (position and velocity) one
@@ -37,26 +39,31 @@ def rollout_figure(system_dir: str | Path, title: str = "", provenance: str = ""
         title: figure title.
         provenance: data source line printed under the figure.
         sigma: latent smoothing (frames) used for the initial state.
+        model_dir: folder of ``stage2.pt`` / ``metrics.json`` and of the figure
+            (a variant's folder; default ``system_dir``).
 
     Returns:
-        Path of ``figures/rollout.png``.
+        Path of ``figures/rollout.png`` under ``model_dir``.
     """
     d = Path(system_dir)
+    md = d if model_dir is None else Path(model_dir)
     clip = load_clip(d / "clip.npz")
     chart = load_chart(d / "chart.npz")
     ae = load_stage1(d / "stage1.pt")
-    model, _ = load_stage2(d / "stage2.pt")
+    model, _ = load_stage2(md / "stage2.pt")
     import json
 
-    f_enc = json.loads((d / "metrics.json").read_text())["metrics"]["f_enc_segment_hz"]["value"]
+    f_enc = json.loads((md / "metrics.json").read_text())["metrics"]["f_enc_segment_hz"]["value"]
     dt = float(np.median(np.diff(chart.t)))
     ho = max(chart.segments(HELD_OUT), key=len)
     period = int(round(1.0 / (f_enc * dt)))
     s0 = max(int(ho[0]) - period, 0)
+    if chart.episode[s0] != chart.episode[ho[0]]:  # a held-out recording: start at its first frame
+        s0 = int(ho[0])
     idx = np.arange(s0, int(ho[-1]) + 1)
     q_s = metrics.gaussian_smooth(chart.q[idx], sigma)
     q0, v0 = initial_state(q_s, np.array([0]), dt)
-    pred, _ = rollout(model, q0, v0, dt, len(idx))
+    pred, _ = rollout(model, q0, v0, dt, len(idx), u=actuation_schedule(chart.u[idx][None], dt))
     pred = pred[0].numpy()
 
     G = 0.5 * (chart.G_bar + chart.G_bar.T)
@@ -105,7 +112,7 @@ def rollout_figure(system_dir: str | Path, title: str = "", provenance: str = ""
     if provenance:
         fig.text(0.01, 0.005, f"data: {provenance}", fontsize=6, color="0.4")
     fig.tight_layout(rect=(0, 0.015, 1, 1))
-    out = d / "figures" / "rollout.png"
+    out = md / "figures" / "rollout.png"
     with atomic_write(out) as tmp:
         fig.savefig(tmp, dpi=120, format="png")
     plt.close(fig)

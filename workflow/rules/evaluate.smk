@@ -10,3 +10,17 @@ rule evaluate:
     threads: 2
     shell:
         cli("evaluate")
+
+
+rule evaluate_variant:
+    """Metrics of an ablation variant, same protocol as ``evaluate``."""
+    input:
+        f"{RESULTS}/{{system}}/clip.npz",
+        f"{RESULTS}/{{system}}/stage1.pt",
+        f"{RESULTS}/{{system}}/chart.npz",
+        f"{RESULTS}/{{system}}/variants/{{variant}}/stage2.pt",
+    output:
+        f"{RESULTS}/{{system}}/variants/{{variant}}/metrics.json",
+    threads: 2
+    shell:
+        cli("evaluate") + " variant={wildcards.variant}"

@@ -8,7 +8,7 @@ rule download:
     params:
         system=lambda w: RAW_FILES[w.file],
     shell:
-        f"python -m lagsplat download system={{params.system}} raw_dir={RAW} {OVR}"
+        f"python -m lagsplat download system={{params.system}} raw_dir={RAW} download.file={{wildcards.file}} {OVR}"
 
 
 rule ingest:

@@ -23,3 +23,18 @@ rule table:
         systems=lambda w: ",".join(TABLES[w.table]),
     shell:
         f"python -m lagsplat table table.name={{wildcards.table}} 'table.systems=[{{params.systems}}]' results_dir={RESULTS} {OVR}"
+
+
+rule ablation_table:
+    """Variants of one system side by side, e.g. results/tables/two_carts_inertia.tex
+    (learned, decoder-induced and constant inertia on the same frozen chart)."""
+    input:
+        lambda w: [f"{RESULTS}/{w.system}/variants/{v}/metrics.json" for v in ABLATIONS[w.ablation]],
+    output:
+        f"{RESULTS}/tables/{{system}}_{{ablation}}.tex",
+        f"{RESULTS}/tables/{{system}}_{{ablation}}.csv",
+    wildcard_constraints:
+        ablation="|".join(ABLATIONS),
+        system="[a-z0-9_]+?",
+    shell:
+        f"python -m lagsplat ablation system={{wildcards.system}} ablation={{wildcards.ablation}} results_dir={RESULTS} {OVR}"

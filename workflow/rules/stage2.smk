@@ -8,3 +8,16 @@ rule stage2:
     threads: 2
     shell:
         cli("stage2")
+
+
+rule stage2_variant:
+    """An ablation on the same frozen chart (``variants`` in conf/config.yaml),
+    e.g. results/two_carts/variants/mass_decoder/stage2.pt."""
+    input:
+        f"{RESULTS}/{{system}}/chart.npz",
+        f"{RESULTS}/{{system}}/stage1.pt",
+    output:
+        f"{RESULTS}/{{system}}/variants/{{variant}}/stage2.pt",
+    threads: 2
+    shell:
+        cli("stage2") + " variant={wildcards.variant}"
