@@ -1,0 +1,226 @@
+"""Forces at inference: pull an image-plane force back into the latent dynamics.
+
+Paper §3.4 (Eq. 9) and App. A.1. Each primitive's conditioned mean is affine in
+the state, ``mu_i(q) = c_i + J_i q`` (Schur mean, paper Eq. 2), so its Jacobian
+``J_i = d mu_i / d q`` is a constant read off the covariance blocks
+(``Sigma_sq Sigma_qq^-1``). A force ``f`` (pixels, image axes ``x`` right,
+``y`` down) applied around an image point ``x`` enters the Euler-Lagrange
+equation as the generalized force
+
+    f_lat = kappa * sum_i w_i J_i^T f,
+    w_i ∝ alpha_i g_i(q) exp(-|mu_i(q) - x|^2 / 2 sigma^2),  sum_i w_i = 1,
+
+with ``g_i`` the latent gate (paper Eq. 4), ``sigma`` the brush radius in
+pixels, and ``kappa`` the single energy factor the video leaves unidentified
+(paper §3.4 "What the kinematics cannot supply is the scale"), calibrated from
+one known (force, displacement) pair by :func:`calibrate_kappa`.
+
+A :class:`Selection` freezes the weights of the primitives under the click:
+the force keeps acting on the same material while the object moves, and its
+application point ``sum_i w_i mu_i(q)`` is re-evaluated at the deformed state.
+
+Units: positions and forces in pixels of the training resolution, latent
+``q`` in whitened chart units, time in seconds.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from lagsplat.models.lagrangian import Lagrangian
+
+__all__ = ["ForceTransport", "Selection", "EditedDynamics", "calibrate_kappa"]
+
+_GATE_CLAMP = 20.0  # the decoder's clamp of the gate's Mahalanobis distance
+
+
+@dataclass
+class Selection:
+    """Frozen brush weights over primitives: ``weights [B,K]``, each row summing to 1 (or 0 when empty)."""
+
+    weights: Tensor
+
+
+class ForceTransport:
+    """Per-primitive kinematics of a trained decoder in the whitened chart (paper Eq. 9).
+
+    Attributes:
+        c: ``[K,2]`` pixel position of each primitive at ``q = 0``.
+        J: ``[K,2,d]`` constant Jacobians ``d mu_i / d q`` in pixels per unit ``q``.
+        alpha: ``[K]`` base opacities.
+        mu_q, L_qq: the latent blocks that gate each primitive (raw latent units).
+        W_inv, mean: the chart's de-whitening ``z = q @ W_inv + mean``.
+
+    Build with :meth:`from_autoencoder`. All tensors float32, CPU.
+    """
+
+    def __init__(self, c: Tensor, J: Tensor, alpha: Tensor, mu_q: Tensor, L_qq: Tensor, W_inv: Tensor, mean: Tensor) -> None:
+        self.c, self.J, self.alpha, self.mu_q, self.L_qq, self.W_inv, self.mean = c, J, alpha, mu_q, L_qq, W_inv, mean
+
+    @classmethod
+    @torch.no_grad()
+    def from_autoencoder(cls, ae, chart) -> "ForceTransport":
+        """Read the constant Jacobians off a trained Stage-1 autoencoder and its frozen chart.
+
+        Args:
+            ae: :class:`~lagsplat.train.stage1.AutoEncoder` (its ``decoder``, ``height``, ``width``).
+            chart: :class:`~lagsplat.chart.Chart` (``W_inv``, ``mean``).
+        """
+        dec = ae.decoder
+        g = dec.geometry()
+        J_px, _ = dec.pixel_geometry(ae.height, ae.width, g)  # [K,2,d] per raw latent unit
+        W_inv = torch.as_tensor(chart.W_inv, dtype=torch.float32)
+        mean = torch.as_tensor(chart.mean, dtype=torch.float32)
+        J = torch.einsum("kij,lj->kil", J_px, W_inv)  # d mu / d q = J_z W_inv^T
+        scale = torch.tensor([float(ae.width), float(ae.height)])
+        # mu(q) = mu_s + J_z (z - mu_q) with z = q W_inv + mean  =>  c = mu_s + J_z (mean - mu_q)
+        c = g.mu_s * scale + torch.einsum("kij,kj->ki", J_px, mean[None] - g.mu_q)
+        return cls(c, J, g.alpha.clone(), g.mu_q.clone(), g.L_qq.clone(), W_inv, mean)
+
+    @property
+    def d(self) -> int:
+        """Latent dimension."""
+        return int(self.J.shape[2])
+
+    def means(self, q: Tensor) -> Tensor:
+        """Primitive positions ``mu_i(q) [B,K,2]`` in pixels."""
+        return self.c[None] + torch.einsum("kij,bj->bki", self.J, q)
+
+    def opacity(self, q: Tensor) -> Tensor:
+        """Rendered opacity ``alpha_i g_i(q) [B,K]`` (paper Eq. 4)."""
+        z = q @ self.W_inv + self.mean
+        diff = z[:, None, :] - self.mu_q[None]
+        y = torch.linalg.solve_triangular(self.L_qq[None].expand(q.shape[0], -1, -1, -1), diff.unsqueeze(-1), upper=False)
+        m2 = (y.squeeze(-1) ** 2).sum(-1).clamp(max=_GATE_CLAMP)
+        return self.alpha[None] * torch.exp(-0.5 * m2)
+
+    def select(self, q: Tensor, x: Tensor, sigma: float) -> Selection:
+        """Brush weights at the click (state ``q [B,d]``, point ``x [B,2]`` px, radius ``sigma`` px).
+
+        ``w_i ∝ alpha_i g_i(q) exp(-|mu_i(q) - x|^2 / 2 sigma^2)``, normalised to 1.
+        A brush that reaches no primitive (all weights below 1e-12) gives a
+        zero row: the force then acts on nothing.
+
+        Raises:
+            ValueError: if ``sigma`` is not positive or shapes disagree.
+        """
+        if not sigma > 0:
+            raise ValueError(f"brush radius sigma must be positive (pixels), got {sigma}")
+        if q.shape[0] != x.shape[0] or x.shape[-1] != 2:
+            raise ValueError(f"need q [B,d] and x [B,2] with the same B, got {tuple(q.shape)} and {tuple(x.shape)}")
+        d2 = ((self.means(q) - x[:, None, :]) ** 2).sum(-1)
+        w = self.opacity(q) * torch.exp(-0.5 * d2 / sigma**2)
+        tot = w.sum(-1, keepdim=True)
+        return Selection(torch.where(tot > 1e-12, w / tot.clamp_min(1e-30), torch.zeros_like(w)))
+
+    def application_point(self, q: Tensor, sel: Selection) -> Tensor:
+        """Where the selected material is at state ``q``: ``sum_i w_i mu_i(q) [B,2]`` px."""
+        return torch.einsum("bk,bki->bi", sel.weights, self.means(q))
+
+    def pullback(self, sel: Selection | list[Selection], f: Tensor | list[Tensor], kappa: float | Tensor = 1.0) -> Tensor:
+        """Generalized force ``kappa sum_i w_i J_i^T f`` ``[B,d]`` (paper Eq. 9).
+
+        Several forces at once: pass lists of selections and forces ``[B,2]``;
+        their generalized forces add.
+        """
+        sels = sel if isinstance(sel, list) else [sel]
+        fs = f if isinstance(f, list) else [f]
+        if len(sels) != len(fs):
+            raise ValueError(f"{len(sels)} selections but {len(fs)} forces")
+        out = 0.0
+        for s, ff in zip(sels, fs):
+            out = out + torch.einsum("bk,kid,bi->bd", s.weights, self.J, ff)
+        return kappa * out
+
+
+class EditedDynamics:
+    """A trained Lagrangian with inertia, damping and stiffness rescaled at inference (paper §3.4).
+
+    ``T -> a T``, ``D -> b D``, ``V -> c V``: with ``M qddot = F_V + F_D + F_cor + f``
+    this gives ``qddot = M^-1 (c F_V + b F_D + f) / a + M^-1 F_cor`` (the Coriolis
+    term scales with ``M`` and cancels). ``force_scale`` multiplies ``f_ext``.
+
+    Exposes ``acceleration(q, qdot, f_ext, u=None)`` like :class:`Lagrangian`.
+
+    Raises:
+        ValueError: if a factor is not positive.
+    """
+
+    def __init__(self, model: Lagrangian, inertia: float = 1.0, damping: float = 1.0, stiffness: float = 1.0) -> None:
+        for name, v in (("inertia", inertia), ("damping", damping), ("stiffness", stiffness)):
+            if not (v > 0 and math.isfinite(v)):
+                raise ValueError(f"{name} factor must be positive, got {v}")
+        self.model, self.a, self.b, self.c = model, float(inertia), float(damping), float(stiffness)
+
+    def acceleration(self, q: Tensor, qdot: Tensor, f_ext: Tensor | None = None, u: Tensor | None = None) -> Tensor:
+        """``qddot [B,d]`` of the edited system."""
+        m = self.model
+        F_V = -m.potential_grad(q)
+        F_D = -torch.einsum("bij,bj->bi", m.dissipation_matrix(q), qdot)
+        f = m.generalized_force(q, f_ext, u)
+        M = m.mass_matrix(q)
+        solve = lambda r: torch.linalg.solve(M, r.unsqueeze(-1)).squeeze(-1)  # noqa: E731
+        acc_free = m.acceleration(q, qdot)  # M^-1 (F_V + F_D + F_cor)
+        edited = self.c * F_V + self.b * F_D + (0.0 if f is None else f)
+        out = solve(edited) / self.a + acc_free - solve(F_V + F_D)
+        return out if m.training else out.detach()
+
+
+def calibrate_kappa(
+    model: Lagrangian,
+    transport: ForceTransport,
+    sel: Selection,
+    f: Tensor,
+    displacement_px: float,
+    q_rest: Tensor | None = None,
+    bracket: tuple[float, float] = (1e-6, 1e6),
+) -> float:
+    """The energy factor ``kappa`` from one known (force, displacement) pair (paper §3.4).
+
+    Finds ``kappa`` such that the static displacement of the selected material,
+    ``|p(q_eq) - p(q_rest)|`` with ``p`` the application point and ``q_eq`` the
+    loaded equilibrium under ``kappa sum_i w_i J_i^T f``, equals the measured
+    ``displacement_px``. The displacement grows monotonically with ``kappa``
+    for a convex potential; the root is found by bisection in ``log kappa``
+    (``scipy.optimize.brentq``).
+
+    Args:
+        model: trained Lagrangian.
+        transport: its :class:`ForceTransport`.
+        sel: selection of the application point (batch 1).
+        f: ``[1,2]`` applied force, in the user's units.
+        displacement_px: measured static displacement of that point, pixels (> 0).
+        q_rest: unloaded state (default: the model's rest state).
+        bracket: search interval for ``kappa``.
+
+    Returns:
+        ``kappa`` (user force units -> pixel-force units of the model).
+
+    Raises:
+        ValueError: if the displacement is not positive, or not reachable within ``bracket``.
+    """
+    from scipy.optimize import brentq
+
+    if not displacement_px > 0:
+        raise ValueError(f"the measured displacement must be positive (pixels), got {displacement_px}")
+    q0 = model.q_rest.detach()[None] if q_rest is None else q_rest.reshape(1, -1)
+    p0 = transport.application_point(q0, sel)
+    base = transport.pullback(sel, f)
+
+    def gap(log_k: float) -> float:
+        q_eq = model.loaded_equilibrium(math.exp(log_k) * base, q0=q0)
+        return float((transport.application_point(q_eq, sel) - p0).norm()) - displacement_px
+
+    lo, hi = math.log(bracket[0]), math.log(bracket[1])
+    g_lo, g_hi = gap(lo), gap(hi)
+    if np.sign(g_lo) == np.sign(g_hi):
+        raise ValueError(
+            f"a displacement of {displacement_px:.3g} px is not reached for kappa in {bracket} "
+            f"(displacements {g_lo + displacement_px:.3g} .. {g_hi + displacement_px:.3g} px)"
+        )
+    return float(math.exp(brentq(gap, lo, hi, xtol=1e-10, rtol=1e-10)))

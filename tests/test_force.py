@@ -1,0 +1,150 @@
+"""Force transport (paper §3.4, Eq. 9; App. A.1): pull-back, brush, selection, kappa, edits."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from lagsplat.dynamics.integrators import rollout
+from lagsplat.force import EditedDynamics, ForceTransport, calibrate_kappa
+from lagsplat.models.decoder import ConditionedGaussians
+from lagsplat.models.lagrangian import Lagrangian
+
+
+def _seesaw(n: int = 21, length: float = 20.0, pivot=(32.0, 32.0)) -> ForceTransport:
+    """A bar through a pivot, rotating by the angle q (d = 1), plus static background primitives.
+
+    Primitive i sits at signed radius r_i on the bar; for small rotations
+    mu_i(q) = pivot + r_i (1, 0) + r_i q (0, 1), so J_i = (0, r_i) (pixels per radian).
+    """
+    r = torch.linspace(-length, length, n)
+    c_bar = torch.stack([pivot[0] + r, torch.full_like(r, pivot[1])], 1)
+    J_bar = torch.stack([torch.zeros_like(r), r], 1)[:, :, None]
+    bg = torch.tensor([[4.0, 4.0], [60.0, 4.0], [4.0, 60.0], [60.0, 60.0]])
+    c = torch.cat([c_bar, bg])
+    J = torch.cat([J_bar, torch.zeros(4, 2, 1)])
+    K = len(c)
+    return ForceTransport(c, J, torch.full((K,), 0.9), torch.zeros(K, 1), torch.full((K, 1, 1), 100.0), torch.eye(1), torch.zeros(1))
+
+
+def _model(d: int = 1) -> Lagrangian:
+    torch.manual_seed(0)
+    m = Lagrangian(d, hidden=(16, 16))
+    m.init_energy_scales(2 * math.pi * 1.0, 0.05)
+    return m.eval()
+
+
+def _push(tr, m, x, f, sigma=1.5):
+    q0 = m.q_rest.detach()[None]
+    sel = tr.select(q0, torch.tensor([x], dtype=torch.float32), sigma)
+    return float((m.loaded_equilibrium(tr.pullback(sel, torch.tensor([f], dtype=torch.float32)), q0=q0) - q0)[0, 0])
+
+
+def test_response_grows_with_the_lever_arm_and_flips_across_the_pivot():
+    tr, m = _seesaw(), _model()
+    arms = [4.0, 8.0, 16.0]
+    right = [_push(tr, m, [32 + a, 32], [0, 1.0]) for a in arms]
+    left = [_push(tr, m, [32 - a, 32], [0, 1.0]) for a in arms]
+    assert right[0] > 0 and np.all(np.diff(right) > 0)
+    np.testing.assert_allclose(left, [-x for x in right], rtol=1e-2)  # V is nonlinear: equal up to its asymmetry
+    q0 = torch.zeros(1, 1)
+    sel_l, sel_r = (tr.select(q0, torch.tensor([[32.0 + s, 32.0]]), 1.5) for s in (-8, 8))
+    f = torch.tensor([[0.0, 1.0]])
+    np.testing.assert_allclose(tr.pullback(sel_l, f).numpy(), -tr.pullback(sel_r, f).numpy(), rtol=1e-5)
+    np.testing.assert_allclose(np.array(right) / right[0], np.array(arms) / arms[0], rtol=0.05)  # torque = r f
+
+
+def test_background_force_moves_nothing_and_linearity_holds():
+    tr, m = _seesaw(), _model()
+    on = abs(_push(tr, m, [48, 32], [0, 1.0]))
+    off = abs(_push(tr, m, [60, 60], [0, 1.0]))
+    assert off < on / 50
+    one, two, neg = (_push(tr, m, [48, 32], [0, s]) for s in (0.5, 1.0, -0.5))
+    # the generalized force is exactly linear in f; the equilibrium nearly so for small loads
+    q0 = m.q_rest.detach()[None]
+    sel = tr.select(q0, torch.tensor([[48.0, 32.0]]), 1.5)
+    f1, f2 = torch.tensor([[0.0, 1.0]]), torch.tensor([[0.3, -2.0]])
+    np.testing.assert_allclose(tr.pullback([sel, sel], [f1, f2]).numpy(), tr.pullback(sel, f1 + f2).numpy(), rtol=1e-6)
+    assert two == pytest.approx(2 * one, rel=0.02) and neg == pytest.approx(-one, rel=0.02)
+
+
+def test_force_orthogonal_to_every_jacobian_transports_to_zero():
+    tr = _seesaw()
+    q0 = torch.zeros(1, 1)
+    sel = tr.select(q0, torch.tensor([[40.0, 32.0]]), 6.0)
+    assert float(tr.pullback(sel, torch.tensor([[5.0, 0.0]])).abs().max()) < 1e-6  # along the bar
+    assert float(tr.pullback(sel, torch.tensor([[0.0, 5.0]])).abs().max()) > 1.0
+
+
+def test_selection_is_frozen_and_follows_the_material():
+    tr = _seesaw()
+    q0 = torch.zeros(1, 1)
+    sel = tr.select(q0, torch.tensor([[44.0, 32.0]]), 1.0)
+    assert float(sel.weights.sum()) == pytest.approx(1.0)
+    p = tr.application_point(torch.tensor([[0.1]]), sel)
+    np.testing.assert_allclose(p.numpy(), [[44.0, 32.0 + 12.0 * 0.1]], atol=1e-4)
+    empty = tr.select(q0, torch.tensor([[500.0, 500.0]]), 1.0)
+    assert float(empty.weights.abs().sum()) == 0.0
+    with pytest.raises(ValueError, match="sigma"):
+        tr.select(q0, torch.tensor([[1.0, 1.0]]), 0.0)
+
+
+def test_transport_from_a_decoder_matches_its_rendered_means():
+    torch.manual_seed(0)
+    dec = ConditionedGaussians(30, 2)
+    dec.init_from_frame(torch.rand(3, 12, 20), torch.randn(40, 2))
+    with torch.no_grad():
+        dec.L_raw[:, 3:5] = torch.randn(30, 2) * 0.3
+
+    class AE:
+        decoder, height, width = dec, 12, 20
+
+    class Ch:
+        W_inv = np.array([[1.2, 0.1], [-0.4, 0.9]])
+        mean = np.array([0.3, -0.1])
+
+    tr = ForceTransport.from_autoencoder(AE, Ch)
+    q = torch.randn(4, 2)
+    z = q @ torch.as_tensor(Ch.W_inv, dtype=torch.float32) + torch.as_tensor(Ch.mean, dtype=torch.float32)
+    mu, gate, g = dec.condition(z)
+    np.testing.assert_allclose(tr.means(q).detach().numpy(), (mu * torch.tensor([20.0, 12.0])).detach().numpy(), atol=1e-4)
+    np.testing.assert_allclose(tr.opacity(q).detach().numpy(), (g.alpha[None] * gate).detach().numpy(), atol=1e-6)
+
+
+def test_kappa_calibration_recovers_a_known_scale():
+    tr, m = _seesaw(), _model()
+    q0 = m.q_rest.detach()[None]
+    sel = tr.select(q0, torch.tensor([[44.0, 32.0]]), 1.5)
+    f = torch.tensor([[0.0, 2.0]])
+    kappa_true = 7.5
+    q_eq = m.loaded_equilibrium(kappa_true * tr.pullback(sel, f), q0=q0)
+    disp = float((tr.application_point(q_eq, sel) - tr.application_point(q0, sel)).norm())
+    assert calibrate_kappa(m, tr, sel, f, disp) == pytest.approx(kappa_true, rel=1e-4)
+    with pytest.raises(ValueError, match="positive"):
+        calibrate_kappa(m, tr, sel, f, 0.0)
+
+
+def test_edited_dynamics_scale_frequency_and_damping_as_physics_says():
+    m = _model()
+    q0, v0 = m.q_rest.detach()[None] + 0.05, torch.zeros(1, 1)
+    base = m.modal_analysis()
+    stiff = EditedDynamics(m, stiffness=4.0)
+    heavy = EditedDynamics(m, inertia=4.0)
+    same = EditedDynamics(m)
+    a = m.acceleration(q0, torch.full((1, 1), 0.3)).detach()
+    np.testing.assert_allclose(same.acceleration(q0, torch.full((1, 1), 0.3)).numpy(), a.numpy(), rtol=1e-5)
+    from lagsplat.metrics import spectral_peak_frequency
+
+    def freq(dyn):
+        q, _ = rollout(dyn, q0, v0, 1 / 60, 60 * 12, fast=False)
+        return spectral_peak_frequency(q[0, :, 0].numpy() - float(m.q_rest), 1 / 60)
+
+    f0 = freq(m)
+    assert f0 == pytest.approx(base["f_damped_hz"][0], rel=0.02)
+    assert freq(stiff) == pytest.approx(2 * f0, rel=0.03)
+    assert freq(heavy) == pytest.approx(f0 / 2, rel=0.03)
+    with pytest.raises(ValueError, match="damping"):
+        EditedDynamics(m, damping=0.0)
