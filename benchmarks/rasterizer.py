@@ -25,10 +25,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
-import statistics
-import time
-
 import sys
 from pathlib import Path
 
@@ -40,6 +36,7 @@ import pandas as pd
 
 
 from lagsplat.render.rasterize import rasterize_cpu, rasterize_dense, rasterize_tiles
+from _common import env_header, print_table, time_call  # this script's folder
 
 BACKENDS = {"cpu": rasterize_cpu, "torch": rasterize_tiles, "dense": rasterize_dense}
 
@@ -63,16 +60,6 @@ def make_scene(batch: int, k: int, size: int, seed: int = 0):
 def dense_bytes(batch: int, k: int, size: int) -> float:
     """Rough peak memory of the dense reference: ~6 float32 tensors of B K H W."""
     return batch * k * size * size * 4.0 * 6.0
-
-
-def time_call(fn, repeats: int) -> float:
-    fn()  # warm-up
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
 
 
 def bench_one(backend: str, batch: int, k: int, size: int, repeats: int) -> tuple[float, float]:
@@ -119,7 +106,7 @@ def main(argv: list[str] | None = None) -> pd.DataFrame:
         numba_threads = str(numba.get_num_threads())
     except ImportError:
         pass
-    print(f"torch {torch.__version__}: {torch.get_num_threads()} threads; numba threads: {numba_threads}; machine CPUs: {os.cpu_count()}")
+    print(env_header(f"numba threads: {numba_threads}"))
     print(f"batch {args.batch}, median of {args.repeats} timed calls after one warm-up; numbers are frames/s\n")
 
     rows = []
@@ -134,13 +121,7 @@ def main(argv: list[str] | None = None) -> pd.DataFrame:
                     row["forward fps"], row["fwd+bwd fps"] = f"{fwd:.1f}", f"{fb:.1f}"
                 rows.append(row)
                 print(f"  done: {row}", flush=True)
-    table = pd.DataFrame(rows)
-    print()
-    try:
-        print(table.to_markdown(index=False))
-    except ImportError:  # tabulate missing
-        print(table.to_string(index=False))
-    return table
+    return print_table(rows)
 
 
 if __name__ == "__main__":

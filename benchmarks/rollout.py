@@ -33,13 +33,14 @@ import atexit
 import math
 import os
 import shutil
-import statistics
 import sys
 import tempfile
 import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout without installing
+# this script's folder; imports nothing heavy (torch and numba are imported in main)
+from _common import env_header, print_table, time_call
 
 
 def _parse(argv: list[str] | None) -> argparse.Namespace:
@@ -66,7 +67,6 @@ def main(argv: list[str] | None = None):
         os.environ["NUMBA_CACHE_DIR"] = cache_dir
 
     import lagsplat  # noqa: F401, I001  (first: sets OMP_WAIT_POLICY=PASSIVE before torch starts its threads)
-    import pandas as pd
     import torch
 
     from lagsplat.dynamics.integrators import rollout
@@ -85,18 +85,9 @@ def main(argv: list[str] | None = None):
         q0 = model.q_rest.detach()[None] + 1.0
         return q0, torch.zeros_like(q0)
 
-    def time_call(fn, repeats: int) -> float:
-        fn()  # warm-up
-        times = []
-        for _ in range(repeats):
-            t0 = time.perf_counter()
-            fn()
-            times.append(time.perf_counter() - t0)
-        return statistics.median(times)
-
     import numba
 
-    print(f"torch {torch.__version__}: {torch.get_num_threads()} threads; numba {numba.__version__}; machine CPUs: {os.cpu_count()}")
+    print(env_header(f"numba {numba.__version__}"))
     print(f"batch 1, h = 1/{args.rate:g} s, widths {tuple(args.hidden)}, potential {args.potential}; median of {args.repeats} timed calls after one warm-up\n")
 
     # ---- issue 4: the long rollout at d = 1, compile time apart
@@ -137,13 +128,7 @@ def main(argv: list[str] | None = None):
         }
         rows.append(row)
         print(f"  done: {row}", flush=True)
-    table = pd.DataFrame(rows)
-    print()
-    try:
-        print(table.to_markdown(index=False))
-    except ImportError:  # tabulate missing
-        print(table.to_string(index=False))
-    return table
+    return print_table(rows)
 
 
 if __name__ == "__main__":

@@ -25,13 +25,8 @@ F64 = torch.float64
 H = 1.0 / 30.0
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread():
-    """The torch reference rollouts work on tiny tensors: one thread is faster on a loaded 2-core machine."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
+# The torch reference rollouts work on tiny tensors: one thread is faster on a loaded 2-core machine.
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def _model(d: int, mass: str = "scalar", potential: str = "convex", seed: int = 0, perturb: float = 0.3, dtype=F64, hidden=(16, 16), **kw) -> Lagrangian:

@@ -50,8 +50,8 @@ does blow up (``h Gamma ~ 30`` was seen): (a-c) state properties of the model
 *and* its integrator under this stability condition, not for any step.
 
 Runtime: ~45 s on 2 cores (~55 s with a cold numba cache); torch runs on one thread here
-(``_one_torch_thread``), which is much faster than two for these tiny tensors on
-a loaded machine.
+(the ``one_torch_thread`` fixture of ``tests/conftest.py``), which is much faster
+than two for these tiny tensors on a loaded machine.
 """
 
 from __future__ import annotations
@@ -95,13 +95,8 @@ def _settings(n: int):
     )
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread():
-    """Small tensors: one torch thread avoids OpenMP hand-offs (10-40x faster on a loaded 2-core machine)."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
+# Small tensors: one torch thread avoids OpenMP hand-offs (10-40x faster on a loaded 2-core machine).
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 # ----------------------------------------------------------------------------- scenarios

@@ -341,6 +341,17 @@ def _elu_prime(x):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
+def _vecmat(x, A, n, m, out):  # pragma: no cover - compiled
+    """``out[:m] = x[:n] @ A[:n, :m]`` for a 2-D ``A`` (row by row, contiguous inner loop)."""
+    for j in range(m):
+        out[j] = 0.0
+    for i in range(n):
+        xi = x[i]
+        for j in range(m):
+            out[j] += A[i, j] * xi
+
+
+@njit(cache=True)
 def _icnn_grad(x, WT, b, R, RT, w_out, widths, z, hbuf, dh, dh2, gx):  # pragma: no cover - compiled
     """``gx[:] = grad g(x)`` for the ICNN ``g`` (forward, then hand-written backprop).
 
@@ -389,12 +400,7 @@ def _icnn_grad(x, WT, b, R, RT, w_out, widths, z, hbuf, dh, dh2, gx):  # pragma:
             gx[k] += s
         if l > 0:
             m = widths[l - 1]
-            for j in range(m):
-                dh2[j] = 0.0
-            for i in range(n):
-                di = dh[i]
-                for j in range(m):
-                    dh2[j] += R[l, i, j] * di
+            _vecmat(dh, R[l], n, m, dh2)
             for j in range(m):
                 dh[j] = dh2[j]
 
@@ -437,12 +443,7 @@ def _phi_vjp(g, W1T, W2, Z, t):  # pragma: no cover - compiled
     d = g.shape[0]
     for k in range(nb - 1, -1, -1):
         # block y = x + W2 elu(W1 x + b1) + b2:  g_x = g_y + W1^T (elu'(z) * (W2^T g_y))
-        for i in range(width):
-            t[i] = 0.0
-        for c in range(d):
-            gc = g[c]
-            for i in range(width):
-                t[i] += W2[k, c, i] * gc
+        _vecmat(g, W2[k], d, width, t)
         for i in range(width):
             t[i] *= _elu_prime(Z[k, i])
         for c in range(d):
@@ -524,6 +525,29 @@ def _accel(gV, Lm, v, f, M_inv, exp_sM, c0, tmp, force, out):  # pragma: no cove
 
 
 @njit(cache=True)
+def _workspace(d, icnn_b, phi_b1, diss_b):  # pragma: no cover
+    """Scratch arrays of :func:`_position_terms` for states of dimension ``d``, sized by the padded layer widths.
+
+    Returns the tuple ``(ws_z, ws_h, ws_dh, ws_dh2, ws_X, ws_Z, ws_t, a, a2)``:
+    ICNN activations ``[L,H]`` x 2 and gradients ``[H]`` x 2, i-ResNet block
+    inputs ``[nb,d]``, pre-activations ``[nb,width]`` and a ``[width]``
+    buffer, and two dissipation-MLP activations ``[max(Hd, d)]``.
+    """
+    L, H = icnn_b.shape[0], icnn_b.shape[1]
+    nb, width = phi_b1.shape[0], phi_b1.shape[1]
+    Hd = max(diss_b.shape[1], d)
+    return np.zeros((L, H)), np.zeros((L, H)), np.zeros(H), np.zeros(H), np.zeros((nb, d)), np.zeros((nb, width)), np.zeros(width), np.zeros(Hd), np.zeros(Hd)
+
+
+@njit(cache=True, inline="always")  # inlined into the step loop (no tuple passing per call)
+def _position_terms(q, exp_sV, eps, icnn_WT, icnn_b, icnn_R, icnn_RT, icnn_out, icnn_widths, y_rest, grad_rest, phi_W1T, phi_b1, phi_W2, phi_b2, diss_WT, diss_b, diss_in, diss_out, tril_i, tril_j, ws, gV, Lm):  # pragma: no cover
+    """The position-only terms at ``q [d]``: ``gV = dV/dq(q)`` and ``Lm = L(q)`` (in place; ``ws`` from :func:`_workspace`)."""
+    ws_z, ws_h, ws_dh, ws_dh2, ws_X, ws_Z, ws_t, a, a2 = ws
+    _grad_V(q, exp_sV, eps, icnn_WT, icnn_b, icnn_R, icnn_RT, icnn_out, icnn_widths, y_rest, grad_rest, phi_W1T, phi_b1, phi_W2, phi_b2, ws_z, ws_h, ws_dh, ws_dh2, ws_X, ws_Z, ws_t, gV)
+    _chol_factor(q, diss_WT, diss_b, diss_in, diss_out, tril_i, tril_j, a, a2, Lm)
+
+
+@njit(cache=True)
 def _rollout_kernel(q0, v0, f, h, n, M_inv, exp_sV, exp_sM, c0, eps, icnn_WT, icnn_b, icnn_R, icnn_RT, icnn_out, icnn_widths, y_rest, grad_rest, phi_W1T, phi_b1, phi_W2, phi_b2, diss_WT, diss_b, diss_in, diss_out, tril_i, tril_j):  # pragma: no cover
     """Velocity-Verlet rollouts (paper Eq. 8) of ``B`` trajectories; returns ``(q, v) [B,n,d]``.
 
@@ -534,13 +558,7 @@ def _rollout_kernel(q0, v0, f, h, n, M_inv, exp_sV, exp_sM, c0, eps, icnn_WT, ic
     B, d = q0.shape
     qs = np.empty((B, n, d))
     vs = np.empty((B, n, d))
-    L, H = icnn_b.shape[0], icnn_b.shape[1]
-    ws_z, ws_h = np.zeros((L, H)), np.zeros((L, H))
-    ws_dh, ws_dh2 = np.zeros(H), np.zeros(H)
-    nb, width = phi_b1.shape[0], phi_b1.shape[1]
-    ws_X, ws_Z, ws_t = np.zeros((nb, d)), np.zeros((nb, width)), np.zeros(width)
-    Hd = diss_b.shape[1]
-    a, a2 = np.zeros(max(Hd, d)), np.zeros(max(Hd, d))
+    ws = _workspace(d, icnn_b, phi_b1, diss_b)
     Lm = np.zeros((d, d))
     gV, tmp, force, acc = np.zeros(d), np.zeros(d), np.zeros(d), np.zeros(d)
     q, v, vh = np.zeros(d), np.zeros(d), np.zeros(d)
@@ -550,15 +568,13 @@ def _rollout_kernel(q0, v0, f, h, n, M_inv, exp_sV, exp_sM, c0, eps, icnn_WT, ic
             v[c] = v0[b, c]
             qs[b, 0, c] = q[c]
             vs[b, 0, c] = v[c]
-        _grad_V(q, exp_sV, eps, icnn_WT, icnn_b, icnn_R, icnn_RT, icnn_out, icnn_widths, y_rest, grad_rest, phi_W1T, phi_b1, phi_W2, phi_b2, ws_z, ws_h, ws_dh, ws_dh2, ws_X, ws_Z, ws_t, gV)
-        _chol_factor(q, diss_WT, diss_b, diss_in, diss_out, tril_i, tril_j, a, a2, Lm)
+        _position_terms(q, exp_sV, eps, icnn_WT, icnn_b, icnn_R, icnn_RT, icnn_out, icnn_widths, y_rest, grad_rest, phi_W1T, phi_b1, phi_W2, phi_b2, diss_WT, diss_b, diss_in, diss_out, tril_i, tril_j, ws, gV, Lm)
         for i in range(1, n):
             _accel(gV, Lm, v, f[b], M_inv, exp_sM, c0, tmp, force, acc)
             for c in range(d):
                 vh[c] = v[c] + 0.5 * h * acc[c]
                 q[c] = q[c] + h * vh[c]
-            _grad_V(q, exp_sV, eps, icnn_WT, icnn_b, icnn_R, icnn_RT, icnn_out, icnn_widths, y_rest, grad_rest, phi_W1T, phi_b1, phi_W2, phi_b2, ws_z, ws_h, ws_dh, ws_dh2, ws_X, ws_Z, ws_t, gV)
-            _chol_factor(q, diss_WT, diss_b, diss_in, diss_out, tril_i, tril_j, a, a2, Lm)
+            _position_terms(q, exp_sV, eps, icnn_WT, icnn_b, icnn_R, icnn_RT, icnn_out, icnn_widths, y_rest, grad_rest, phi_W1T, phi_b1, phi_W2, phi_b2, diss_WT, diss_b, diss_in, diss_out, tril_i, tril_j, ws, gV, Lm)
             _accel(gV, Lm, vh, f[b], M_inv, exp_sM, c0, tmp, force, acc)
             finite = True
             for c in range(d):
@@ -583,19 +599,12 @@ def _accel_kernel(q, v, f, M_inv, exp_sV, exp_sM, c0, eps, icnn_WT, icnn_b, icnn
     B, d = q.shape
     out = np.empty((B, d))
     gout = np.empty((B, d))
-    L, H = icnn_b.shape[0], icnn_b.shape[1]
-    ws_z, ws_h = np.zeros((L, H)), np.zeros((L, H))
-    ws_dh, ws_dh2 = np.zeros(H), np.zeros(H)
-    nb, width = phi_b1.shape[0], phi_b1.shape[1]
-    ws_X, ws_Z, ws_t = np.zeros((nb, d)), np.zeros((nb, width)), np.zeros(width)
-    Hd = diss_b.shape[1]
-    a, a2 = np.zeros(max(Hd, d)), np.zeros(max(Hd, d))
+    ws = _workspace(d, icnn_b, phi_b1, diss_b)
     Lm = np.zeros((d, d))
     gV, tmp, force, acc = np.zeros(d), np.zeros(d), np.zeros(d), np.zeros(d)
     for b in range(B):
         qb = q[b].copy()
-        _grad_V(qb, exp_sV, eps, icnn_WT, icnn_b, icnn_R, icnn_RT, icnn_out, icnn_widths, y_rest, grad_rest, phi_W1T, phi_b1, phi_W2, phi_b2, ws_z, ws_h, ws_dh, ws_dh2, ws_X, ws_Z, ws_t, gV)
-        _chol_factor(qb, diss_WT, diss_b, diss_in, diss_out, tril_i, tril_j, a, a2, Lm)
+        _position_terms(qb, exp_sV, eps, icnn_WT, icnn_b, icnn_R, icnn_RT, icnn_out, icnn_widths, y_rest, grad_rest, phi_W1T, phi_b1, phi_W2, phi_b2, diss_WT, diss_b, diss_in, diss_out, tril_i, tril_j, ws, gV, Lm)
         _accel(gV, Lm, v[b], f[b], M_inv, exp_sM, c0, tmp, force, acc)
         for c in range(d):
             out[b, c] = acc[c]

@@ -59,13 +59,21 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
-import cv2
 import numpy as np
 from scipy.linalg import eigh, expm
 
 from lagsplat.io.clip import HELD_OUT, TRAIN, Clip, segments
 from lagsplat.metrics import spectral_peak_frequency
-from lagsplat.synth.pendulum import _background
+from lagsplat.synth._clip import check_timing, check_train_fraction, contiguous_train_frames
+from lagsplat.synth._render import (
+    SUPERSAMPLE,
+    Canvas,
+    background,
+    check_supersample,
+    over,
+    parse_size,
+    render_frames,
+)
 
 __all__ = [
     "CoupledCarts",
@@ -94,7 +102,6 @@ _BODY_LIFT = 0.06  # body bottom above the rail, units of H
 _WHEEL_RADIUS = 0.045  # units of H
 _WHEEL_OFFSET = 0.27  # wheel centres at +- this fraction of the cart width
 _OUTLINE = 0.025  # units of H
-_SUPERSAMPLE = 4
 
 # Colours, RGB in [0, 1].
 _CART_RGB = ((0.86, 0.16, 0.12), (0.14, 0.30, 0.86))  # cart 1 red, cart 2 blue
@@ -374,55 +381,9 @@ def simulate_coupled_carts(
 
 
 # ------------------------------------------------------------------- picture
-def _parse_size(size: Any) -> tuple[int, int]:
-    try:
-        W, H = (int(v) for v in size)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"size must be (W, H), got {size!r}") from exc
-    if W < 16 or H < 16:
-        raise ValueError(f"size must be at least (16, 16), got {(W, H)}")
-    return W, H
-
-
-class _Canvas:
-    """An RGBA float32 canvas at ``s`` x resolution, drawn in output-pixel units."""
-
-    _SHIFT = 4  # fractional bits for sub-pixel placement
-
-    def __init__(self, W: int, H: int, s: int) -> None:
-        self.s = s
-        self.img = np.zeros((H * s, W * s, 4), np.float32)
-
-    def _pt(self, x: float, y: float) -> tuple[int, int]:
-        # Output-pixel units (centres at j + 0.5) -> supersampled OpenCV units
-        # (centres at integers), in fixed point.
-        one = 1 << self._SHIFT
-        return (round((x * self.s - 0.5) * one), round((y * self.s - 0.5) * one))
-
-    def rect(self, x0: float, y0: float, x1: float, y1: float, rgb: tuple[float, float, float]) -> None:
-        poly = np.array([self._pt(x0, y0), self._pt(x1, y0), self._pt(x1, y1), self._pt(x0, y1)], np.int32)
-        cv2.fillConvexPoly(self.img, poly, (*rgb, 1.0), cv2.LINE_8, self._SHIFT)
-
-    def disc(self, x: float, y: float, r: float, rgb: tuple[float, float, float]) -> None:
-        R = round(r * self.s * (1 << self._SHIFT))
-        cv2.circle(self.img, self._pt(x, y), R, (*rgb, 1.0), -1, cv2.LINE_8, self._SHIFT)
-
-    def reduce(self, W: int, H: int) -> np.ndarray:
-        """Area-reduce to ``[H, W, 4]`` float64 (premultiplied RGB, coverage)."""
-        img = self.img
-        if self.s > 1:
-            img = cv2.resize(img, (W, H), interpolation=cv2.INTER_AREA)
-        return img.astype(np.float64)
-
-
-def _over(fg: np.ndarray, bg: np.ndarray) -> np.ndarray:
-    """Premultiplied ``fg`` ``[H, W, 4]`` over opaque ``bg`` ``[H, W, 3]``."""
-    return fg[..., :3] + (1.0 - fg[..., 3:4]) * bg
-
-
 def _backdrop(W: int, H: int, s: int, seed: int) -> np.ndarray:
     """Background with the static rails and end walls, float64 ``[H, W, 3]`` in [0, 1]."""
-    cv = _Canvas(W, H, s)
+    cv = Canvas(W, H, s)
     ww = _WALL_WIDTH * W
     for ry in RAIL_Y:
         y = ry * H
@@ -430,12 +391,12 @@ def _backdrop(W: int, H: int, s: int, seed: int) -> np.ndarray:
         cv.rect(0.0, y - _WALL_HEIGHT * H, ww, y + _RAIL_THICKNESS * H, _WALL_RGB)
         cv.rect(W - ww, y - _WALL_HEIGHT * H, W, y + _RAIL_THICKNESS * H, _WALL_RGB)
     # Every painted pixel has coverage 1, so the colours are premultiplied.
-    return np.clip(_over(cv.reduce(W, H), _background(W, H, seed)), 0.0, 1.0)
+    return np.clip(over(cv.reduce(W, H), background(W, H, seed)), 0.0, 1.0)
 
 
 def _carts(x: np.ndarray, W: int, H: int, s: int) -> np.ndarray:
     """Both carts at displacements ``x`` ``[2]``: premultiplied RGBA ``[H, W, 4]``."""
-    cv = _Canvas(W, H, s)
+    cv = Canvas(W, H, s)
     hw, bh, ol = 0.5 * CART_WIDTH * W, CART_HEIGHT * H, _OUTLINE * H
     for j, ry in enumerate(RAIL_Y):
         cx = (0.5 + float(x[j])) * W
@@ -453,7 +414,7 @@ def render_coupled_carts(
     x: Sequence[Sequence[float]] | np.ndarray,
     size: Sequence[int] = (64, 64),
     seed: int = 0,
-    supersample: int = _SUPERSAMPLE,
+    supersample: int = SUPERSAMPLE,
 ) -> np.ndarray:
     """Render the two carts for a sequence of displacements.
 
@@ -485,17 +446,9 @@ def render_coupled_carts(
             f"displacement {peak:.3f} frame widths exceeds MAX_DISPLACEMENT = {MAX_DISPLACEMENT} "
             "(the cart would run into the end wall)"
         )
-    W, H = _parse_size(size)
-    s = int(supersample)
-    if s < 1:
-        raise ValueError(f"supersample must be >= 1, got {supersample!r}")
-
-    back = _backdrop(W, H, s, seed)
-    out = np.empty((xs.shape[0], H, W, 3), np.uint8)
-    for i, xi in enumerate(xs):
-        img = _over(_carts(xi, W, H, s), back)
-        out[i] = np.round(np.clip(img, 0.0, 1.0) * 255.0).astype(np.uint8)
-    return out
+    W, H = parse_size(size, 16)
+    s = check_supersample(supersample)
+    return render_frames(xs, lambda xi: _carts(xi, W, H, s), _backdrop(W, H, s, seed))
 
 
 # ---------------------------------------------------------------------- clip
@@ -603,13 +556,8 @@ def make_coupled_carts_clip(
             :meth:`CoupledCarts.from_modes`), or a split leaving fewer than 2
             training or 8 held-out frames.
     """
-    fps_f = float(fps)
-    dur = float(duration_s)
-    if not (math.isfinite(fps_f) and fps_f > 0):
-        raise ValueError(f"fps must be positive, got {fps!r}")
-    if not (math.isfinite(dur) and dur > 0):
-        raise ValueError(f"duration_s must be positive, got {duration_s!r}")
-    W, H = _parse_size(size)
+    fps_f, dur = check_timing(fps, duration_s)
+    W, H = parse_size(size, 16)
     amp = float(amplitude)
     if not (math.isfinite(amp) and 0.0 < amp <= MAX_DISPLACEMENT):
         raise ValueError(f"amplitude must be in (0, {MAX_DISPLACEMENT}] frame widths, got {amplitude!r}")
@@ -620,9 +568,7 @@ def make_coupled_carts_clip(
         raise ValueError(f"held_out_episodes must be an integer, got {held_out_episodes!r}")
     tf = None
     if train_fraction is not None:
-        tf = float(train_fraction)
-        if not (0.0 < tf < 1.0):
-            raise ValueError(f"train_fraction must be in (0, 1), got {train_fraction!r}")
+        tf = check_train_fraction(train_fraction)
     T_e = round(dur * fps_f)
     if T_e < 8:
         raise ValueError(f"each episode has {T_e} frames; need at least 8 (increase duration_s or fps)")
@@ -640,12 +586,7 @@ def make_coupled_carts_clip(
         if tf is None:
             raise ValueError("a single episode (n_episodes = 1) needs train_fraction for a contiguous split")
         split_rule = "train_fraction"
-        n_train = int(tf * T)
-        if n_train < 2 or T - n_train < 8:
-            raise ValueError(
-                f"split leaves {n_train} training and {T - n_train} held-out frames of {T}; "
-                "need at least 2 and 8 (increase duration_s or fps, or change train_fraction)"
-            )
+        n_train = contiguous_train_frames(tf, T)
         split[:n_train] = TRAIN
         split[n_train:] = HELD_OUT
 

@@ -35,12 +35,20 @@ from __future__ import annotations
 import math
 from typing import Any, Sequence
 
-import cv2
 import numpy as np
 from scipy.integrate import solve_ivp
 
 from lagsplat.io.clip import HELD_OUT, TRAIN, Clip
 from lagsplat.metrics import spectral_peak_frequency
+from lagsplat.synth._clip import check_timing, check_train_fraction, contiguous_train_frames
+from lagsplat.synth._render import (
+    SUPERSAMPLE,
+    Canvas,
+    background,
+    check_supersample,
+    parse_size,
+    render_frames,
+)
 
 __all__ = [
     "simulate_pendulum",
@@ -57,14 +65,12 @@ ROD_LENGTH = 0.58
 BOB_RADIUS = 0.09
 _ROD_HALF_WIDTH = 0.018
 _PIVOT_RADIUS = 0.03
-_SUPERSAMPLE = 4
 
 # Colours, RGB in [0, 1].
 _ROD_RGB = (0.25, 0.25, 0.28)
 _PIVOT_RGB = (0.15, 0.15, 0.17)
 _BOB_LEFT_RGB = (0.85, 0.20, 0.15)  # left of the rod axis (seen hanging down)
 _BOB_RIGHT_RGB = (0.15, 0.35, 0.85)
-_BG_RGB = (0.90, 0.90, 0.88)
 
 
 def simulate_pendulum(
@@ -138,82 +144,39 @@ def simulate_pendulum(
     return sol.y[0].astype(np.float64), t
 
 
-def _background(W: int, H: int, seed: int) -> np.ndarray:
-    """Light, faintly textured static background, float64 ``[H, W, 3]`` in [0, 1]."""
-    y = (np.arange(H) + 0.5) / H
-    x = (np.arange(W) + 0.5) / W
-    bg = np.empty((H, W, 3), np.float64)
-    bg[:] = np.asarray(_BG_RGB)
-    # Vertical gradient (slightly darker towards the bottom) and a faint diagonal tint.
-    bg -= 0.04 * y[:, None, None]
-    bg[..., 2] += 0.015 * (x[None, :] - 0.5)
-    # Low-contrast grid, every 1/8 of the height, about one output pixel wide.
-    pitch = H / 8.0
-    gx = np.abs(((np.arange(W) + 0.5 - W / 2.0) / pitch + 0.5) % 1.0 - 0.5) * pitch
-    gy = np.abs(((np.arange(H) + 0.5) / pitch + 0.5) % 1.0 - 0.5) * pitch
-    line = np.maximum(np.clip(1.0 - gx, 0, 1)[None, :], np.clip(1.0 - gy, 0, 1)[:, None])
-    bg -= 0.025 * line[..., None]
-    # Seeded smooth noise (the only thing the seed changes).
-    rng = np.random.default_rng(int(seed))
-    coarse = rng.standard_normal((6, 6, 3)).astype(np.float32)
-    smooth = cv2.resize(coarse, (W, H), interpolation=cv2.INTER_CUBIC).astype(np.float64)
-    bg += 0.012 * smooth
-    return np.clip(bg, 0.0, 1.0)
-
-
 def _foreground(theta: float, W: int, H: int, s: int) -> np.ndarray:
-    """Foreground at ``s`` x resolution: float32 ``[Hs, Ws, 4]``, RGB premultiplied and coverage.
+    """The pendulum at angle ``theta`` (rad), drawn at ``s`` x resolution and area-reduced.
 
-    Shapes are filled with OpenCV (no anti-aliasing at this resolution, 4
-    fractional bits for sub-pixel placement); coverage comes from the later
-    area reduction.
+    Returns float64 ``[H, W, 4]``: RGB premultiplied, and coverage.
     """
-    Hs, Ws = H * s, W * s
-    img = np.zeros((Hs, Ws, 4), np.float32)
-    shift = 4
-    one = 1 << shift
-
-    def pt(x: float, y: float) -> tuple[int, int]:
-        # Output-pixel units (centres at j + 0.5) -> supersampled OpenCV units
-        # (centres at integers), in fixed point.
-        return (int(round((x * s - 0.5) * one)), int(round((y * s - 0.5) * one)))
-
-    def rad(r: float) -> int:
-        return int(round(r * s * one))
-
+    cv = Canvas(W, H, s)
     px, py = W / 2.0, PIVOT_Y * H
     ux, uy = math.sin(theta), math.cos(theta)  # rod direction (y down)
     L, r, hw = ROD_LENGTH * H, BOB_RADIUS * H, _ROD_HALF_WIDTH * H
     bx, by = px + L * ux, py + L * uy
     nx, ny = uy, -ux  # unit normal pointing to the rod's image-right side when hanging
 
-    rod = np.array(
-        [
-            pt(px + hw * nx, py + hw * ny),
-            pt(bx + hw * nx, by + hw * ny),
-            pt(bx - hw * nx, by - hw * ny),
-            pt(px - hw * nx, py - hw * ny),
-        ],
-        np.int32,
-    )
-    cv2.fillConvexPoly(img, rod, (*_ROD_RGB, 1.0), cv2.LINE_8, shift)
-    cv2.circle(img, pt(px, py), rad(_PIVOT_RADIUS * H), (*_PIVOT_RGB, 1.0), -1, cv2.LINE_8, shift)
-    cv2.circle(img, pt(bx, by), rad(r), (*_BOB_LEFT_RGB, 1.0), -1, cv2.LINE_8, shift)
+    rod = [
+        (px + hw * nx, py + hw * ny),
+        (bx + hw * nx, by + hw * ny),
+        (bx - hw * nx, by - hw * ny),
+        (px - hw * nx, py - hw * ny),
+    ]
+    cv.convex(rod, _ROD_RGB)
+    cv.disc(px, py, _PIVOT_RADIUS * H, _PIVOT_RGB)
+    cv.disc(bx, by, r, _BOB_LEFT_RGB)
     # Right half: the half-disc on the +normal side, i.e. angles [phi - 180, phi]
     # (OpenCV angles, degrees, y down) with phi the rod direction.
     phi = math.degrees(math.atan2(uy, ux))
-    R = rad(r)
-    cv2.ellipse(img, pt(bx, by), (R, R), 0.0, phi - 180.0, phi, (*_BOB_RIGHT_RGB, 1.0), -1, cv2.LINE_8, shift)
-    # Every pixel is either untouched (colour 0, coverage 0) or fully painted
-    # (coverage 1), so the colour channels are already premultiplied.
-    return img
+    cv.sector(bx, by, r, phi - 180.0, phi, _BOB_RIGHT_RGB)
+    return cv.reduce(W, H)
 
 
 def render_pendulum(
     theta: Sequence[float] | np.ndarray,
     size: tuple[int, int] = (64, 64),
     seed: int = 0,
-    supersample: int = _SUPERSAMPLE,
+    supersample: int = SUPERSAMPLE,
 ) -> np.ndarray:
     """Render pendulum frames for a sequence of angles.
 
@@ -236,26 +199,9 @@ def render_pendulum(
         raise ValueError(f"theta must be a non-empty 1-D array of angles, got shape {th.shape}")
     if not np.all(np.isfinite(th)):
         raise ValueError("theta contains NaN or inf")
-    try:
-        W, H = (int(v) for v in size)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"size must be (W, H), got {size!r}") from exc
-    if W < 8 or H < 8:
-        raise ValueError(f"size must be at least (8, 8), got {(W, H)}")
-    s = int(supersample)
-    if s < 1:
-        raise ValueError(f"supersample must be >= 1, got {supersample!r}")
-
-    bg = _background(W, H, seed)
-    out = np.empty((th.size, H, W, 3), np.uint8)
-    for i, angle in enumerate(th):
-        fg = _foreground(float(angle), W, H, s)
-        if s > 1:
-            fg = cv2.resize(fg, (W, H), interpolation=cv2.INTER_AREA)
-        fg = fg.astype(np.float64)
-        img = fg[..., :3] + (1.0 - fg[..., 3:4]) * bg
-        out[i] = np.round(np.clip(img, 0.0, 1.0) * 255.0).astype(np.uint8)
-    return out
+    W, H = parse_size(size, 8)
+    s = check_supersample(supersample)
+    return render_frames(th, lambda angle: _foreground(float(angle), W, H, s), background(W, H, seed))
 
 
 def make_pendulum_clip(
@@ -305,26 +251,11 @@ def make_pendulum_clip(
         ValueError: on invalid arguments (including a split that leaves fewer
             than 2 training or 8 held-out frames).
     """
-    fps_f = float(fps)
-    dur = float(duration_s)
-    if not (math.isfinite(fps_f) and fps_f > 0):
-        raise ValueError(f"fps must be positive, got {fps!r}")
-    if not (math.isfinite(dur) and dur > 0):
-        raise ValueError(f"duration_s must be positive, got {duration_s!r}")
-    tf = float(train_fraction)
-    if not (0.0 < tf < 1.0):
-        raise ValueError(f"train_fraction must be in (0, 1), got {train_fraction!r}")
-    try:
-        W, H = (int(v) for v in size)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"size must be (W, H), got {size!r}") from exc
+    fps_f, dur = check_timing(fps, duration_s)
+    tf = check_train_fraction(train_fraction)
+    W, H = parse_size(size)
     T = int(round(dur * fps_f))
-    n_train = int(tf * T)
-    if n_train < 2 or T - n_train < 8:
-        raise ValueError(
-            f"split leaves {n_train} training and {T - n_train} held-out frames of {T}; "
-            "need at least 2 and 8 (increase duration_s or fps, or change train_fraction)"
-        )
+    n_train = contiguous_train_frames(tf, T)
 
     theta0 = math.radians(float(theta0_deg))
     theta, t = simulate_pendulum(f_natural_hz, zeta, theta0, fps_f, T)
