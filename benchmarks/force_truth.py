@@ -1,0 +1,107 @@
+"""Forces against a known truth: the synthetic pendulum pushed at a known point (issue 5, item 4).
+
+The model is the one trained on the toy clip's *free* motion
+(``results/toy``: ``snakemake -c2 toy``). A static force ``F = (Fx, Fy)``
+(image axes, ``y`` down) applied at radius ``r`` on the rod of the pendulum
+``lagsplat.synth.pendulum`` (pivot at ``(W/2, PIVOT_Y H)``, bob at
+``ROD_LENGTH H``) holds it at the angle ``theta`` that balances gravity:
+
+    I w0^2 sin(theta) = r (Fx cos(theta) - Fy sin(theta)),
+
+with ``I w0^2`` set to 1 (the force unit). The application point then moves
+by ``r (sin theta, cos theta - 1)`` pixels. The model predicts the same
+displacement as ``p(q_eq) - p(q_rest)`` with ``q_eq`` the loaded equilibrium
+under ``kappa sum_i w_i J_i^T F`` (paper Eq. 9). ``kappa`` is calibrated on the
+first force only; the others are compared by direction (degrees) and
+magnitude (%) of the displacement.
+
+    python benchmarks/force_truth.py [--results results/toy]
+
+Prints a table; no assertion (scores, not tests).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+import lagsplat  # noqa: F401  (sets the OpenMP wait policy before torch)
+import numpy as np
+import torch
+from scipy.optimize import brentq
+
+from lagsplat.chart import load_chart
+from lagsplat.force import ForceTransport, calibrate_kappa
+from lagsplat.synth.pendulum import PIVOT_Y, ROD_LENGTH
+from lagsplat.train.stage1 import load_stage1
+from lagsplat.train.stage2 import load_stage2
+
+
+def true_angle(F: np.ndarray, r: float) -> float:
+    """Static angle (rad) under force ``F`` (force units, ``I w0^2 = 1``) at radius ``r`` (units of the rod)."""
+    g = lambda th: math.sin(th) - r * (F[0] * math.cos(th) - F[1] * math.sin(th))  # noqa: E731
+    return brentq(g, -math.pi / 2 + 1e-9, math.pi / 2 - 1e-9)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--results", default="results/toy", help="folder of the trained toy system")
+    ap.add_argument("--sigma", type=float, default=1.5, help="brush radius, pixels")
+    args = ap.parse_args()
+    d = Path(args.results)
+    ae = load_stage1(d / "stage1.pt")
+    chart = load_chart(d / "chart.npz")
+    model, _ = load_stage2(d / "stage2.pt")
+    tr = ForceTransport.from_autoencoder(ae, chart)
+    H, W = ae.height, ae.width
+    L_px = ROD_LENGTH * H
+    pivot = np.array([W / 2.0, PIVOT_Y * H])
+    q0 = model.q_rest.detach()[None]
+
+    # (radius as a fraction of the rod, force) ; the first row calibrates kappa
+    cases = [
+        (1.0, (0.06, 0.0)),
+        (1.0, (0.12, 0.0)),
+        (1.0, (-0.09, 0.0)),
+        (1.0, (0.08, 0.08)),
+        (1.0, (-0.10, -0.05)),
+        (1.0, (0.04, 0.0)),
+        (0.75, (0.12, 0.0)),
+        (0.75, (-0.10, 0.03)),
+    ]
+    rows = []
+    kappa = None
+    for k, (r, F) in enumerate(cases):
+        F = np.asarray(F, float)
+        x = torch.as_tensor((pivot + [0.0, r * L_px])[None], dtype=torch.float32)
+        sel = tr.select(q0, x, args.sigma)
+        th = true_angle(F, r)
+        d_true = r * L_px * np.array([math.sin(th), math.cos(th) - 1.0])
+        f = torch.tensor([F], dtype=torch.float32)
+        if kappa is None:
+            kappa = calibrate_kappa(model, tr, sel, f, float(np.linalg.norm(d_true)), q_rest=q0)
+        q_eq = model.loaded_equilibrium(kappa * tr.pullback(sel, f), q0=q0)
+        d_pred = (tr.application_point(q_eq, sel) - tr.application_point(q0, sel))[0].detach().numpy().astype(float)
+        ang = math.degrees(math.atan2(d_true[0] * d_pred[1] - d_true[1] * d_pred[0], float(d_true @ d_pred)))
+        mag = 100.0 * (np.linalg.norm(d_pred) / np.linalg.norm(d_true) - 1.0)
+        rows.append((k, r, F, math.degrees(th), d_true, d_pred, ang, mag))
+
+    print(f"toy pendulum model: {d} ({W}x{H} px, rod {L_px:.1f} px), brush sigma {args.sigma} px, kappa = {kappa:.4g}")
+    print("| # | radius | force (Fx, Fy) | true angle (deg) | true disp (px) | model disp (px) | direction err (deg) | magnitude err (%) |")
+    print("|---|---|---|---|---|---|---|---|")
+    for k, r, F, th, dt_, dp, ang, mag in rows:
+        tag = " (calibration)" if k == 0 else ""
+        print(
+            f"| {k}{tag} | {r:.2f} | ({F[0]:+.3f}, {F[1]:+.3f}) | {th:+.2f} | ({dt_[0]:+.2f}, {dt_[1]:+.2f}) | "
+            f"({dp[0]:+.2f}, {dp[1]:+.2f}) | {ang:+.2f} | {mag:+.1f} |"
+        )
+    test = rows[1:]
+    print(
+        f"\nover {len(test)} forces after calibration: max |direction error| {max(abs(r[6]) for r in test):.2f} deg, "
+        f"max |magnitude error| {max(abs(r[7]) for r in test):.1f} %, median |magnitude error| {np.median([abs(r[7]) for r in test]):.1f} %"
+    )
+
+
+if __name__ == "__main__":
+    main()
