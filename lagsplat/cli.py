@@ -5,8 +5,9 @@ One stage per Snakemake rule; each reads only upstream artifacts under
 resolved configuration saved beside it (``config/<stage>.yaml``).
 
 Stages: ``download``, ``ingest``, ``stage1``, ``chart``, ``stage2``,
-``evaluate``, ``figures``, ``table``, and ``all`` (ingest -> figures in one
-process).
+``evaluate``, ``figures``, ``table``, ``ablation``, ``all`` (ingest ->
+figures in one process), and ``view`` (the interactive viewer, which writes
+nothing).
 """
 
 from __future__ import annotations
@@ -35,6 +36,8 @@ stages:
   table      metrics.json of table.systems -> results/tables/<table.name>.tex/.csv
   ablation   variants' metrics.json of one system -> results/tables/<name>_<ablation>.tex/.csv
   all        ingest .. figures for one system
+  view       interactive viewer: drag the identified model in a local web page
+             (http://127.0.0.1:<view.port>/; settings in the `view` group of conf/config.yaml)
 
   variant=<name> (see `variants` in conf/config.yaml) runs stage2 / evaluate / figures
   as an ablation on the same frozen chart, into results/<name>/variants/<variant>/.
@@ -44,6 +47,7 @@ examples:
   python -m lagsplat stage1 system=oscillating_cart stage1.steps=500
   python -m lagsplat table table.name=physical 'table.systems=[toy,oscillating_cart]'
   python -m lagsplat stage2 system=two_carts variant=mass_decoder
+  python -m lagsplat view system=toy view.port=0
 """
 
 
@@ -251,6 +255,40 @@ def stage_all(cfg: DictConfig) -> None:
         print(f"[lagsplat] {cfg.system.name}: {name} done in {time.time() - t0:.1f} s", flush=True)
 
 
+def stage_view(cfg: DictConfig) -> None:
+    """Serve the interactive viewer of the system's artifacts on ``http://127.0.0.1:<view.port>/``.
+
+    Reads ``stage1.pt``, ``chart.npz`` and ``stage2.pt`` (of the variant when
+    ``variant`` is set); writes nothing. Runs until Ctrl-C or ``view.max_seconds``.
+    """
+    from lagsplat.viewer.server import Viewer
+    from lagsplat.viewer.session import load_session
+
+    v = cfg.view
+    fs = v.get("force_scale", "auto")
+    session = load_session(
+        _sysdir(cfg),
+        _outdir(cfg),
+        sigma=float(v.sigma),
+        force_scale="auto" if fs in (None, "auto") else float(fs),
+        kappa=float(v.kappa),
+        initial=str(v.initial),
+        render_scale=float(v.render_scale),
+        max_substeps=int(v.max_substeps),
+    )
+    viewer = Viewer(session, host="127.0.0.1", port=int(v.port), image_format=str(v.image_format))
+
+    def ready(url: str) -> None:
+        print(f"lagsplat view: {cfg.system.name} at {url}  ({session.width}x{session.height} px, dt = {session.dt * 1e3:.1f} ms; Ctrl-C stops)", flush=True)
+        if bool(v.open_browser):
+            import webbrowser
+
+            webbrowser.open(url)
+
+    max_s = v.get("max_seconds")
+    viewer.serve(max_seconds=None if max_s is None else float(max_s), on_ready=ready)
+
+
 STAGES: dict[str, Callable[[DictConfig], None]] = {
     "download": stage_download,
     "ingest": stage_ingest,
@@ -262,6 +300,7 @@ STAGES: dict[str, Callable[[DictConfig], None]] = {
     "table": stage_table,
     "ablation": stage_ablation,
     "all": stage_all,
+    "view": stage_view,
 }
 
 

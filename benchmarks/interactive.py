@@ -1,0 +1,210 @@
+"""Frame rate of the interactive viewer (``python -m lagsplat view``): simulation + render per second.
+
+Times a :class:`~lagsplat.viewer.session.Session` (batch 1) on these systems:
+
+* ``toy``: the trained toy system (``results/toy``; 1024 Gaussians, 64x64), at its
+  own resolution and re-rendered at 128x128 (``render_scale=2``);
+* ``toy x2``: the same decoder with every primitive duplicated (2048 Gaussians,
+  positions jittered by ~0.3 px), rendered at 128x128;
+* ``synthetic``: the hand-built pendulum of :mod:`lagsplat.viewer.synthetic` at
+  128x128 with a 44x44 tiled background (2001 Gaussians); used alone when
+  ``results/toy`` is missing.
+
+Per system, free and while dragging (a held grab at the most mobile point,
+the pointer 8 px to the side): one simulation step (``dt`` of simulated time,
+sub-steps included), one render (decode to uint8 RGB), one PNG encode, and
+the viewer's per-frame work in sequence (step + render + encode), as
+steps per second (median of ``--repeats`` timed calls after one warm-up).
+
+``--page`` (default on when Playwright and ``/usr/bin/chromium`` are
+present) also serves each 128x128 session with the real :class:`Viewer`
+and loads the page in headless Chromium: simulation Hz, server render fps
+and frames drawn per second by the page over ``--seconds``, free and while
+the mouse drags. The simulation is real-time (one step per ``dt``: 30 Hz for
+these 30 fps clips), so its Hz is capped at ``1 / dt``; render and page fps
+are capped by it too (one frame per new state).
+
+Usage::
+
+    python benchmarks/interactive.py [--threads 2] [--repeats 5] [--no-page]
+
+The target of issue 5 is >= 30 Hz (goal 60) at 128x128 with about 2000 Gaussians.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout without installing
+from _common import env_header, print_table, time_call
+
+ROOT = Path(__file__).resolve().parents[1]
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update", "--disable-sync", "--no-first-run"]
+
+
+def _parse(argv: list[str] | None) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--threads", type=int, default=2, help="torch threads")
+    ap.add_argument("--repeats", type=int, default=5, help="timed calls per measurement (median reported)")
+    ap.add_argument("--steps", type=int, default=10, help="steps (or frames) per timed call")
+    ap.add_argument("--toy", type=Path, default=ROOT / "results" / "toy", help="trained toy system folder")
+    ap.add_argument("--page", dest="page", action="store_true", default=None, help="also measure the served page in headless Chromium")
+    ap.add_argument("--no-page", dest="page", action="store_false")
+    ap.add_argument("--seconds", type=float, default=4.0, help="measurement window of each page run")
+    return ap.parse_args(argv)
+
+
+def _doubled(ae, jitter_px: float = 0.3, seed: int = 0):
+    """A copy of ``ae`` whose decoder holds every primitive twice (positions jittered)."""
+    import torch
+
+    from lagsplat.models.decoder import ConditionedGaussians
+    from lagsplat.train.stage1 import AutoEncoder
+
+    src = ae.decoder
+    dec = ConditionedGaussians(2 * src.K, src.d, backend=src.backend)
+    sd = {k: (torch.cat([v, v]) if k in ("mu_raw", "mu_q", "L_raw", "logit_alpha", "logit_color") else v) for k, v in src.state_dict().items()}
+    dec.load_state_dict(sd)
+    with torch.no_grad():  # mu_s = 1.2 sigmoid(mu_raw) - 0.1: d mu_s / d mu_raw <= 0.3 (normalised units)
+        g = torch.Generator().manual_seed(seed)
+        dec.mu_raw[src.K :] += torch.randn(src.K, 2, generator=g) * jitter_px / (0.3 * max(ae.height, ae.width))
+    return AutoEncoder(ae.encoder, dec, ae.height, ae.width).eval()
+
+
+def _sessions(args):
+    """``[(name, Session)]`` of the configurations measured."""
+    from lagsplat.chart import load_chart
+    from lagsplat.train.stage1 import load_stage1
+    from lagsplat.train.stage2 import load_stage2
+    from lagsplat.viewer.session import Session
+    from lagsplat.viewer.synthetic import synthetic_pendulum
+
+    out = []
+    if all((args.toy / f).exists() for f in ("stage1.pt", "chart.npz", "stage2.pt")):
+        ae, chart = load_stage1(args.toy / "stage1.pt"), load_chart(args.toy / "chart.npz")
+        model, _ = load_stage2(args.toy / "stage2.pt")
+        out.append(("toy", Session(ae, chart, model)))
+        out.append(("toy", Session(ae, chart, model, render_scale=2.0)))
+        out.append(("toy x2", Session(_doubled(ae), chart, model, render_scale=2.0)))
+    else:
+        print(f"({args.toy} has no trained toy system: synthetic pendulum only)")
+    out.append(("synthetic", Session(*synthetic_pendulum(size=128, n_background=44))))
+    return out
+
+
+def _page_rates(session, seconds: float, drag: bool) -> dict:
+    """Serve ``session`` and read the page's rates in headless Chromium (free or while dragging)."""
+    from playwright.sync_api import sync_playwright
+
+    from lagsplat.viewer.server import Viewer
+
+    session.reset()
+    viewer = Viewer(session, port=0)
+    url = viewer.start()
+    try:
+        with sync_playwright() as pw:
+            browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS, headless=True)
+            try:
+                page = browser.new_page(viewport={"width": 1000, "height": 700})
+                page.goto(url)
+                page.wait_for_function("window.lagsplatState.framesReceived >= 3", timeout=60_000)
+                box = page.locator("#view").bounding_box()
+                kx, ky = box["width"] / session.width, box["height"] / session.height
+                x, y = session.most_mobile_point()
+                if drag:
+                    page.mouse.move(box["x"] + x * kx, box["y"] + y * ky)
+                    page.mouse.down()
+                page.wait_for_timeout(1000)  # warm-up
+                n0, s0, r0, t0 = page.evaluate("window.lagsplatState.framesReceived"), session.steps, viewer.frames_rendered, time.perf_counter()
+                k = 0
+                while time.perf_counter() - t0 < seconds:
+                    if drag:  # keep the pointer moving: 8 px to the side and back
+                        k += 1
+                        page.mouse.move(box["x"] + (x + 8 * (k % 2)) * kx, box["y"] + y * ky, steps=4)
+                    page.wait_for_timeout(100)
+                wall = time.perf_counter() - t0
+                n1, s1, r1 = page.evaluate("window.lagsplatState.framesReceived"), session.steps, viewer.frames_rendered
+                if drag:
+                    page.mouse.up()
+            finally:
+                browser.close()
+    finally:
+        viewer.stop()
+    return {"sim Hz": (s1 - s0) / wall, "render fps": (r1 - r0) / wall, "page fps": (n1 - n0) / wall}
+
+
+def main(argv: list[str] | None = None):
+    args = _parse(argv)
+    import lagsplat  # noqa: F401, I001  (first: sets OMP_WAIT_POLICY=PASSIVE before torch starts its threads)
+    import torch
+
+    from lagsplat.viewer.server import encode_image
+
+    torch.set_num_threads(args.threads)
+    page = args.page
+    if page is None:
+        try:
+            import playwright  # noqa: F401
+
+            page = Path(CHROMIUM).exists()
+        except ImportError:
+            page = False
+    import numba
+
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    print(env_header(f"numba {numba.__version__}, {numba.config.NUMBA_NUM_THREADS} threads") + f"; load average {load:.1f}")
+    print(f"batch 1; median of {args.repeats} timed calls of {args.steps} steps after one warm-up; drag: 8 px at the most mobile point\n")
+
+    rows = []
+    for name, s in _sessions(args):
+        s.render()  # numba compilation / cache load outside the timings
+        base = {"system": name, "gaussians": s.ae.decoder.K, "size": f"{s.render_width}x{s.render_height}"}
+        x, y = s.most_mobile_point()
+        for drag in (False, True):
+            s.reset()
+            if drag:
+                s.press(x, y)
+                s.move(x + 8.0, y)
+            n = args.steps
+            t_step = time_call(lambda s=s, n=n: s.step(n), args.repeats) / n
+            t_render = time_call(lambda s=s, n=n: [s.render() for _ in range(n)], args.repeats) / n
+            img = s.render()
+            t_png = time_call(lambda img=img, n=n: [encode_image(img, "png") for _ in range(n)], args.repeats) / n
+
+            def frame(s=s, n=n):
+                for _ in range(n):
+                    s.step()
+                    im, _ = s.snapshot()
+                    encode_image(im, "png")
+
+            t_frame = time_call(frame, args.repeats) / n
+            row = {
+                **base,
+                "drag": "yes" if drag else "no",
+                "sub-steps": s.state()["substeps"],
+                "step ms": f"{t_step * 1e3:.1f}",
+                "render ms": f"{t_render * 1e3:.1f}",
+                "png ms": f"{t_png * 1e3:.2f}",
+                "step+render+png Hz": f"{1 / t_frame:.0f}",
+                "diverged": s.diverged,
+            }
+            if page and s.render_width >= 128:
+                r = _page_rates(s, args.seconds, drag)
+                row.update({f"page: {k}": f"{v:.1f}" for k, v in r.items()})
+            rows.append(row)
+            print(f"  done: {row}", flush=True)
+        s.release()
+    page_cols = [k for r in rows for k in r if k.startswith("page: ")]
+    for r in rows:  # the page is measured at 128x128 only
+        for k in dict.fromkeys(page_cols):
+            r.setdefault(k, "-")
+    return print_table(rows)
+
+
+if __name__ == "__main__":
+    main()

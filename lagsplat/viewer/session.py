@@ -1,0 +1,488 @@
+"""The state behind the interactive viewer: an identified model you can grab and drag.
+
+A :class:`Session` holds one latent state ``(q, qdot)`` of a trained system
+(Stage-1 autoencoder, frozen chart, Stage-2 Lagrangian) and advances it in
+fixed steps of the clip's frame interval. It knows nothing about the web: the
+page (:mod:`lagsplat.viewer.server`) forwards pointer events to
+:meth:`Session.press`, :meth:`Session.move` and :meth:`Session.release`,
+slider changes to :meth:`Session.set_params`, and shows :meth:`Session.render`.
+
+The drag (paper §3.4, Eq. 9). At the press the brush selects the material
+under the pointer (:meth:`~lagsplat.force.ForceTransport.select`, radius
+``sigma`` px) and freezes the selection until the release. While held, a
+spring pulls the selected material's application point ``p(q)`` towards the
+pointer ``x``:
+
+    f = force_scale * (x - p(q))          (pixel force, image axes x right, y down)
+    f_lat = kappa * sum_i w_i J_i^T f     (generalized force, :meth:`ForceTransport.pullback`)
+
+and the state follows the edited dynamics
+(:class:`~lagsplat.force.EditedDynamics`: inertia, damping and stiffness
+factors) integrated by velocity Verlet
+(:func:`~lagsplat.dynamics.integrators.verlet_step`). The spring force is
+evaluated at every force evaluation of the integrator (not frozen over a
+step), so the drag is itself integrated symplectically; a step of length
+``dt`` is split into as many sub-steps as the stiffest linearised mode of the
+loaded system needs (``omega h <= 0.5``, at most ``max_substeps``).
+
+Units: pixels of the training resolution for every image position and pixel
+force; ``q`` in whitened chart units; time in seconds.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from lagsplat.dynamics.integrators import initial_state, verlet_step
+from lagsplat.force import EditedDynamics, ForceTransport, Selection
+
+__all__ = ["PARAM_RANGE", "Session", "load_session"]
+
+PARAM_RANGE = (0.25, 4.0)
+"""Allowed range of the inertia, damping and stiffness factors (the page's sliders)."""
+
+_DIVERGED = 1e4  # |q| beyond this many chart units: the integration blew up; the state is reset
+
+
+class _Dragged:
+    """The edited dynamics plus the spring pulling the selected material to the pointer.
+
+    ``acceleration(q, qdot)`` evaluates the spring at ``q`` itself, so the
+    integrator sees the drag as part of the system (a position-dependent force).
+    """
+
+    def __init__(self, dyn: EditedDynamics, transport: ForceTransport, sel: Selection, target: Tensor, gain: float, kappa: float) -> None:
+        self.dyn, self.transport, self.sel, self.target, self.gain, self.kappa = dyn, transport, sel, target, gain, kappa
+
+    def pixel_force(self, q: Tensor) -> Tensor:
+        """``f = gain * (target - p(q)) [B,2]`` px."""
+        return self.gain * (self.target - self.transport.application_point(q, self.sel))
+
+    def acceleration(self, q: Tensor, qdot: Tensor, f_ext: Tensor | None = None) -> Tensor:
+        """``qddot [B,d]`` with the drag's generalized force added to ``f_ext``."""
+        f = self.transport.pullback(self.sel, self.pixel_force(q), self.kappa)
+        return self.dyn.acceleration(q, qdot, f if f_ext is None else f + f_ext)
+
+
+class _CompiledEdited:
+    """:class:`~lagsplat.force.EditedDynamics` plus the drag on the compiled kernels of :mod:`lagsplat.dynamics.fast`.
+
+    For the inertias the kernels support (``"scalar"``, ``"constant"``) there
+    is no Coriolis term, so ``qddot = (c M^-1 F_V + b M^-1 F_D + M^-1 f) / a``
+    with ``F_V = -dV/dq``, ``F_D = -C(q) qdot`` read off the kernels. The
+    application point is affine in the state (Schur means, paper Eq. 2), so
+    the drag uses ``p(q) = c_bar + J_bar q`` with ``c_bar = sum_i w_i c_i``
+    and ``J_bar = sum_i w_i J_i`` precomputed at the press:
+    ``f_lat = kappa J_bar^T gain (target - p(q))``, the same numbers as
+    :class:`_Dragged`. States are float64 NumPy ``[B,d]``.
+    """
+
+    def __init__(self, fm, a: float, b: float, c: float, drag: tuple | None = None) -> None:
+        self.fm, self.a, self.b, self.c, self.drag = fm, a, b, c, drag
+
+    def acceleration(self, q: np.ndarray, qdot: np.ndarray, f_ext=None) -> np.ndarray:
+        from lagsplat.dynamics.fast import fast_acceleration, fast_potential_grad
+
+        f = np.zeros_like(q)
+        if self.drag is not None:
+            c_bar, J_bar, target, gain, kappa = self.drag
+            f = kappa * (gain * (target - c_bar - q @ J_bar.T)) @ J_bar
+        acc = fast_acceleration(self.fm, q, qdot, f)  # M^-1 (F_V + F_D + f)
+        Minv = self.fm.M_inv
+        a_V = -fast_potential_grad(self.fm, q) @ Minv.T
+        a_f = f @ Minv.T
+        return (self.c * a_V + self.b * (acc - a_V - a_f) + a_f) / self.a
+
+
+class Session:
+    """One interactive simulation of an identified system (thread-safe).
+
+    Args:
+        ae: Stage-1 :class:`~lagsplat.train.stage1.AutoEncoder` (``decode``,
+            ``decoder``, ``height``, ``width``).
+        chart: the frozen :class:`~lagsplat.chart.Chart` (``to_raw``, ``W_inv``,
+            ``mean``, ``q``, ``t``, ``split``).
+        model: Stage-2 :class:`~lagsplat.models.lagrangian.Lagrangian` (eval mode).
+        sigma: brush radius, pixels (> 0).
+        force_scale: drag stiffness, pixel force per pixel of stretch, or
+            ``"auto"``: the value at which the drag, held at the most mobile
+            point of the rest image, is as stiff as the model's stiffest mode
+            (``lambda_max(d2V/dq2) / (kappa max_x |J_bar(x)|^2)``; see
+            :meth:`auto_force_scale`). The page's slider moves it
+            by 0.1x .. 10x around this default.
+        kappa: energy factor of the model's forces (:func:`~lagsplat.force.calibrate_kappa`; 1 = uncalibrated).
+        initial: ``"rest"`` (``model.q_rest``, at rest) or ``"held_out"`` (the
+            first held-out encoded frame with its finite-difference velocity;
+            the rest state when the chart has none).
+        dt: step in seconds (default: the clip's median frame interval).
+        render_scale: render at this multiple of the training resolution (pointer
+            coordinates stay in training pixels).
+        max_substeps: upper bound of the integrator sub-steps per step.
+        fast: integrate with the compiled kernels of :mod:`lagsplat.dynamics.fast`
+            (float64, ~20x cheaper per step; same scheme and equations).
+            ``None``: when the model supports them (scalar / constant inertia, no
+            actuation); ``False``: always the torch path.
+
+    Attributes:
+        dt: step, seconds. ``height``, ``width``: training resolution, px.
+        render_height, render_width: size of :meth:`render`'s images, px.
+        q, qdot: current state ``[1,d]`` (read through :meth:`state`).
+
+    Raises:
+        ValueError: on a non-positive ``sigma``, ``dt``, ``kappa`` or ``render_scale``, or an unknown ``initial``.
+    """
+
+    def __init__(
+        self,
+        ae,
+        chart,
+        model,
+        sigma: float = 2.0,
+        force_scale: float | str = "auto",
+        kappa: float = 1.0,
+        initial: str = "rest",
+        dt: float | None = None,
+        render_scale: float = 1.0,
+        max_substeps: int = 8,
+        fast: bool | None = None,
+    ) -> None:
+        if not sigma > 0:
+            raise ValueError(f"brush radius sigma must be positive (pixels), got {sigma}")
+        if not (kappa > 0 and math.isfinite(kappa)):
+            raise ValueError(f"kappa must be positive, got {kappa}")
+        if not render_scale > 0:
+            raise ValueError(f"render_scale must be positive, got {render_scale}")
+        if initial not in ("rest", "held_out"):
+            raise ValueError(f"initial must be 'rest' or 'held_out', got {initial!r}")
+        self.ae, self.chart, self.model = ae, chart, model.eval()
+        self.sigma, self.kappa, self.max_substeps = float(sigma), float(kappa), max(1, int(max_substeps))
+        self.height, self.width = int(ae.height), int(ae.width)
+        self.render_height = max(1, round(self.height * render_scale))
+        self.render_width = max(1, round(self.width * render_scale))
+        self.dt = float(dt) if dt is not None else _frame_interval(chart.t)
+        if not (self.dt > 0 and math.isfinite(self.dt)):
+            raise ValueError(f"time step must be positive (seconds), got {self.dt}")
+        self.transport = ForceTransport.from_autoencoder(ae, chart)
+        self.d = self.transport.d
+        self._W_inv = torch.as_tensor(chart.W_inv, dtype=torch.float32)
+        self._mean = torch.as_tensor(chart.mean, dtype=torch.float32)
+        with torch.no_grad():
+            self.q_rest = model.q_rest.detach().reshape(1, -1).float().clone()
+            self._M = model.mass_matrix(self.q_rest)[0].double()
+            self._C = model.dissipation_matrix(self.q_rest)[0].double()
+        self._H = model.potential_hessian(self.q_rest)[0].double()
+        self._fm = None
+        if fast is not False:
+            from lagsplat.dynamics.fast import cached_export, unsupported_reason
+
+            why = unsupported_reason(model)
+            if why is None:
+                self._fm = cached_export(model)
+            elif fast:
+                raise ValueError(f"fast=True but the compiled dynamics cannot be used: {why}")
+        self.force_scale_default = self.auto_force_scale() if force_scale == "auto" else float(force_scale)
+        if not (self.force_scale_default > 0 and math.isfinite(self.force_scale_default)):
+            raise ValueError(f"force_scale must be positive or 'auto', got {force_scale}")
+        self.params = {"inertia": 1.0, "damping": 1.0, "stiffness": 1.0, "force_scale": self.force_scale_default}
+        self._lock = threading.RLock()
+        self._sel: Selection | None = None
+        self._target: Tensor | None = None
+        self.initial = initial
+        self.diverged = 0
+        self.steps = 0
+        self.t = 0.0
+        self.step_ms = 0.0
+        self.render_ms = 0.0
+        self._set_initial()
+        self._substeps = self._count_substeps()
+
+    # ------------------------------------------------------------ set-up
+    def _set_initial(self) -> None:
+        q0, v0 = self.q_rest.clone(), torch.zeros_like(self.q_rest)
+        if self.initial == "held_out":
+            idx = np.flatnonzero(np.asarray(self.chart.split) == 1)
+            if len(idx) and idx[0] + 2 < len(self.chart.q):
+                q0, v0 = initial_state(np.asarray(self.chart.q, np.float64), idx[:1], self.dt)
+        self.q, self.qdot = q0.reshape(1, -1).float(), v0.reshape(1, -1).float()
+
+    def brush_jacobians(self, points: Tensor, q: Tensor | None = None, chunk: int = 1024) -> Tensor:
+        """Jacobian of the brush's application point, ``J_bar(x) = sum_i w_i(x) J_i`` ``[P,2,d]``.
+
+        The weights are those of :meth:`~lagsplat.force.ForceTransport.select`
+        (same formula, with the state-dependent part computed once for all points).
+
+        Args:
+            points: ``[P,2]`` pixel positions of the brush centre.
+            q: ``[1,d]`` state the weights are read at (default: the rest state).
+            chunk: points per batch (memory ``chunk * K`` floats).
+
+        Returns:
+            Pixels per unit ``q``; zero rows where the brush reaches no primitive.
+        """
+        tr = self.transport
+        q = self.q_rest if q is None else q
+        with torch.no_grad():
+            mu = tr.means(q)[0]  # [K,2]
+            op = tr.opacity(q)[0]  # [K]
+            out = []
+            for s in range(0, len(points), chunk):
+                x = points[s : s + chunk]
+                w = op[None] * torch.exp(-0.5 * ((mu[None] - x[:, None]) ** 2).sum(-1) / self.sigma**2)
+                tot = w.sum(-1, keepdim=True)
+                w = torch.where(tot > 1e-12, w / tot.clamp_min(1e-30), torch.zeros_like(w))
+                out.append(torch.einsum("pk,kid->pid", w, tr.J))
+        return torch.cat(out)
+
+    def mobility_map(self, q: Tensor | None = None) -> np.ndarray:
+        """``|J_bar(x)|_2`` at every pixel centre, ``[H,W]`` (pixels per unit ``q``; largest singular value).
+
+        Where a grab moves the image most; zero on material the state does not move.
+        The rest-state map (``q=None``) is computed once and cached.
+        """
+        if q is None and getattr(self, "_mobility_rest", None) is not None:
+            return self._mobility_rest
+        ys, xs = torch.meshgrid(torch.arange(self.height) + 0.5, torch.arange(self.width) + 0.5, indexing="ij")
+        pts = torch.stack([xs.reshape(-1), ys.reshape(-1)], 1)
+        Jb = self.brush_jacobians(pts, q)
+        m = torch.linalg.matrix_norm(Jb, ord=2).reshape(self.height, self.width).numpy()
+        if q is None:
+            self._mobility_rest = m
+        return m
+
+    def most_mobile_point(self) -> tuple[float, float]:
+        """The pixel centre ``(x, y)`` with the largest :meth:`mobility_map` value at rest."""
+        m = self.mobility_map()
+        r, c = np.unravel_index(int(np.argmax(m)), m.shape)
+        return float(c) + 0.5, float(r) + 0.5
+
+    def auto_force_scale(self) -> float:
+        """``lambda_max(d2V/dq2 (q_rest)) / (kappa max_x |J_bar(x)|^2)``: pixel force per pixel.
+
+        With this drag stiffness, a grab at the most mobile point of the rest
+        image is as stiff as the model's stiffest mode, so a held pointer pulls
+        that point about half-way (a usable default for any system, whatever
+        the unidentified energy scale).
+        """
+        s_max = float(self.mobility_map().max())
+        lam = float(torch.linalg.eigvalsh(self._H).max())
+        if s_max <= 1e-9 or lam <= 0:
+            return 1.0
+        return lam / (self.kappa * s_max**2)
+
+    def _count_substeps(self) -> int:
+        """Sub-steps per step so that ``omega_max h <= 0.5`` and ``gamma_max h <= 0.5`` for the loaded, edited system."""
+        p = self.params
+        K = p["stiffness"] * self._H
+        if self._sel is not None:
+            Jb = torch.einsum("bk,kid->id", self._sel.weights.double(), self.transport.J.double())
+            K = K + self.kappa * p["force_scale"] * Jb.T @ Jb
+        Minv = torch.linalg.inv(self._M * p["inertia"])
+        omega2 = float(torch.linalg.eigvals(Minv @ K).real.max().clamp_min(0.0))
+        gamma = float(torch.linalg.eigvals(Minv @ (p["damping"] * self._C)).real.max().clamp_min(0.0))
+        rate = max(math.sqrt(omega2), gamma)
+        return int(min(self.max_substeps, max(1, math.ceil(rate * self.dt / 0.5))))
+
+    # ------------------------------------------------------------ interaction
+    def _point(self, x: float, y: float) -> Tensor:
+        if not (math.isfinite(x) and math.isfinite(y)):
+            raise ValueError(f"pointer position must be finite, got ({x}, {y})")
+        return torch.tensor([[float(x), float(y)]], dtype=torch.float32)
+
+    def press(self, x: float, y: float) -> bool:
+        """Grab the material under the brush at ``(x, y)`` px (training resolution).
+
+        The selection is frozen until :meth:`release`. Returns whether anything
+        was selected (``False`` where the brush reaches no primitive: nothing is held).
+        """
+        with self._lock:
+            pt = self._point(x, y)
+            sel = self.transport.select(self.q, pt, self.sigma)
+            if float(sel.weights.sum()) <= 0:
+                self._sel, self._target = None, None
+            else:
+                self._sel, self._target = sel, pt
+            self._substeps = self._count_substeps()
+            return self._sel is not None
+
+    def move(self, x: float, y: float) -> None:
+        """Move the pointer to ``(x, y)`` px; the held material is pulled towards it (no-op when nothing is held)."""
+        with self._lock:
+            if self._sel is not None:
+                self._target = self._point(x, y)
+
+    def release(self) -> None:
+        """Let go: the state evolves freely from where it is."""
+        with self._lock:
+            self._sel, self._target = None, None
+            self._substeps = self._count_substeps()
+
+    @property
+    def grabbing(self) -> bool:
+        """Whether material is held."""
+        return self._sel is not None
+
+    def set_params(self, inertia: float | None = None, damping: float | None = None, stiffness: float | None = None, force_scale: float | None = None) -> dict:
+        """Change the edit factors (each clamped to :data:`PARAM_RANGE`) and/or the drag's ``force_scale`` (px force per px, > 0).
+
+        ``None`` leaves a value unchanged. Returns the parameters now in force.
+
+        Raises:
+            ValueError: on a non-finite or non-positive value.
+        """
+        with self._lock:
+            for name, v in (("inertia", inertia), ("damping", damping), ("stiffness", stiffness), ("force_scale", force_scale)):
+                if v is None:
+                    continue
+                v = float(v)
+                if not (v > 0 and math.isfinite(v)):
+                    raise ValueError(f"{name} must be positive and finite, got {v}")
+                self.params[name] = v if name == "force_scale" else min(max(v, PARAM_RANGE[0]), PARAM_RANGE[1])
+            self._substeps = self._count_substeps()
+            return dict(self.params)
+
+    def reset(self) -> None:
+        """Back to the rest state ``model.q_rest`` with zero velocity; lets go of any grab."""
+        with self._lock:
+            self.q, self.qdot = self.q_rest.clone(), torch.zeros_like(self.q_rest)
+            self._sel, self._target = None, None
+            self._substeps = self._count_substeps()
+
+    # ------------------------------------------------------------ time stepping
+    def _system(self):
+        p = self.params
+        if self._fm is not None:
+            drag = None
+            if self._sel is not None:
+                w = self._sel.weights[0].double()
+                c_bar = (w @ self.transport.c.double()).numpy()
+                J_bar = torch.einsum("k,kid->id", w, self.transport.J.double()).numpy()
+                drag = (c_bar, J_bar, self._target[0].double().numpy(), p["force_scale"], self.kappa)
+            return _CompiledEdited(self._fm, p["inertia"], p["damping"], p["stiffness"], drag)
+        dyn = EditedDynamics(self.model, p["inertia"], p["damping"], p["stiffness"])
+        if self._sel is None:
+            return dyn
+        return _Dragged(dyn, self.transport, self._sel, self._target, p["force_scale"], self.kappa)
+
+    def step(self, n: int = 1) -> None:
+        """Advance ``n`` steps of ``dt`` seconds (each split into the needed sub-steps).
+
+        A state that becomes non-finite or leaves the chart by more than
+        ``1e4`` units is put back at rest (counted in ``state()["diverged"]``).
+        """
+        with self._lock:
+            t0 = time.perf_counter()
+            with torch.no_grad():
+                for _ in range(n):
+                    system, k = self._system(), self._substeps
+                    h = self.dt / k
+                    q, v = self.q, self.qdot
+                    if self._fm is not None:
+                        q, v = q.double().numpy(), v.double().numpy()
+                    for _ in range(k):
+                        q, v = verlet_step(system, q, v, h)
+                    if self._fm is not None:
+                        q, v = torch.from_numpy(q).float(), torch.from_numpy(v).float()
+                    if not (bool(torch.isfinite(q).all() & torch.isfinite(v).all()) and float(q.abs().max()) < _DIVERGED):
+                        self.diverged += 1
+                        q, v = self.q_rest.clone(), torch.zeros_like(self.q_rest)
+                    self.q, self.qdot = q.detach(), v.detach()
+                    self.steps += 1
+                    self.t += self.dt
+            ms = (time.perf_counter() - t0) * 1e3 / max(n, 1)
+            self.step_ms = ms if self.steps <= n else 0.9 * self.step_ms + 0.1 * ms
+
+    # ------------------------------------------------------------ output
+    def state(self) -> dict:
+        """JSON-ready snapshot.
+
+        Keys: ``t`` (s), ``step``, ``q``, ``qdot``, ``q_rest`` (lists of ``d``
+        floats), ``dist_rest`` (``|q - q_rest|``), ``grab`` (``None`` or
+        ``{"point": [x, y], "pointer": [x, y], "force": [fx, fy]}``: the held
+        material's application point, the pointer, the pixel force, all px),
+        ``params``, ``force_scale_default``, ``substeps``, ``compiled`` (the
+        compiled dynamics are in use), ``size``
+        (``[W, H]`` training px), ``render_size``, ``dt``, ``diverged``,
+        ``step_ms``, ``render_ms``.
+        """
+        with self._lock:
+            q = self.q
+            grab = None
+            if self._sel is not None:
+                p = self.transport.application_point(q, self._sel)[0]
+                f = self.params["force_scale"] * (self._target[0] - p)
+                grab = {"point": p.tolist(), "pointer": self._target[0].tolist(), "force": f.tolist()}
+            return {
+                "t": self.t,
+                "step": self.steps,
+                "q": q[0].tolist(),
+                "qdot": self.qdot[0].tolist(),
+                "q_rest": self.q_rest[0].tolist(),
+                "dist_rest": float((q - self.q_rest).norm()),
+                "grab": grab,
+                "params": dict(self.params),
+                "force_scale_default": self.force_scale_default,
+                "substeps": self._substeps,
+                "compiled": self._fm is not None,
+                "size": [self.width, self.height],
+                "render_size": [self.render_width, self.render_height],
+                "dt": self.dt,
+                "diverged": self.diverged,
+                "step_ms": self.step_ms,
+                "render_ms": self.render_ms,
+            }
+
+    def render(self, q: Tensor | None = None) -> np.ndarray:
+        """Decode the current state (or ``q [1,d]``) to a uint8 image ``[render_height, render_width, 3]`` (RGB)."""
+        if q is None:
+            with self._lock:
+                q = self.q.clone()
+        t0 = time.perf_counter()
+        with torch.no_grad():
+            z = q.reshape(1, -1).float() @ self._W_inv + self._mean
+            img = self.ae.decode(z, self.render_height, self.render_width)[0]
+            out = (img.clamp(0, 1).permute(1, 2, 0) * 255.0 + 0.5).to(torch.uint8).numpy()
+        ms = (time.perf_counter() - t0) * 1e3
+        self.render_ms = ms if self.render_ms == 0 else 0.9 * self.render_ms + 0.1 * ms
+        return out
+
+    def snapshot(self) -> tuple[np.ndarray, dict]:
+        """``(render(), state())`` of one and the same state (the simulation may step meanwhile)."""
+        with self._lock:
+            q, st = self.q.clone(), self.state()
+        return self.render(q), st
+
+
+def _frame_interval(t) -> float:
+    """Median positive interval of the timestamps ``t`` (seconds)."""
+    dts = np.diff(np.asarray(t, np.float64))
+    dts = dts[dts > 0]
+    if not len(dts):
+        raise ValueError("the chart's timestamps give no positive frame interval: pass dt")
+    return float(np.median(dts))
+
+
+def load_session(sysdir: str | Path, model_dir: str | Path | None = None, **kwargs) -> Session:
+    """A :class:`Session` on the artifacts of one system.
+
+    Args:
+        sysdir: ``results/<system>/`` holding ``stage1.pt`` and ``chart.npz``.
+        model_dir: where ``stage2.pt`` is (default ``sysdir``; a variant's folder otherwise).
+        **kwargs: passed to :class:`Session`.
+
+    Raises:
+        FileNotFoundError: naming the missing artifact.
+    """
+    from lagsplat.chart import load_chart
+    from lagsplat.train.stage1 import load_stage1
+    from lagsplat.train.stage2 import load_stage2
+
+    sysdir = Path(sysdir)
+    model, _ = load_stage2(Path(model_dir or sysdir) / "stage2.pt")
+    return Session(load_stage1(sysdir / "stage1.pt"), load_chart(sysdir / "chart.npz"), model, **kwargs)
