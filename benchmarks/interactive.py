@@ -42,9 +42,9 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout without installing
 from _common import env_header, print_table, time_call
 
+from lagsplat.viewer.browser import CHROMIUM
+
 ROOT = Path(__file__).resolve().parents[1]
-CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update", "--disable-sync", "--no-first-run"]
 
 
 def _parse(argv: list[str] | None) -> argparse.Namespace:
@@ -99,42 +99,28 @@ def _sessions(args):
 
 def _page_rates(session, seconds: float, drag: bool) -> dict:
     """Serve ``session`` and read the page's rates in headless Chromium (free or while dragging)."""
-    from playwright.sync_api import sync_playwright
-
-    from lagsplat.viewer.server import Viewer
+    from lagsplat.viewer.browser import served_page
 
     session.reset()
-    viewer = Viewer(session, port=0)
-    url = viewer.start()
-    try:
-        with sync_playwright() as pw:
-            browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS, headless=True)
-            try:
-                page = browser.new_page(viewport={"width": 1000, "height": 700})
-                page.goto(url)
-                page.wait_for_function("window.lagsplatState.framesReceived >= 3", timeout=60_000)
-                box = page.locator("#view").bounding_box()
-                kx, ky = box["width"] / session.width, box["height"] / session.height
-                x, y = session.most_mobile_point()
-                if drag:
-                    page.mouse.move(box["x"] + x * kx, box["y"] + y * ky)
-                    page.mouse.down()
-                page.wait_for_timeout(1000)  # warm-up
-                n0, s0, r0, t0 = page.evaluate("window.lagsplatState.framesReceived"), session.steps, viewer.frames_rendered, time.perf_counter()
-                k = 0
-                while time.perf_counter() - t0 < seconds:
-                    if drag:  # keep the pointer moving: 8 px to the side and back
-                        k += 1
-                        page.mouse.move(box["x"] + (x + 8 * (k % 2)) * kx, box["y"] + y * ky, steps=4)
-                    page.wait_for_timeout(100)
-                wall = time.perf_counter() - t0
-                n1, s1, r1 = page.evaluate("window.lagsplatState.framesReceived"), session.steps, viewer.frames_rendered
-                if drag:
-                    page.mouse.up()
-            finally:
-                browser.close()
-    finally:
-        viewer.stop()
+    with served_page(session, timeout_ms=60_000) as (page, viewer, _url):
+        box = page.locator("#view").bounding_box()
+        kx, ky = box["width"] / session.width, box["height"] / session.height
+        x, y = session.most_mobile_point()
+        if drag:
+            page.mouse.move(box["x"] + x * kx, box["y"] + y * ky)
+            page.mouse.down()
+        page.wait_for_timeout(1000)  # warm-up
+        n0, s0, r0, t0 = page.evaluate("window.lagsplatState.framesReceived"), session.steps, viewer.frames_rendered, time.perf_counter()
+        k = 0
+        while time.perf_counter() - t0 < seconds:
+            if drag:  # keep the pointer moving: 8 px to the side and back
+                k += 1
+                page.mouse.move(box["x"] + (x + 8 * (k % 2)) * kx, box["y"] + y * ky, steps=4)
+            page.wait_for_timeout(100)
+        wall = time.perf_counter() - t0
+        n1, s1, r1 = page.evaluate("window.lagsplatState.framesReceived"), session.steps, viewer.frames_rendered
+        if drag:
+            page.mouse.up()
     return {"sim Hz": (s1 - s0) / wall, "render fps": (r1 - r0) / wall, "page fps": (n1 - n0) / wall}
 
 

@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 import torch
 
+from lagsplat.viewer.browser import CHROMIUM, served_page
 from lagsplat.viewer.session import Session, load_session
 from lagsplat.viewer.synthetic import synthetic_pendulum
 
@@ -27,8 +28,6 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 ROOT = Path(__file__).resolve().parents[1]
 TOY = ROOT / "results" / "toy"
 TOY_FILES = ("stage1.pt", "chart.npz", "stage2.pt")
-CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update", "--disable-sync", "--no-first-run"]
 DRAG_PX = 8.0  # pointer travel of every drag, training pixels
 
 
@@ -218,54 +217,40 @@ def _playwright_or_skip():
 
 
 def test_page_drag_moves_the_model_and_release_lets_it_settle(tmp_path):
-    sync_playwright = _playwright_or_skip()
-    from lagsplat.viewer.server import Viewer
-
+    _playwright_or_skip()
     s = _session("toy" if _have_toy() else "synthetic")
-    viewer = Viewer(s, port=0)
-    url = viewer.start()
-    try:
+    with served_page(s) as (page, viewer, url):
         st = json.loads(urllib.request.urlopen(url + "state", timeout=10).read())
         assert st["size"] == [s.width, s.height]
-        with sync_playwright() as pw:
-            browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS, headless=True)
-            try:
-                page = browser.new_page(viewport={"width": 1000, "height": 700})
-                page.goto(url)
-                page.wait_for_function("window.lagsplatState.framesReceived >= 3", timeout=30_000)
-                # the sliders reach the session: damping 4x and inertia 0.25x (log2 sliders) settle quickly
-                page.locator("#damping").fill("2")
-                page.locator("#inertia").fill("-2")
-                page.wait_for_function("window.lagsplatState.params.damping === 4 && window.lagsplatState.params.inertia === 0.25", timeout=10_000)
-                assert s.params["damping"] == 4.0 and s.params["inertia"] == 0.25
+        # the sliders reach the session: damping 4x and inertia 0.25x (log2 sliders) settle quickly
+        page.locator("#damping").fill("2")
+        page.locator("#inertia").fill("-2")
+        page.wait_for_function("window.lagsplatState.params.damping === 4 && window.lagsplatState.params.inertia === 0.25", timeout=10_000)
+        assert s.params["damping"] == 4.0 and s.params["inertia"] == 0.25
 
-                box = page.locator("#view").bounding_box()
-                kx, ky = box["width"] / s.width, box["height"] / s.height
-                x, y = s.most_mobile_point()
-                page.mouse.move(box["x"] + x * kx, box["y"] + y * ky)
-                page.mouse.down()
-                page.mouse.move(box["x"] + (x + DRAG_PX) * kx, box["y"] + y * ky, steps=8)
-                page.wait_for_function("window.lagsplatState.grab !== null && window.lagsplatState.dist_rest > 0", timeout=10_000)
-                page.wait_for_timeout(1500)
-                held = page.evaluate("JSON.parse(JSON.stringify(window.lagsplatState))")
-                assert held["grab"] is not None and held["dragging"]
-                assert held["grab"]["pointer"][0] == pytest.approx(x + DRAG_PX, abs=0.5)
-                assert held["grab"]["point"][0] > x + 0.25 * DRAG_PX - 2 * s.sigma  # the material was pulled right
-                d_held = held["dist_rest"]
-                assert d_held > 0.02
-                shot = tmp_path / "screenshot.png"
-                page.screenshot(path=str(shot))
-                page.mouse.up()
-                page.wait_for_function(f"window.lagsplatState.grab === null && window.lagsplatState.dist_rest < {0.1 * d_held}", timeout=20_000)
-                final = page.evaluate("JSON.parse(JSON.stringify(window.lagsplatState))")
-                assert final["stats"]["sim_hz"] > 5 and final["pageFps"] > 1
-                assert "Hz" in page.locator("#stats").inner_text()
-                page.locator("#reset").click()
-                page.wait_for_function("window.lagsplatState.dist_rest < 1e-4 && window.lagsplatState.grab === null", timeout=10_000)
-            finally:
-                browser.close()
-        out = ROOT / "results" / "viewer"
-        out.mkdir(parents=True, exist_ok=True)
-        shutil.copy(shot, out / "screenshot.png")  # for humans
-    finally:
-        viewer.stop()
+        box = page.locator("#view").bounding_box()
+        kx, ky = box["width"] / s.width, box["height"] / s.height
+        x, y = s.most_mobile_point()
+        page.mouse.move(box["x"] + x * kx, box["y"] + y * ky)
+        page.mouse.down()
+        page.mouse.move(box["x"] + (x + DRAG_PX) * kx, box["y"] + y * ky, steps=8)
+        page.wait_for_function("window.lagsplatState.grab !== null && window.lagsplatState.dist_rest > 0", timeout=10_000)
+        page.wait_for_timeout(1500)
+        held = page.evaluate("JSON.parse(JSON.stringify(window.lagsplatState))")
+        assert held["grab"] is not None and held["dragging"]
+        assert held["grab"]["pointer"][0] == pytest.approx(x + DRAG_PX, abs=0.5)
+        assert held["grab"]["point"][0] > x + 0.25 * DRAG_PX - 2 * s.sigma  # the material was pulled right
+        d_held = held["dist_rest"]
+        assert d_held > 0.02
+        shot = tmp_path / "screenshot.png"
+        page.screenshot(path=str(shot))
+        page.mouse.up()
+        page.wait_for_function(f"window.lagsplatState.grab === null && window.lagsplatState.dist_rest < {0.1 * d_held}", timeout=20_000)
+        final = page.evaluate("JSON.parse(JSON.stringify(window.lagsplatState))")
+        assert final["stats"]["sim_hz"] > 5 and final["pageFps"] > 1
+        assert "Hz" in page.locator("#stats").inner_text()
+        page.locator("#reset").click()
+        page.wait_for_function("window.lagsplatState.dist_rest < 1e-4 && window.lagsplatState.grab === null", timeout=10_000)
+    out = ROOT / "results" / "viewer"
+    out.mkdir(parents=True, exist_ok=True)
+    shutil.copy(shot, out / "screenshot.png")  # for humans
