@@ -32,11 +32,10 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from lagsplat.models.decoder import latent_gate
 from lagsplat.models.lagrangian import Lagrangian
 
 __all__ = ["ForceTransport", "Selection", "EditedDynamics", "calibrate_kappa"]
-
-_GATE_CLAMP = 20.0  # the decoder's clamp of the gate's Mahalanobis distance
 
 
 @dataclass
@@ -93,11 +92,7 @@ class ForceTransport:
 
     def opacity(self, q: Tensor) -> Tensor:
         """Rendered opacity ``alpha_i g_i(q) [B,K]`` (paper Eq. 4)."""
-        z = q @ self.W_inv + self.mean
-        diff = z[:, None, :] - self.mu_q[None]
-        y = torch.linalg.solve_triangular(self.L_qq[None].expand(q.shape[0], -1, -1, -1), diff.unsqueeze(-1), upper=False)
-        m2 = (y.squeeze(-1) ** 2).sum(-1).clamp(max=_GATE_CLAMP)
-        return self.alpha[None] * torch.exp(-0.5 * m2)
+        return self.alpha[None] * latent_gate(q @ self.W_inv + self.mean, self.mu_q, self.L_qq)
 
     def select(self, q: Tensor, x: Tensor, sigma: float) -> Selection:
         """Brush weights at the click (state ``q [B,d]``, point ``x [B,2]`` px, radius ``sigma`` px).

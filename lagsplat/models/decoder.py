@@ -36,7 +36,7 @@ from torch import Tensor, nn
 
 from lagsplat.render.rasterize import Backend, rasterize
 
-__all__ = ["ConditionedGaussians", "DecoderGeometry", "inverse_softplus"]
+__all__ = ["ConditionedGaussians", "DecoderGeometry", "inverse_softplus", "latent_gate"]
 
 _DIAG_FLOOR = 1e-4
 _GATE_CLAMP = 20.0  # Mahalanobis^2 clamp of the gate: w_z >= exp(-10)
@@ -45,6 +45,23 @@ _GATE_CLAMP = 20.0  # Mahalanobis^2 clamp of the gate: w_z >= exp(-10)
 def inverse_softplus(y: Tensor) -> Tensor:
     """Inverse of ``softplus``: ``x`` with ``softplus(x) = y`` (``y > 0``)."""
     return y + torch.log(-torch.expm1(-y))
+
+
+def latent_gate(z: Tensor, mu_q: Tensor, L_qq: Tensor) -> Tensor:
+    """Latent gate ``exp(-1/2 (z - mu_q)^T Sigma_qq^-1 (z - mu_q))`` of every primitive (paper Eq. 4).
+
+    Args:
+        z: ``[B,d]`` raw latent states.
+        mu_q: ``[K,d]`` latent means.
+        L_qq: ``[K,d,d]`` lower-triangular Cholesky factors of ``Sigma_qq``.
+
+    Returns:
+        ``[B,K]`` in ``[exp(-10), 1]``: the Mahalanobis distance is clamped at
+        ``_GATE_CLAMP`` so that no gradient vanishes entirely.
+    """
+    diff = z[:, None, :] - mu_q[None]
+    y = torch.linalg.solve_triangular(L_qq[None].expand(z.shape[0], -1, -1, -1), diff.unsqueeze(-1), upper=False).squeeze(-1)
+    return torch.exp(-0.5 * (y * y).sum(-1).clamp(max=_GATE_CLAMP))
 
 
 @dataclass
@@ -157,12 +174,7 @@ class ConditionedGaussians(nn.Module):
         g = self.geometry() if geom is None else geom
         diff = q[:, None, :] - g.mu_q[None]  # [B,K,d]
         means = g.mu_s[None] + torch.einsum("kij,bkj->bki", g.J, diff)
-        # Mahalanobis in Sigma_qq: || L_qq^{-1} diff ||^2
-        y = torch.linalg.solve_triangular(
-            g.L_qq[None].expand(q.shape[0], -1, -1, -1), diff.unsqueeze(-1), upper=False
-        ).squeeze(-1)
-        m2 = (y * y).sum(-1).clamp(max=_GATE_CLAMP)
-        return means, torch.exp(-0.5 * m2), g
+        return means, latent_gate(q, g.mu_q, g.L_qq), g
 
     def presence(self, q: Tensor) -> Tensor:
         """Normalised presence weights ``w_hat_i(q)`` (paper Eq. 7), ``[B,K]``, summing to 1."""

@@ -32,6 +32,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from lagsplat.models.decoder import latent_gate
 from lagsplat.models.icnn import ConcaveMap, ConvexPotential
 
 __all__ = ["CholeskyField", "DecoderInertia", "Lagrangian", "MASS_KINDS"]
@@ -39,7 +40,6 @@ __all__ = ["CholeskyField", "DecoderInertia", "Lagrangian", "MASS_KINDS"]
 #: Inertia forms selectable by ``stage2.mass`` (paper §3.3 "Inertia").
 MASS_KINDS = ("scalar", "constant", "learned", "decoder")
 
-_GATE_CLAMP = 20.0  # same clamp of the Mahalanobis distance as the decoder's gate
 
 
 class CholeskyField(nn.Module):
@@ -136,11 +136,7 @@ class DecoderInertia(nn.Module):
 
     def presence(self, q: Tensor) -> Tensor:
         """``w_hat_i(q) [B,K]``, summing to 1 (latent opacity, paper Eq. 4, normalised)."""
-        z = q @ self.W_inv + self.mean
-        diff = z[:, None, :] - self.mu_q[None]
-        y = torch.linalg.solve_triangular(self.L_qq[None].expand(q.shape[0], -1, -1, -1), diff.unsqueeze(-1), upper=False)
-        m2 = (y.squeeze(-1) ** 2).sum(-1).clamp(max=_GATE_CLAMP)
-        w = self.alpha[None] * torch.exp(-0.5 * m2)
+        w = self.alpha[None] * latent_gate(q @ self.W_inv + self.mean, self.mu_q, self.L_qq)
         return w / w.sum(-1, keepdim=True).clamp_min(1e-12)
 
     def _raw(self, q: Tensor) -> Tensor:
