@@ -70,15 +70,10 @@ class ForceTransport:
             ae: :class:`~lagsplat.train.stage1.AutoEncoder` (its ``decoder``, ``height``, ``width``).
             chart: :class:`~lagsplat.chart.Chart` (``W_inv``, ``mean``).
         """
-        dec = ae.decoder
-        g = dec.geometry()
-        J_px, _ = dec.pixel_geometry(ae.height, ae.width, g)  # [K,2,d] per raw latent unit
+        g = ae.decoder.geometry()
+        c, J = ae.decoder.chart_kinematics(chart.W_inv, chart.mean, ae.height, ae.width)
         W_inv = torch.as_tensor(chart.W_inv, dtype=torch.float32)
         mean = torch.as_tensor(chart.mean, dtype=torch.float32)
-        J = torch.einsum("kij,lj->kil", J_px, W_inv)  # d mu / d q = J_z W_inv^T
-        scale = torch.tensor([float(ae.width), float(ae.height)])
-        # mu(q) = mu_s + J_z (z - mu_q) with z = q W_inv + mean  =>  c = mu_s + J_z (mean - mu_q)
-        c = g.mu_s * scale + torch.einsum("kij,kj->ki", J_px, mean[None] - g.mu_q)
         return cls(c, J, g.alpha.clone(), g.mu_q.clone(), g.L_qq.clone(), W_inv, mean)
 
     @property

@@ -188,6 +188,30 @@ class ConditionedGaussians(nn.Module):
         scale = g.J.new_tensor([float(width), float(height)])
         return g.J * scale[None, :, None], g.cov * scale[None, :, None] * scale[None, None, :]
 
+    @torch.no_grad()
+    def chart_kinematics(self, W_inv, mean, height: int, width: int) -> tuple[Tensor, Tensor]:
+        """Affine primitive motion in a whitened chart, in pixels: ``mu_i(q) = c_i + J_i q``.
+
+        With ``z = q @ W_inv + mean`` (the chart's de-whitening) the Schur mean
+        (paper Eq. 2) ``mu_s + J_z (z - mu_q)`` gives ``J_i = J_z W_inv^T`` and
+        ``c_i = mu_s + J_z (mean - mu_q)`` (paper Eq. 9: the constant Jacobians
+        that carry forces and the decoder-induced inertia).
+
+        Args:
+            W_inv: ``[d,d]``, mean: ``[d]`` (array-like).
+            height, width: the resolution whose pixels are the units.
+
+        Returns:
+            ``(c [K,2], J [K,2,d])``, float32.
+        """
+        g = self.geometry()
+        J_px, _ = self.pixel_geometry(height, width, g)
+        W_inv = torch.as_tensor(W_inv, dtype=torch.float32)
+        mean = torch.as_tensor(mean, dtype=torch.float32)
+        scale = J_px.new_tensor([float(width), float(height)])
+        c = g.mu_s * scale + torch.einsum("kij,kj->ki", J_px, mean[None] - g.mu_q)
+        return c, torch.einsum("kij,lj->kil", J_px, W_inv)
+
     # --------------------------------------------------------------- rendering
     def forward(self, q: Tensor, height: int, width: int, backend: Backend | None = None) -> Tensor:
         """Render the states ``q [B,d]`` to images ``[B,3,H,W]`` in [0, 1]."""

@@ -123,8 +123,7 @@ class DecoderInertia(nn.Module):
         K, d = g.mu_q.shape
         out = cls(K, d)
         W_inv = torch.as_tensor(W_inv, dtype=torch.float32)
-        J_px, _ = decoder.pixel_geometry(height, width, g)
-        out.J.copy_(torch.einsum("kij,lj->kil", J_px, W_inv))  # d mu / d q = J_z dz/dq, dz/dq = W_inv^T
+        out.J.copy_(decoder.chart_kinematics(W_inv, mean, height, width)[1])
         out.mu_q.copy_(g.mu_q)
         out.L_qq.copy_(g.L_qq)
         out.alpha.copy_(g.alpha)
@@ -479,22 +478,12 @@ class Lagrangian(nn.Module):
         A[d:, :d] = -Minv @ K
         A[d:, d:] = -Minv @ C
         lam = torch.linalg.eigvals(A).numpy()
-        # one root per mode: the upper half-plane of each complex pair, else the pair of real roots
-        cplx = lam[lam.imag > 1e-9]
+        # one (|lambda|, zeta, omega_d) per mode: the upper root of each complex pair, or a pair
+        # of real (over-damped) roots r1 r2 = wn^2, -(r1 + r2) = 2 zeta wn
+        modes = [(abs(r), -r.real / abs(r), r.imag) for r in lam[lam.imag > 1e-9]]
         real = np.sort(lam[np.abs(lam.imag) <= 1e-9].real)
-        roots = list(cplx)
-        for i in range(0, len(real) - 1, 2):  # pair real roots: |lambda| = sqrt(r1 r2), zeta from their mean
-            r1, r2 = real[i], real[i + 1]
+        for r1, r2 in zip(real[0::2], real[1::2]):
             wn = math.sqrt(max(r1 * r2, 0.0))
-            roots.append(complex(-(abs(r1) + abs(r2)) / 2, 0.0) if wn == 0 else complex(-0.5 * abs(r1 + r2), 0.0) + 0j)
-            roots[-1] = (wn, -0.5 * (r1 + r2) / max(wn, 1e-300), 0.0)
-        out = []
-        for r in roots:
-            if isinstance(r, tuple):
-                out.append(r)
-            else:
-                wn = abs(r)
-                out.append((wn, -r.real / wn, r.imag))
-        out.sort(key=lambda x: x[0])
-        arr = np.array(out[:d], dtype=np.float64).reshape(-1, 3)
+            modes.append((wn, -0.5 * (r1 + r2) / max(wn, 1e-300), 0.0))
+        arr = np.array(sorted(modes)[:d], dtype=np.float64).reshape(-1, 3)
         return {"f_hz": arr[:, 0] / (2 * math.pi), "zeta": arr[:, 1], "f_damped_hz": arr[:, 2] / (2 * math.pi)}
