@@ -114,6 +114,13 @@ def test_culled_backends_equal_dense(HW, tile, B, variant) -> None:
         out = fn(means, covs, opac, colors, H, W, bg, tile=tile)
         assert out.shape == ref.shape and out.dtype == ref.dtype, name
         torch.testing.assert_close(out, ref, atol=1e-5, rtol=0, msg=lambda m: f"{name}: {m}")
+    # rasterize_cpu has two paths: the autograd kernels (inputs need gradients)
+    # and the inference kernel (no gradients); they must agree bit for bit
+    with torch.no_grad():
+        infer = rasterize_cpu(means, covs, opac, colors, H, W, bg, tile=tile)
+    train = rasterize_cpu(means.clone().requires_grad_(), covs, opac, colors, H, W, bg, tile=tile)
+    assert train.requires_grad and not infer.requires_grad
+    assert torch.equal(train.detach(), infer)
 
 
 def test_dispatcher_routes_to_the_same_image() -> None:

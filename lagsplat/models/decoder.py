@@ -213,9 +213,15 @@ class ConditionedGaussians(nn.Module):
         return c, torch.einsum("kij,lj->kil", J_px, W_inv)
 
     # --------------------------------------------------------------- rendering
-    def forward(self, q: Tensor, height: int, width: int, backend: Backend | None = None) -> Tensor:
-        """Render the states ``q [B,d]`` to images ``[B,3,H,W]`` in [0, 1]."""
-        means, gate, g = self.condition(q)
+    def forward(
+        self, q: Tensor, height: int, width: int, backend: Backend | None = None, geom: DecoderGeometry | None = None
+    ) -> Tensor:
+        """Render the states ``q [B,d]`` to images ``[B,3,H,W]`` in [0, 1].
+
+        ``geom``: a precomputed :meth:`geometry` (a frozen decoder rendered many
+        times, e.g. by the viewer, need not rebuild it per frame).
+        """
+        means, gate, g = self.condition(q, geom)
         scale = means.new_tensor([float(width), float(height)])
         cov_px = g.cov * scale[None, :, None] * scale[None, None, :]
         img = rasterize(

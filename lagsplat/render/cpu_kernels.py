@@ -114,6 +114,65 @@ def forward_kernel(pairs, key_start, means, conic, opac, r2, colors, bg, H, W, t
                 t_final[b, y, x] = T
 
 
+@njit(parallel=True, cache=True)
+def render_kernel(pairs, key_start, means, conic, opac, r2, colors, bg, x0, x1, y0, y1, H, W, tile, ntx, n_tiles, out):  # pragma: no cover
+    """Inference-only compositing (no gradients): fills ``out [B,C,H,W]``.
+
+    The same rule and the same float32 arithmetic, pixel by pixel, as
+    :func:`forward_kernel`, but the loops are swapped: per tile, primitives
+    are visited front to back and each one touches only the pixels of its
+    support box (``x0..x1``, ``y0..y1``, int64 ``[N]``, inclusive) inside the
+    tile, with a per-pixel transmittance and colour accumulator. Nothing is
+    stored for a backward pass. Used when no gradient is needed (the viewer,
+    evaluation renders).
+    """
+    n_keys = key_start.shape[0] - 1
+    C = colors.shape[1]
+    for key in prange(n_keys):
+        b = key // n_tiles
+        tid = key - b * n_tiles
+        ty = tid // ntx
+        tx = tid - ty * ntx
+        s = key_start[key]
+        e = key_start[key + 1]
+        T = np.ones((tile, tile), np.float32)
+        acc = np.zeros((tile, tile, C), np.float32)
+        ox, oy = tx * tile, ty * tile
+        for p in range(s, e):
+            n = pairs[p]
+            ya = max(y0[n], oy)
+            yb = min(y1[n], oy + tile - 1, H - 1)
+            xa = max(x0[n], ox)
+            xb = min(x1[n], ox + tile - 1, W - 1)
+            for y in range(ya, yb + 1):
+                dy = np.float32(y + 0.5) - means[n, 1]
+                for x in range(xa, xb + 1):
+                    dx = np.float32(x + 0.5) - means[n, 0]
+                    d2 = conic[n, 0] * dx * dx + np.float32(2.0) * conic[n, 1] * dx * dy + conic[n, 2] * dy * dy
+                    if d2 > r2[n]:
+                        continue
+                    a = opac[n] * math.exp(np.float32(-0.5) * d2)
+                    if a > ALPHA_MAX:
+                        a = ALPHA_MAX
+                    if a < ALPHA_MIN:
+                        continue
+                    iy, ix = y - oy, x - ox
+                    w = a * T[iy, ix]
+                    for c in range(C):
+                        acc[iy, ix, c] += colors[n, c] * w
+                    T[iy, ix] = T[iy, ix] * (np.float32(1.0) - a)
+        for iy in range(tile):
+            y = oy + iy
+            if y >= H:
+                break
+            for ix in range(tile):
+                x = ox + ix
+                if x >= W:
+                    break
+                for c in range(C):
+                    out[b, c, y, x] = acc[iy, ix, c] + T[iy, ix] * bg[c]
+
+
 @njit(parallel=True, cache=True, fastmath=False)
 def backward_kernel(pairs, key_start, means, conic, opac, r2, colors, bg, H, W, tile, ntx, n_tiles, grad_out, t_final, t_store, g_pair):  # pragma: no cover
     """Back-to-front gradients. ``g_pair [P, 6 + C]`` receives, per pair,

@@ -236,6 +236,24 @@ def rasterize_tiles(
     return img[:, :, :height, :width]
 
 
+def _cpu_render(means, conic, opac, colors, r2, bounds, background, height, width, tile) -> Tensor:
+    """Inference path of :func:`rasterize_cpu`: the same image, no autograd record (``render_kernel``)."""
+    from lagsplat.render import cpu_kernels as ck
+
+    B, K, C = colors.shape
+    ntx, nty = math.ceil(width / tile), math.ceil(height / tile)
+    n_tiles = ntx * nty
+    x0, x1, y0, y1, valid = (v.reshape(-1).numpy() for v in bounds)
+    pairs, key_start = ck.bin_pairs(x0, x1, y0, y1, valid, K, n_tiles, ntx, tile)
+    arr = lambda t: np.ascontiguousarray(t.detach().reshape(B * K, -1).numpy(), dtype=np.float32)  # noqa: E731
+    m, cn, col = arr(means), arr(conic), arr(colors)
+    op, rr = arr(opac).reshape(-1), arr(r2).reshape(-1)
+    bg = np.zeros(C, np.float32) if background is None else background.detach().cpu().numpy().astype(np.float32)
+    out = np.empty((B, C, height, width), np.float32)
+    ck.render_kernel(pairs, key_start, m, cn, op, rr, col, bg, x0, x1, y0, y1, height, width, tile, ntx, n_tiles, out)
+    return torch.from_numpy(out)
+
+
 class _CpuRasterize(torch.autograd.Function):
     """Autograd wrapper of the compiled kernels in :mod:`lagsplat.render.cpu_kernels`."""
 
@@ -302,6 +320,9 @@ def rasterize_cpu(
     B, K, conic, colors, r2, sxx, syy = _prepare(means, covs, opacities, colors, eps2d)
     with torch.no_grad():
         bounds = _pixel_bounds(means, r2, sxx, syy, height, width)
+    needs_grad = torch.is_grad_enabled() and any(t.requires_grad for t in (means, covs, opacities, colors))
+    if not needs_grad:
+        return _cpu_render(means, conic, opacities, colors, r2, bounds, background, height, width, tile)
     return _CpuRasterize.apply(
         means.float(), conic.float(), opacities.float(), colors.float(), r2, bounds, background, height, width, tile
     )

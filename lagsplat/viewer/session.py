@@ -172,6 +172,7 @@ class Session:
         self.transport = ForceTransport.from_autoencoder(ae, chart)
         self.d = self.transport.d
         self._W_inv = torch.as_tensor(chart.W_inv, dtype=torch.float32)
+        self._geom = None  # the frozen decoder's geometry, built at the first render
         self._mean = torch.as_tensor(chart.mean, dtype=torch.float32)
         with torch.no_grad():
             self.q_rest = model.q_rest.detach().reshape(1, -1).float().clone()
@@ -446,7 +447,9 @@ class Session:
         t0 = time.perf_counter()
         with torch.no_grad():
             z = q.reshape(1, -1).float() @ self._W_inv + self._mean
-            img = self.ae.decode(z, self.render_height, self.render_width)[0]
+            if self._geom is None:
+                self._geom = self.ae.decoder.geometry()
+            img = self.ae.decoder(z, self.render_height, self.render_width, geom=self._geom)[0]
             out = (img.clamp(0, 1).permute(1, 2, 0) * 255.0 + 0.5).to(torch.uint8).numpy()
         ms = (time.perf_counter() - t0) * 1e3
         self.render_ms = ms if self.render_ms == 0 else 0.9 * self.render_ms + 0.1 * ms
