@@ -15,6 +15,21 @@ pixels, and ``kappa`` the single energy factor the video leaves unidentified
 (paper §3.4 "What the kinematics cannot supply is the scale"), calibrated from
 one known (force, displacement) pair by :func:`calibrate_kappa`.
 
+Two brushes (``brush=``):
+
+* ``"paper"``: the weights above, verbatim from paper §3.4. They ignore
+  occlusion: opaque background primitives behind a thin moving part get the
+  same weight as the part itself, diluting its Jacobian.
+* ``"visible"`` (default): what the click actually touches in the render,
+  ``w_i ∝ sum_s k_sigma(s) T_i(x + s) a_i(x + s)``, the compositing weight of
+  primitive ``i`` (its alpha times the transmittance in front of it, the
+  rasteriser's rule of :mod:`lagsplat.render.rasterize`) summed over brush
+  samples ``s`` on a 5 x 5 grid of spacing ``sigma`` weighted by
+  ``exp(-|s|^2 / 2 sigma^2)``. On an unoccluded primitive far from others it
+  reduces to the paper's weights; on a thin rod in front of a background it
+  selects the rod (paper §4.5: "the first Gaussian it meets becomes the point
+  of application").
+
 A :class:`Selection` freezes the weights of the primitives under the click:
 the force keeps acting on the same material while the object moves, and its
 application point ``sum_i w_i mu_i(q)`` is re-evaluated at the deformed state.
@@ -35,7 +50,10 @@ from torch import Tensor
 from lagsplat.models.decoder import latent_gate
 from lagsplat.models.lagrangian import Lagrangian
 
-__all__ = ["ForceTransport", "Selection", "EditedDynamics", "calibrate_kappa"]
+__all__ = ["ForceTransport", "Selection", "EditedDynamics", "calibrate_kappa", "BRUSHES"]
+
+#: Brush weightings of :meth:`ForceTransport.select` (module docstring).
+BRUSHES = ("visible", "paper")
 
 
 @dataclass
@@ -54,27 +72,47 @@ class ForceTransport:
         alpha: ``[K]`` base opacities.
         mu_q, L_qq: the latent blocks that gate each primitive (raw latent units).
         W_inv, mean: the chart's de-whitening ``z = q @ W_inv + mean``.
+        cov: ``[K,2,2]`` spatial covariances in pixels^2 (the rendered footprints).
+        brush: ``"visible"`` or ``"paper"`` (see the module docstring).
 
     Build with :meth:`from_autoencoder`. All tensors float32, CPU.
     """
 
-    def __init__(self, c: Tensor, J: Tensor, alpha: Tensor, mu_q: Tensor, L_qq: Tensor, W_inv: Tensor, mean: Tensor) -> None:
+    def __init__(
+        self,
+        c: Tensor,
+        J: Tensor,
+        alpha: Tensor,
+        mu_q: Tensor,
+        L_qq: Tensor,
+        W_inv: Tensor,
+        mean: Tensor,
+        cov: Tensor | None = None,
+        brush: str = "visible",
+    ) -> None:
+        if brush not in BRUSHES:
+            raise ValueError(f"unknown brush {brush!r}; expected one of {BRUSHES}")
         self.c, self.J, self.alpha, self.mu_q, self.L_qq, self.W_inv, self.mean = c, J, alpha, mu_q, L_qq, W_inv, mean
+        if cov is None:  # isotropic 1 px footprints when the decoder's are not given
+            cov = torch.eye(2).expand(len(c), 2, 2).clone()
+        self.cov, self.brush = cov, brush
 
     @classmethod
     @torch.no_grad()
-    def from_autoencoder(cls, ae, chart) -> "ForceTransport":
+    def from_autoencoder(cls, ae, chart, brush: str = "visible") -> "ForceTransport":
         """Read the constant Jacobians off a trained Stage-1 autoencoder and its frozen chart.
 
         Args:
             ae: :class:`~lagsplat.train.stage1.AutoEncoder` (its ``decoder``, ``height``, ``width``).
             chart: :class:`~lagsplat.chart.Chart` (``W_inv``, ``mean``).
+            brush: ``"visible"`` (default) or ``"paper"``.
         """
         g = ae.decoder.geometry()
         c, J = ae.decoder.chart_kinematics(chart.W_inv, chart.mean, ae.height, ae.width)
+        _, cov = ae.decoder.pixel_geometry(ae.height, ae.width, g)
         W_inv = torch.as_tensor(chart.W_inv, dtype=torch.float32)
         mean = torch.as_tensor(chart.mean, dtype=torch.float32)
-        return cls(c, J, g.alpha.clone(), g.mu_q.clone(), g.L_qq.clone(), W_inv, mean)
+        return cls(c, J, g.alpha.clone(), g.mu_q.clone(), g.L_qq.clone(), W_inv, mean, cov.clone(), brush)
 
     @property
     def d(self) -> int:
@@ -89,12 +127,57 @@ class ForceTransport:
         """Rendered opacity ``alpha_i g_i(q) [B,K]`` (paper Eq. 4)."""
         return self.alpha[None] * latent_gate(q @ self.W_inv + self.mean, self.mu_q, self.L_qq)
 
+    def compositing_weights(self, mu: Tensor, opacity: Tensor, points: Tensor) -> Tensor:
+        """Share of each primitive in the rendered colour at each point, ``[P,K]``.
+
+        ``T_i(p) a_i(p)`` with ``a_i`` the primitive's alpha at ``p`` and ``T_i``
+        the transmittance of the primitives in front of it: the compositing rule
+        of :mod:`lagsplat.render.rasterize` (front to back in index order, same
+        dilation, support and alpha cut-offs).
+
+        Args:
+            mu: ``[K,2]`` positions (px) at the state of interest.
+            opacity: ``[K]`` rendered opacities ``alpha_i g_i(q)``.
+            points: ``[P,2]`` pixel positions.
+        """
+        from lagsplat.render.rasterize import ALPHA_MAX, ALPHA_MIN, EPS2D, SUPPORT_SIGMA
+
+        cov = self.cov + EPS2D * torch.eye(2)
+        sxx, sxy, syy = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
+        det = (sxx * syy - sxy * sxy).clamp_min(1e-12)
+        dx = points[:, None, 0] - mu[None, :, 0]
+        dy = points[:, None, 1] - mu[None, :, 1]
+        d2 = (syy * dx * dx - 2.0 * sxy * dx * dy + sxx * dy * dy) / det
+        a = torch.clamp(opacity[None] * torch.exp(-0.5 * d2), max=ALPHA_MAX)
+        r2 = torch.clamp(2.0 * torch.log(255.0 * opacity.clamp_min(1e-30)), max=SUPPORT_SIGMA**2)
+        a = torch.where((d2 <= r2[None]) & (a >= ALPHA_MIN), a, torch.zeros_like(a))
+        log1m = torch.log1p(-a).double()
+        trans = torch.exp(torch.cumsum(log1m, 1) - log1m).to(a.dtype)
+        return trans * a
+
+    def _weights(self, mu: Tensor, opacity: Tensor, x: Tensor, sigma: float) -> Tensor:
+        """Unnormalised brush weights ``[P,K]`` at points ``x [P,2]`` for one state."""
+        if self.brush == "paper":
+            return opacity[None] * torch.exp(-0.5 * ((mu[None] - x[:, None]) ** 2).sum(-1) / sigma**2)
+        g = torch.arange(-2, 3, dtype=x.dtype) * sigma
+        offs = torch.stack(torch.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)  # [25,2]
+        k = torch.exp(-0.5 * (offs**2).sum(-1) / sigma**2)
+        pts = (x[:, None, :] + offs[None]).reshape(-1, 2)
+        cw = self.compositing_weights(mu, opacity, pts).reshape(len(x), len(offs), -1)
+        return torch.einsum("s,psk->pk", k, cw)
+
+    @staticmethod
+    def _normalise(w: Tensor) -> Tensor:
+        tot = w.sum(-1, keepdim=True)
+        return torch.where(tot > 1e-12, w / tot.clamp_min(1e-30), torch.zeros_like(w))
+
     def select(self, q: Tensor, x: Tensor, sigma: float) -> Selection:
         """Brush weights at the click (state ``q [B,d]``, point ``x [B,2]`` px, radius ``sigma`` px).
 
-        ``w_i ∝ alpha_i g_i(q) exp(-|mu_i(q) - x|^2 / 2 sigma^2)``, normalised to 1.
-        A brush that reaches no primitive (all weights below 1e-12) gives a
-        zero row: the force then acts on nothing.
+        ``"paper"`` brush: ``w_i ∝ alpha_i g_i(q) exp(-|mu_i(q) - x|^2 / 2 sigma^2)``;
+        ``"visible"`` brush: the compositing weights around ``x`` (module
+        docstring). Normalised to 1. A brush that reaches no primitive (all
+        weights below 1e-12) gives a zero row: the force then acts on nothing.
 
         Raises:
             ValueError: if ``sigma`` is not positive or shapes disagree.
@@ -103,10 +186,38 @@ class ForceTransport:
             raise ValueError(f"brush radius sigma must be positive (pixels), got {sigma}")
         if q.shape[0] != x.shape[0] or x.shape[-1] != 2:
             raise ValueError(f"need q [B,d] and x [B,2] with the same B, got {tuple(q.shape)} and {tuple(x.shape)}")
-        d2 = ((self.means(q) - x[:, None, :]) ** 2).sum(-1)
-        w = self.opacity(q) * torch.exp(-0.5 * d2 / sigma**2)
-        tot = w.sum(-1, keepdim=True)
-        return Selection(torch.where(tot > 1e-12, w / tot.clamp_min(1e-30), torch.zeros_like(w)))
+        mu, op = self.means(q), self.opacity(q)
+        w = torch.cat([self._weights(mu[b], op[b], x[b : b + 1], sigma) for b in range(len(x))])
+        return Selection(self._normalise(w))
+
+    @torch.no_grad()
+    def brush_jacobian(self, q: Tensor, points: Tensor, sigma: float, chunk: int = 1024) -> Tensor:
+        """Jacobian of the brush at many points, ``J_bar(x) = sum_i w_i(x) J_i`` ``[P,2,d]`` px per unit ``q``.
+
+        The weights are those of :meth:`select` (same brush) at the single state
+        ``q [1,d]`` (the state-dependent part is computed once for all points), so the
+        generalized force of a force ``f`` at ``x`` is ``kappa J_bar(x)^T f``.
+        Zero rows where the brush reaches no primitive.
+
+        Args:
+            q: ``[1,d]`` state.
+            points: ``[P,2]`` brush centres, pixels.
+            sigma: brush radius, pixels (> 0).
+            chunk: points per batch (memory ``chunk * K`` floats).
+
+        Raises:
+            ValueError: if ``sigma`` is not positive.
+        """
+        if not sigma > 0:
+            raise ValueError(f"brush radius sigma must be positive (pixels), got {sigma}")
+        mu = self.means(q)[0]
+        op = self.opacity(q)[0]
+        out = []
+        step = chunk if self.brush == "paper" else max(1, chunk // 25)
+        for s in range(0, len(points), step):
+            w = self._normalise(self._weights(mu, op, points[s : s + step], sigma))
+            out.append(torch.einsum("pk,kid->pid", w, self.J))
+        return torch.cat(out) if out else self.J.new_zeros(0, 2, self.d)
 
     def application_point(self, q: Tensor, sel: Selection) -> Tensor:
         """Where the selected material is at state ``q``: ``sum_i w_i mu_i(q) [B,2]`` px."""

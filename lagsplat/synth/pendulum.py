@@ -69,6 +69,7 @@ _PIVOT_RADIUS = 0.03
 # Colours, RGB in [0, 1].
 _ROD_RGB = (0.25, 0.25, 0.28)
 _PIVOT_RGB = (0.15, 0.15, 0.17)
+_ROD_BAND_RGB = (0.95, 0.75, 0.20)
 _BOB_LEFT_RGB = (0.85, 0.20, 0.15)  # left of the rod axis (seen hanging down)
 _BOB_RIGHT_RGB = (0.15, 0.35, 0.85)
 
@@ -144,25 +145,38 @@ def simulate_pendulum(
     return sol.y[0].astype(np.float64), t
 
 
-def _foreground(theta: float, W: int, H: int, s: int) -> np.ndarray:
+def _foreground(
+    theta: float, W: int, H: int, s: int, rod_width: float = 2 * _ROD_HALF_WIDTH, rod_bands: int = 0, rod_above: float = 0.0
+) -> np.ndarray:
     """The pendulum at angle ``theta`` (rad), drawn at ``s`` x resolution and area-reduced.
+
+    ``rod_width`` is in units of ``H``; ``rod_bands > 0`` paints the rod in that
+    many equal bands of alternating colours (texture along the rod, so its
+    motion is visible all along it); ``rod_above`` (units of ``H``) extends the
+    rod beyond the pivot, opposite the bob (a counter-arm, like a metronome's).
 
     Returns float64 ``[H, W, 4]``: RGB premultiplied, and coverage.
     """
     cv = Canvas(W, H, s)
     px, py = W / 2.0, PIVOT_Y * H
     ux, uy = math.sin(theta), math.cos(theta)  # rod direction (y down)
-    L, r, hw = ROD_LENGTH * H, BOB_RADIUS * H, _ROD_HALF_WIDTH * H
+    L, r, hw = ROD_LENGTH * H, BOB_RADIUS * H, 0.5 * rod_width * H
     bx, by = px + L * ux, py + L * uy
     nx, ny = uy, -ux  # unit normal pointing to the rod's image-right side when hanging
 
-    rod = [
-        (px + hw * nx, py + hw * ny),
-        (bx + hw * nx, by + hw * ny),
-        (bx - hw * nx, by - hw * ny),
-        (px - hw * nx, py - hw * ny),
-    ]
-    cv.convex(rod, _ROD_RGB)
+    def strip(s0: float, s1: float) -> list[tuple[float, float]]:
+        """The rod between arc positions ``s0 < s1`` (px from the pivot, + towards the bob)."""
+        return [
+            (px + s0 * ux + hw * nx, py + s0 * uy + hw * ny),
+            (px + s1 * ux + hw * nx, py + s1 * uy + hw * ny),
+            (px + s1 * ux - hw * nx, py + s1 * uy - hw * ny),
+            (px + s0 * ux - hw * nx, py + s0 * uy - hw * ny),
+        ]
+
+    top = -rod_above * H
+    cv.convex(strip(top, L), _ROD_RGB)
+    for k in range(1, int(rod_bands), 2):  # odd bands in the second colour
+        cv.convex(strip(top + (L - top) * k / rod_bands, top + (L - top) * (k + 1) / rod_bands), _ROD_BAND_RGB)
     cv.disc(px, py, _PIVOT_RADIUS * H, _PIVOT_RGB)
     cv.disc(bx, by, r, _BOB_LEFT_RGB)
     # Right half: the half-disc on the +normal side, i.e. angles [phi - 180, phi]
@@ -177,6 +191,9 @@ def render_pendulum(
     size: tuple[int, int] = (64, 64),
     seed: int = 0,
     supersample: int = SUPERSAMPLE,
+    rod_width: float = 2 * _ROD_HALF_WIDTH,
+    rod_bands: int = 0,
+    rod_above: float = 0.0,
 ) -> np.ndarray:
     """Render pendulum frames for a sequence of angles.
 
@@ -187,6 +204,10 @@ def render_pendulum(
         seed: seed of the background's smooth noise (nothing else depends on it).
         supersample: foreground supersampling factor (>= 1; 4 by default),
             reduced with ``cv2.INTER_AREA``.
+        rod_width: rod width in units of ``H`` (default 0.036, a thin rod).
+        rod_bands: number of alternating colour bands along the rod (0: plain).
+        rod_above: length of rod beyond the pivot, opposite the bob, units of
+            ``H`` (in ``[0, PIVOT_Y)``; 0: none).
 
     Returns:
         uint8 ``[T, H, W, 3]`` RGB frames.
@@ -201,7 +222,15 @@ def render_pendulum(
         raise ValueError("theta contains NaN or inf")
     W, H = parse_size(size, 8)
     s = check_supersample(supersample)
-    return render_frames(th, lambda angle: _foreground(float(angle), W, H, s), background(W, H, seed))
+    rw, nb = float(rod_width), int(rod_bands)
+    if not (math.isfinite(rw) and 0.0 < rw <= 2 * BOB_RADIUS):
+        raise ValueError(f"rod_width must be in (0, {2 * BOB_RADIUS}] (units of the frame height), got {rod_width!r}")
+    if nb < 0 or nb != rod_bands:
+        raise ValueError(f"rod_bands must be a non-negative integer, got {rod_bands!r}")
+    ra = float(rod_above)
+    if not (math.isfinite(ra) and 0.0 <= ra < PIVOT_Y):
+        raise ValueError(f"rod_above must be in [0, {PIVOT_Y}) (units of the frame height), got {rod_above!r}")
+    return render_frames(th, lambda angle: _foreground(float(angle), W, H, s, rw, nb, ra), background(W, H, seed))
 
 
 def make_pendulum_clip(
@@ -213,6 +242,9 @@ def make_pendulum_clip(
     theta0_deg: float = 20.0,
     train_fraction: float = 0.6,
     seed: int = 0,
+    rod_width: float = 2 * _ROD_HALF_WIDTH,
+    rod_bands: int = 0,
+    rod_above: float = 0.0,
 ) -> Clip:
     """The synthetic damped-pendulum clip with its ground truth.
 
@@ -243,6 +275,11 @@ def make_pendulum_clip(
         theta0_deg: release angle (degrees), from rest.
         train_fraction: share of frames used for training, in ``(0, 1)``.
         seed: seed of the background texture only; everything else is fixed.
+        rod_width, rod_bands, rod_above: rod width (units of ``H``), colour
+            bands along it and counter-arm beyond the pivot, see
+            :func:`render_pendulum` (the defaults draw the toy's thin
+            plain rod; a wide banded rod makes the whole body's motion visible,
+            as the force ground truth ``conf/system/pendulum_force.yaml`` needs).
 
     Returns:
         A validated :class:`~lagsplat.io.clip.Clip`.
@@ -259,7 +296,9 @@ def make_pendulum_clip(
 
     theta0 = math.radians(float(theta0_deg))
     theta, t = simulate_pendulum(f_natural_hz, zeta, theta0, fps_f, T)
-    images = render_pendulum(theta, size=(W, H), seed=seed)
+    images = render_pendulum(
+        theta, size=(W, H), seed=seed, rod_width=rod_width, rod_bands=rod_bands, rod_above=rod_above
+    )
 
     split = np.full(T, HELD_OUT, np.int8)
     split[:n_train] = TRAIN
@@ -285,6 +324,9 @@ def make_pendulum_clip(
             "theta0_deg": float(theta0_deg),
             "train_fraction": tf,
             "seed": int(seed),
+            "rod_width": float(rod_width),
+            "rod_bands": int(rod_bands),
+            "rod_above": float(rod_above),
         },
     }
     clip = Clip(images=images, t=t, split=split, meta=meta)

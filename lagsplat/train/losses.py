@@ -10,7 +10,7 @@ from torch import Tensor
 
 from lagsplat.models.decoder import ConditionedGaussians
 
-__all__ = ["anisotropy_penalty", "reconstruction_loss"]
+__all__ = ["anisotropy_penalty", "kinematic_penalty", "reconstruction_loss"]
 
 
 def anisotropy_penalty(decoder: ConditionedGaussians, height: int, width: int, max_ratio: float = 5.0) -> Tensor:
@@ -66,3 +66,30 @@ def reconstruction_loss(
     an = anisotropy_penalty(decoder, H, W, max_ratio)
     loss = w_l1 * l1 + w_ssim * (1.0 - s) + w_aniso * an
     return loss, {"l1": float(l1.detach()), "ssim": float(s.detach()), "aniso": float(an.detach())}
+
+
+def kinematic_penalty(decoder, z_std: Tensor) -> Tensor:
+    """Minimal-motion prior on the decoder's kinematics (Stage 1, optional).
+
+    ``sum_i alpha_i |J_i diag(z_std)|_F^2 / sum_i alpha_i``: the squared image
+    displacement (normalised image units) of each primitive over one standard
+    deviation of every latent coordinate, averaged with the opacities. The
+    Jacobians ``J_i = Sigma_sq Sigma_qq^-1`` (paper Eq. 2, 9) are fixed by the
+    images only where the texture under a primitive changes when it moves; on
+    flat regions the reconstruction loss leaves them free, and slow brightness
+    changes (exposure, reflections) can be explained by sliding primitives. A
+    small weight sets those unconstrained Jacobians to zero, so a force applied
+    on static background transports to nothing (paper §3.4, App. A.1), while
+    textured moving parts, whose motion the reconstruction pins, keep theirs.
+
+    Args:
+        decoder: :class:`~lagsplat.models.decoder.ConditionedGaussians`.
+        z_std: ``[d]`` spread of the raw latents (detached), the motion scale.
+
+    Returns:
+        Scalar tensor (dimensionless, normalised image units squared).
+    """
+    g = decoder.geometry()
+    Jz = g.J * z_std.reshape(1, 1, -1).clamp_min(1e-3)
+    w = g.alpha
+    return (w * Jz.pow(2).sum((1, 2))).sum() / w.sum().clamp_min(1e-12)

@@ -16,7 +16,7 @@ from lagsplat.io.clip import Clip
 from lagsplat.models.decoder import ConditionedGaussians
 from lagsplat.models.encoder import CpAEEncoder, nonlocal_filter_penalty
 from lagsplat.train.config import dataclass_from_mapping
-from lagsplat.train.losses import reconstruction_loss
+from lagsplat.train.losses import kinematic_penalty, reconstruction_loss
 
 __all__ = ["Stage1Config", "AutoEncoder", "train_stage1", "save_stage1", "load_stage1", "frames_to_tensor"]
 
@@ -39,6 +39,7 @@ class Stage1Config:
     w_ssim: float = 0.02
     w_aniso: float = 0.01
     w_nonlocal: float = 0.0
+    w_kinematic: float = 0.0
     ssim_window: int = 7
     aniso_max_ratio: float = 5.0
     sigma_xy: float = 0.05
@@ -161,6 +162,8 @@ def train_stage1(clip: Clip, cfg: Stage1Config, d: int, seed: int = 0, progress:
         )
         if cfg.w_nonlocal > 0:
             loss = loss + cfg.w_nonlocal * nonlocal_filter_penalty(enc.large_kernels())
+        if cfg.w_kinematic > 0:
+            loss = loss + cfg.w_kinematic * kinematic_penalty(dec, z.detach().std(0))
         opt.zero_grad(set_to_none=True)
         loss.backward()
         nn.utils.clip_grad_norm_(enc.parameters(), cfg.grad_clip)

@@ -227,19 +227,8 @@ class Session:
         Returns:
             Pixels per unit ``q``; zero rows where the brush reaches no primitive.
         """
-        tr = self.transport
         q = self.q_rest if q is None else q
-        with torch.no_grad():
-            mu = tr.means(q)[0]  # [K,2]
-            op = tr.opacity(q)[0]  # [K]
-            out = []
-            for s in range(0, len(points), chunk):
-                x = points[s : s + chunk]
-                w = op[None] * torch.exp(-0.5 * ((mu[None] - x[:, None]) ** 2).sum(-1) / self.sigma**2)
-                tot = w.sum(-1, keepdim=True)
-                w = torch.where(tot > 1e-12, w / tot.clamp_min(1e-30), torch.zeros_like(w))
-                out.append(torch.einsum("pk,kid->pid", w, tr.J))
-        return torch.cat(out)
+        return self.transport.brush_jacobian(q, points, self.sigma, chunk)
 
     def mobility_map(self, q: Tensor | None = None) -> np.ndarray:
         """``|J_bar(x)|_2`` at every pixel centre, ``[H,W]`` (pixels per unit ``q``; largest singular value).

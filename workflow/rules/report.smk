@@ -9,6 +9,18 @@ rule figures:
         cli("figures")
 
 
+rule forces:
+    """Force-transport checks and figure (paper §3.4, Fig. 7): background, linearity, kernel."""
+    input:
+        f"{RESULTS}/{{system}}/stage2.pt",
+    output:
+        f"{RESULTS}/{{system}}/forces.json",
+        f"{RESULTS}/{{system}}/figures/forces.png",
+    threads: 1
+    shell:
+        cli("forces")
+
+
 rule table:
     """A table rebuilt from metrics.json files (paper Table 2 layout)."""
     input:
