@@ -7,8 +7,12 @@
 #   snakemake -c2 toy --config overrides="stage1.steps=200"
 #   snakemake -c2 results/tables/two_carts_inertia.tex   # inertia ablation on one frozen chart
 #
+#   snakemake -c2 results/tables/krauss.tex --config krauss_source=synthetic   # soft-robot benchmark, offline surrogate
+#
 # Config keys (--config k=v): raw_dir (where source clips are kept / downloaded),
-# overrides (extra Hydra overrides for every stage), results_dir.
+# overrides (extra Hydra overrides for every stage), results_dir; soft-robot
+# benchmark: krauss_source (zenodo | synthetic), krauss_archive (local
+# processed_data.zip), see workflow/rules/krauss.smk.
 import yaml
 from pathlib import Path
 
@@ -59,6 +63,7 @@ include: "workflow/rules/chart.smk"
 include: "workflow/rules/stage2.smk"
 include: "workflow/rules/evaluate.smk"
 include: "workflow/rules/report.smk"
+include: "workflow/rules/krauss.smk"
 
 
 rule toy:

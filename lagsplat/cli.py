@@ -5,7 +5,7 @@ One stage per Snakemake rule; each reads only upstream artifacts under
 resolved configuration saved beside it (``config/<stage>.yaml``).
 
 Stages: ``download``, ``ingest``, ``stage1``, ``chart``, ``stage2``,
-``evaluate``, ``figures``, ``table``, ``ablation``, ``all`` (ingest ->
+``evaluate``, ``figures``, ``table``, ``ablation``, ``krauss_table``, ``all`` (ingest ->
 figures in one process), and ``view`` (the interactive viewer, which writes
 nothing).
 """
@@ -31,10 +31,13 @@ stages:
   stage1     clip.npz -> stage1.pt           (encoder + conditioned-Gaussian decoder)
   chart      stage1.pt -> chart.npz          (whitening, G_bar, A, AE floor)
   stage2     chart.npz -> stage2.pt          (latent Lagrangian)
-  evaluate   -> metrics.json                 (eps_freq, eps_q, eps_I / eps_AE)
+  evaluate   -> metrics.json                 (eps_freq, eps_q, eps_I / eps_AE; system.protocol=krauss:
+             the published soft-robot protocol, lagsplat.evaluate_krauss)
   figures    -> figures/rollout.png
+  forces     -> forces.json, figures/forces.png (force-transport checks: background, linearity, kernel)
   table      metrics.json of table.systems -> results/tables/<table.name>.tex/.csv
   ablation   variants' metrics.json of one system -> results/tables/<name>_<ablation>.tex/.csv
+  krauss_table  soft-robot benchmark (paper Table 4) -> results/tables/krauss.tex/.csv/.md
   all        ingest .. figures for one system
   view       interactive viewer: drag the identified model in a local web page
              (http://127.0.0.1:<view.port>/; settings in the `view` group of conf/config.yaml)
@@ -122,12 +125,20 @@ def stage_download(cfg: DictConfig) -> None:
     from lagsplat.io.download import fetch
 
     entries = list(cfg.system.get("sources") or []) or [cfg.system.source]
-    only = (cfg.get("download") or {}).get("file")
-    todo = [e for e in entries if "url" in e and (not only or e.get("file") == only)]
+    dl = cfg.get("download") or {}
+    only = dl.get("file")
+    todo = [e for e in entries if e.get("url") and (not only or e.get("file") == only)]
     if not todo:
         print(f"{cfg.system.name}: nothing to download (no source.url)")
         return
     for src in todo:
+        if src.get("member"):  # a file inside a zip archive (lagsplat.io.zenodo): the member's SHA256 is verified
+            from lagsplat.io.zenodo import fetch_member
+
+            cache = Path(cfg.raw_dir) / src.archive_file if src.get("archive_file") else None
+            hint = "or give a local copy with download.archive=PATH (Snakemake: --config krauss_archive=PATH)"
+            fetch_member(src.url, src.member, Path(src.path), src.sha256, archive=dl.get("archive"), cache=cache, hint=hint)
+            continue
         fetch(src.url, Path(src.path), src.sha256)
 
 
@@ -195,13 +206,26 @@ def stage_evaluate(cfg: DictConfig) -> None:
     clip = load_clip(d / "clip.npz")
     chart = load_chart(d / "chart.npz")
     model, ck = load_stage2(_outdir(cfg) / "stage2.pt")
-    ev = EvalConfig(**_container(cfg.evaluate))
-    m = evaluate(clip, load_stage1(d / "stage1.pt"), chart, model, ev, source=str(d / "clip.npz"))
+    protocol = cfg.system.get("protocol") or "default"
+    if protocol == "krauss":  # the published soft-robot protocol (paper §4.4, Table 4)
+        import json
+
+        from lagsplat.evaluate_krauss import KraussEvalConfig, evaluate_krauss
+
+        truth_path = cfg.system.get("truth")
+        truth = json.loads(Path(truth_path).read_text()) if truth_path else None
+        kc = KraussEvalConfig.from_mapping(_container(cfg.krauss_eval) if cfg.get("krauss_eval") else None)
+        m = evaluate_krauss(clip, load_stage1(d / "stage1.pt"), chart, model, kc, source=str(d / "clip.npz"), truth=truth)
+    else:
+        ev = EvalConfig(**_container(cfg.evaluate))
+        m = evaluate(clip, load_stage1(d / "stage1.pt"), chart, model, ev, source=str(d / "clip.npz"))
     write_json(
         _outdir(cfg) / "metrics.json",
         {
             "system": cfg.system.name,
             "variant": cfg.get("variant"),
+            "protocol": protocol,
+            "data": cfg.system.get("data", "real"),
             "stage2": _container(cfg.stage2),
             "title": cfg.system.get("title", cfg.system.name),
             "d": int(cfg.system.d),
@@ -225,6 +249,43 @@ def stage_figures(cfg: DictConfig) -> None:
     rollout_figure(_sysdir(cfg), title=title, provenance=str(cfg.system.get("provenance", "")), model_dir=_outdir(cfg))
 
 
+def stage_forces(cfg: DictConfig) -> None:
+    """Force-transport checks (paper §3.4, Fig. 7) -> ``forces.json`` and ``figures/forces.png``."""
+    import numpy as np
+    import torch
+
+    from lagsplat.chart import load_chart
+    from lagsplat.force import ForceTransport
+    from lagsplat.force_checks import ForceCheckConfig, plot_force_checks, public_result, run_force_checks
+    from lagsplat.io.atomic import write_json
+    from lagsplat.io.clip import load_clip
+    from lagsplat.train.config import dataclass_from_mapping
+    from lagsplat.train.stage1 import load_stage1
+    from lagsplat.train.stage2 import load_stage2
+
+    d, out = _sysdir(cfg), _outdir(cfg)
+    fc = dataclass_from_mapping(ForceCheckConfig, OmegaConf.to_container(cfg.get("forces", {}), resolve=True), "forces")
+    ae, chart = load_stage1(d / "stage1.pt"), load_chart(d / "chart.npz")
+    model, _ = load_stage2(out / "stage2.pt")
+    model.eval()
+    tr = ForceTransport.from_autoencoder(ae, chart)
+    with torch.no_grad():
+        z = model.q_rest.detach()[None] @ torch.as_tensor(chart.W_inv, dtype=torch.float32) + torch.as_tensor(chart.mean, dtype=torch.float32)
+        rest = (ae.decode(z)[0].clamp(0, 1).permute(1, 2, 0).numpy() * 255 + 0.5).astype(np.uint8)
+    res = run_force_checks(model, tr, load_clip(d / "clip.npz").images, rest, fc)
+    title = str(cfg.system.get("title", cfg.system.name)) + ": forces through J^T f"
+    plot_force_checks(res, rest, out / "figures" / "forces.png", title=title)
+    pub = public_result(res)
+    write_json(out / "forces.json", pub)
+    b, lin, ker = pub["background"], pub["linearity"], pub["kernel"]
+    gap = "exactly still" if b["ratio"] is None else f"{b['ratio']:.0f}x below the object"
+    verdict = "pass" if b["passed"] else "FAIL"
+    print(
+        f"{cfg.system.name}: background {gap} ({verdict}, need {b['required_ratio']:g}x); "
+        f"J^T f additivity {lin['f_lat_rel_err']:.1e}; kernel {ker['rel']:.1e}"
+    )
+
+
 def stage_table(cfg: DictConfig) -> None:
     """``metrics.json`` of ``table.systems`` -> ``results/tables/<table.name>.tex`` and ``.csv``."""
     from lagsplat.report.tables import physical_table
@@ -245,6 +306,26 @@ def stage_ablation(cfg: DictConfig) -> None:
         raise KeyError(f"unknown ablation {key!r}; known: {sorted(cfg.ablations)} (conf/config.yaml, key ablations)")
     inputs = [_sysdir(cfg) / "variants" / v / "metrics.json" for v in cfg.ablations[key]]
     ablation_table(inputs, Path(cfg.results_dir) / "tables" / f"{cfg.system.name}_{key}.tex")
+
+
+def stage_krauss_table(cfg: DictConfig) -> None:
+    """Paper Table 4 -> ``results/tables/<krauss_table.name>.tex``, ``.csv`` and ``.md``.
+
+    Published rows from the versioned CSV of :mod:`lagsplat.report.krauss`;
+    ours from the ``metrics.json`` of ``krauss_table.one_segment`` /
+    ``two_segments`` and of the two-segment ``krauss_table.ablation``
+    variants. A run whose ``metrics.json`` is missing gives no row.
+    """
+    from lagsplat.report.krauss import krauss_table
+
+    t = cfg.krauss_table
+    res = Path(cfg.results_dir)
+    krauss_table(
+        res / str(t.one_segment) / "metrics.json" if t.get("one_segment") else None,
+        res / str(t.two_segments) / "metrics.json" if t.get("two_segments") else None,
+        [res / str(t.two_segments) / "variants" / str(v) / "metrics.json" for v in (t.get("ablation") or [])],
+        res / "tables" / f"{t.name}.tex",
+    )
 
 
 def stage_all(cfg: DictConfig) -> None:
@@ -297,8 +378,10 @@ STAGES: dict[str, Callable[[DictConfig], None]] = {
     "stage2": stage_stage2,
     "evaluate": stage_evaluate,
     "figures": stage_figures,
+    "forces": stage_forces,
     "table": stage_table,
     "ablation": stage_ablation,
+    "krauss_table": stage_krauss_table,
     "all": stage_all,
     "view": stage_view,
 }

@@ -1,0 +1,130 @@
+# Soft continuum robot benchmark (Krauss et al. 2026; paper §4.4, Table 4).
+#
+#   snakemake -c2 results/tables/krauss.tex                     # real data (downloads ~4.5 GB once)
+#   snakemake -c2 results/tables/krauss.tex --config krauss_archive=/path/processed_data.zip
+#   snakemake -c2 results/tables/krauss.tex --config krauss_source=synthetic   # offline surrogate
+#
+# Config keys (--config k=v):
+#   krauss_source   zenodo (default): Zenodo record 17812071, processed_data.zip, members verified by SHA256;
+#                   synthetic: the simulated robot of lagsplat.synth.continuum_robot, systems
+#                   krauss_{1seg,2seg}_synth (own results folders, rows labelled "surrogate").
+#   krauss_archive  a local copy of processed_data.zip (nothing is downloaded; the file is only read).
+#   krauss_synth_duration_s, krauss_synth_seed   override the surrogate's length (s) and seed.
+# The extracted NPZ files can also be placed by hand in raw_dir
+# (scr_dataset_raw_{1seg,2seg}_32x32_59fps.npz): an existing file skips the download.
+# The chain per robot: archive -> NPZ -> ingest -> stage1 -> chart -> stage2 (+ the two-segment
+# inertia variants) -> evaluate (system.protocol: krauss) -> krauss_table.
+
+KRAUSS_SOURCE = str(config.get("krauss_source", "zenodo"))
+if KRAUSS_SOURCE not in ("zenodo", "synthetic"):
+    raise ValueError(f"--config krauss_source={KRAUSS_SOURCE!r}: use zenodo (default) or synthetic")
+_KSFX = "" if KRAUSS_SOURCE == "zenodo" else "_synth"
+KRAUSS = {"1seg": f"krauss_1seg{_KSFX}", "2seg": f"krauss_2seg{_KSFX}"}
+KRAUSS_ABLATION = ["mass_decoder", "mass_constant"]  # paper §4.4, variants in conf/config.yaml
+
+
+
+def _kmerge(a, b):
+    """``b`` merged over ``a`` (nested dicts), as Hydra's defaults list does."""
+    out = dict(a)
+    for k, v in b.items():
+        out[k] = _kmerge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def krauss_conf(name):
+    """The system block of conf/system/<name>.yaml with its ``defaults`` parents merged in
+    (the krauss_* files inherit from krauss_2seg.yaml)."""
+    raw = yaml.safe_load((Path("conf/system") / f"{name}.yaml").read_text())
+    base = {}
+    for parent in raw.get("defaults") or []:
+        if isinstance(parent, str) and parent != "_self_":
+            base = _kmerge(base, krauss_conf(parent))
+    return _kmerge(base, raw.get("system") or {})
+
+
+# real data: NPZ file name -> system, all members of one archive
+_KREAL = {krauss_conf(s)["source"]["file"]: s for s in ("krauss_1seg", "krauss_2seg")}
+_KSRC = {f: krauss_conf(s)["source"] for f, s in _KREAL.items()}
+KRAUSS_URL = next(iter(_KSRC.values()))["url"]
+KRAUSS_ARCHIVE_FILE = next(iter(_KSRC.values()))["archive_file"]
+KRAUSS_ARCHIVE = config.get("krauss_archive") or f"{RAW}/{KRAUSS_ARCHIVE_FILE}"
+# surrogate: NPZ file name -> system
+_KSYN = {krauss_conf(s)["source"]["file"]: s for s in ("krauss_1seg_synth", "krauss_2seg_synth")}
+
+
+def _kre(names):
+    return "|".join(n.replace(".", r"\.") for n in names)
+
+
+ruleorder: krauss_extract > download
+ruleorder: krauss_synth > download
+
+
+rule krauss_archive:
+    """Download processed_data.zip (Zenodo record 17812071, ~4.5 GB) once for both robots; offline,
+    fails with one line saying what to download and where to put it. The archive has no published
+    checksum; it must list both members, whose SHA256 krauss_extract verifies. Delete it once both
+    NPZ files are extracted if disk space matters."""
+    output:
+        f"{RAW}/{KRAUSS_ARCHIVE_FILE}",
+    params:
+        members=" ".join(f"--member {s['member']}" for s in _KSRC.values()),
+        hint="or pass a local copy with --config krauss_archive=PATH, or place the extracted "
+        + " and ".join(f"{s['member']} at {RAW}/{f} (sha256 {s['sha256']})" for f, s in _KSRC.items()),
+    shell:
+        f"python -m lagsplat.io.zenodo archive '{KRAUSS_URL}' {{output}} {{params.members}} --hint '{{params.hint}}'"
+
+
+rule krauss_extract:
+    """Extract one robot's NPZ from the archive and verify its SHA256 (atomically; a mismatch leaves nothing)."""
+    input:
+        KRAUSS_ARCHIVE,
+    output:
+        f"{RAW}/{{file}}",
+    wildcard_constraints:
+        file=_kre(_KREAL),
+    params:
+        system=lambda w: _KREAL[w.file],
+    shell:
+        f"python -m lagsplat download system={{params.system}} raw_dir={RAW} download.file={{wildcards.file}} download.archive={{input}} {OVR}"
+
+
+rule krauss_synth:
+    """The offline surrogate (lagsplat.synth.continuum_robot) in the Krauss NPZ layout, with its
+    sidecar JSON (natural frequencies, depressurisation frame) used by the evaluation."""
+    output:
+        npz=f"{RAW}/{{file}}",
+        truth=f"{RAW}/{{file}}.json",
+    wildcard_constraints:
+        file=_kre(_KSYN),
+    params:
+        segments=lambda w: krauss_conf(_KSYN[w.file])["source"]["generator"]["segments"],
+        duration=lambda w: config.get("krauss_synth_duration_s", krauss_conf(_KSYN[w.file])["source"]["generator"]["duration_s"]),
+        seed=lambda w: config.get("krauss_synth_seed", krauss_conf(_KSYN[w.file])["source"]["generator"]["seed"]),
+    shell:
+        "python -m lagsplat.synth.continuum_robot --segments {params.segments} --out {output.npz} --duration-s {params.duration} --seed {params.seed}"
+
+
+rule krauss_table:
+    """Paper Table 4: published rows (lagsplat/report/data/krauss_published.csv) and ours, plus the
+    two-segment inertia ablation (decoder-induced and constant M on the same frozen chart)."""
+    input:
+        f"{RESULTS}/{KRAUSS['1seg']}/metrics.json",
+        f"{RESULTS}/{KRAUSS['2seg']}/metrics.json",
+        [f"{RESULTS}/{KRAUSS['2seg']}/variants/{v}/metrics.json" for v in KRAUSS_ABLATION],
+    output:
+        f"{RESULTS}/tables/krauss.tex",
+        f"{RESULTS}/tables/krauss.csv",
+        f"{RESULTS}/tables/krauss.md",
+    params:
+        ablation=",".join(KRAUSS_ABLATION),
+    shell:
+        f"python -m lagsplat krauss_table krauss_table.one_segment={KRAUSS['1seg']} krauss_table.two_segments={KRAUSS['2seg']} "
+        f"'krauss_table.ablation=[{{params.ablation}}]' results_dir={RESULTS} {OVR}"
+
+
+rule krauss:
+    """The whole soft-robot benchmark (see results/tables/krauss.tex)."""
+    input:
+        f"{RESULTS}/tables/krauss.tex",
