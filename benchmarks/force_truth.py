@@ -46,14 +46,15 @@ def true_angle(F: np.ndarray, r: float) -> float:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--results", default="results/toy", help="folder of the trained toy system")
+    ap.add_argument("--results", default="results/pendulum_force", help="folder of a trained pendulum system (pendulum_force or toy)")
+    ap.add_argument("--brush", default="visible", choices=["visible", "paper"], help="brush weighting (lagsplat.force)")
     ap.add_argument("--sigma", type=float, default=1.5, help="brush radius, pixels")
     args = ap.parse_args()
     d = Path(args.results)
     ae = load_stage1(d / "stage1.pt")
     chart = load_chart(d / "chart.npz")
     model, _ = load_stage2(d / "stage2.pt")
-    tr = ForceTransport.from_autoencoder(ae, chart)
+    tr = ForceTransport.from_autoencoder(ae, chart, brush=args.brush)
     H, W = ae.height, ae.width
     L_px = ROD_LENGTH * H
     pivot = np.array([W / 2.0, PIVOT_Y * H])

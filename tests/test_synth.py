@@ -157,3 +157,23 @@ def test_make_clip_from_config() -> None:
         make_clip({"source": {"synth": "pendulum", "params": {"bogus": 1}}})
     with pytest.raises(ValueError, match="train_fraction"):
         make_clip({"source": {"synth": "pendulum", "params": {"train_fraction": 1.5}}})
+
+
+def test_banded_wide_rod_and_counter_arm() -> None:
+    """The force ground truth's pendulum: wide banded rod and a counter-arm above the pivot."""
+    from lagsplat.synth.pendulum import PIVOT_Y, render_pendulum
+
+    plain = render_pendulum([0.0], size=(64, 64))[0].astype(float)
+    wide = render_pendulum([0.0], size=(64, 64), rod_width=0.1, rod_bands=6, rod_above=0.1)[0].astype(float)
+    row = int(0.45 * 64)  # on the rod, between pivot and bob
+    dark = lambda im: (im[row].mean(-1) < 150).sum()  # noqa: E731
+    assert dark(plain) <= 4 and 5 <= (np.abs(wide[row] - plain[row]).sum(-1) > 60).sum() <= 9
+    above = int((PIVOT_Y - 0.07) * 64)  # above the pivot: only the counter-arm is there
+    assert np.abs(wide[above] - plain[above]).max() > 60 and np.abs(plain[above] - plain[above, :5].mean(0)).max() < 40
+    # the bands alternate colours along the rod
+    col = wide[int(0.2 * 64) : int(0.7 * 64), 32]
+    assert len(np.unique((col.mean(-1) > 120).astype(int))) == 2
+    with pytest.raises(ValueError, match="rod_width"):
+        render_pendulum([0.0], rod_width=0.5)
+    with pytest.raises(ValueError, match="rod_above"):
+        render_pendulum([0.0], rod_above=0.2)
