@@ -272,9 +272,21 @@ def stage_forces(cfg: DictConfig) -> None:
     with torch.no_grad():
         z = model.q_rest.detach()[None] @ torch.as_tensor(chart.W_inv, dtype=torch.float32) + torch.as_tensor(chart.mean, dtype=torch.float32)
         rest = (ae.decode(z)[0].clamp(0, 1).permute(1, 2, 0).numpy() * 255 + 0.5).astype(np.uint8)
-    res = run_force_checks(model, tr, load_clip(d / "clip.npz").images, rest, fc)
+    clip = load_clip(d / "clip.npz")
+    res = run_force_checks(model, tr, clip.images, rest, fc)
+    lever = None
+    if clip.meta.get("source") == "lagsplat.synth.pendulum":  # known pivot: the lever-arm profile along the rod
+        from lagsplat.force_checks import lever_profile
+        from lagsplat.synth.pendulum import PIVOT_Y, ROD_LENGTH
+
+        H, W = ae.height, ae.width
+        above = float(clip.meta.get("params", {}).get("rod_above", 0.0)) * H
+        radii = np.linspace(-max(above - fc.sigma, 0.0), ROD_LENGTH * H, 25)
+        force = (float(np.median(res["_maps"]["dq_obj"]) > 0) * res["force_px"], 0.0)
+        lever = lever_profile(model, tr, (W / 2.0, PIVOT_Y * H), (0.0, 1.0), radii, force, fc.sigma)
+        res["lever"] = {"r_px": lever["r"].tolist(), "f_lat": lever["f_lat"][:, 0].tolist(), "dq": lever["dq"][:, 0].tolist()}
     title = str(cfg.system.get("title", cfg.system.name)) + ": forces through J^T f"
-    plot_force_checks(res, rest, out / "figures" / "forces.png", title=title)
+    plot_force_checks(res, rest, out / "figures" / "forces.png", title=title, lever=lever)
     pub = public_result(res)
     write_json(out / "forces.json", pub)
     b, lin, ker = pub["background"], pub["linearity"], pub["kernel"]

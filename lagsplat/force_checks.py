@@ -346,19 +346,19 @@ def plot_force_checks(result: dict[str, Any], rest_image: np.ndarray, out_path, 
         ax[2].axhline(0, color="grey", lw=0.8)
         ax[2].set_xlabel("radius from the pivot (px; < 0 beyond it)")
         ax[2].set_ylabel("generalized force")
-        ax[2].legend(fontsize=8)
+        ax[2].legend(fontsize=8, loc="lower right")
         ax[2].set_title("(c) lever arm and sign flip")
     else:
         ax[2].set_axis_off()
         ax[2].set_title("(c) linearity and kernel")
     ax[2].text(
         0.02,
-        0.02,
+        0.98 if lever is not None else 0.02,
         f"J^T f additivity: {lin['f_lat_rel_err']:.1e}\nequilibria, first order: {lin['equilibrium_rel_err']:.1e}\n"
         f"kernel |J^T f_perp|/|J^T f_par|: {ker['rel']:.1e}",
         transform=ax[2].transAxes,
         fontsize=8,
-        va="bottom",
+        va="top" if lever is not None else "bottom",
         family="monospace",
     )
     if title:
