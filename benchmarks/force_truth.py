@@ -49,6 +49,8 @@ def main() -> None:
     ap.add_argument("--results", default="results/pendulum_force", help="folder of a trained pendulum system (pendulum_force or toy)")
     ap.add_argument("--brush", default="visible", choices=["visible", "paper"], help="brush weighting (lagsplat.force)")
     ap.add_argument("--sigma", type=float, default=1.5, help="brush radius, pixels")
+    ap.add_argument("--max-deg", type=float, default=5.0, help="direction tolerance counted in the summary (issue 5)")
+    ap.add_argument("--max-pct", type=float, default=10.0, help="magnitude tolerance counted in the summary (issue 5)")
     args = ap.parse_args()
     d = Path(args.results)
     ae = load_stage1(d / "stage1.pt")
@@ -60,16 +62,24 @@ def main() -> None:
     pivot = np.array([W / 2.0, PIVOT_Y * H])
     q0 = model.q_rest.detach()[None]
 
-    # (radius as a fraction of the rod, force) ; the first row calibrates kappa
+    # (radius as a fraction of the rod, force); the first row calibrates kappa.
+    # Negative radii lie on the counter-arm above the pivot (pendulum_force).
+    # The last row pulls down as hard as it pushes sideways: a vertical force
+    # changes the pendulum's effective stiffness (its torque is -r Fy sin theta,
+    # second order in the state), which constant Jacobians (Eq. 9) cannot carry.
     cases = [
         (1.0, (0.06, 0.0)),
         (1.0, (0.12, 0.0)),
         (1.0, (-0.09, 0.0)),
-        (1.0, (0.08, 0.08)),
-        (1.0, (-0.10, -0.05)),
+        (1.0, (0.05, 0.02)),
+        (1.0, (-0.10, -0.03)),
         (1.0, (0.04, 0.0)),
         (0.75, (0.12, 0.0)),
         (0.75, (-0.10, 0.03)),
+        (0.5, (0.16, 0.0)),
+        (0.5, (-0.20, -0.05)),
+        (-0.12, (0.60, 0.0)),
+        (1.0, (0.08, 0.08)),
     ]
     rows = []
     kappa = None
@@ -88,7 +98,7 @@ def main() -> None:
         mag = 100.0 * (np.linalg.norm(d_pred) / np.linalg.norm(d_true) - 1.0)
         rows.append((k, r, F, math.degrees(th), d_true, d_pred, ang, mag))
 
-    print(f"toy pendulum model: {d} ({W}x{H} px, rod {L_px:.1f} px), brush sigma {args.sigma} px, kappa = {kappa:.4g}")
+    print(f"pendulum model: {d} ({W}x{H} px, rod {L_px:.1f} px), brush sigma {args.sigma} px, kappa = {kappa:.4g}")
     print("| # | radius | force (Fx, Fy) | true angle (deg) | true disp (px) | model disp (px) | direction err (deg) | magnitude err (%) |")
     print("|---|---|---|---|---|---|---|---|")
     for k, r, F, th, dt_, dp, ang, mag in rows:
@@ -98,9 +108,11 @@ def main() -> None:
             f"({dp[0]:+.2f}, {dp[1]:+.2f}) | {ang:+.2f} | {mag:+.1f} |"
         )
     test = rows[1:]
+    ok = [r for r in test if abs(r[6]) <= args.max_deg and abs(r[7]) <= args.max_pct]
     print(
         f"\nover {len(test)} forces after calibration: max |direction error| {max(abs(r[6]) for r in test):.2f} deg, "
-        f"max |magnitude error| {max(abs(r[7]) for r in test):.1f} %, median |magnitude error| {np.median([abs(r[7]) for r in test]):.1f} %"
+        f"max |magnitude error| {max(abs(r[7]) for r in test):.1f} %, median |magnitude error| {np.median([abs(r[7]) for r in test]):.1f} %; "
+        f"{len(ok)} of {len(test)} within {args.max_deg:g} deg and {args.max_pct:g} %"
     )
 
 
