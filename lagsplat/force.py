@@ -25,7 +25,8 @@ Two brushes (``brush=``):
   primitive ``i`` (its alpha times the transmittance in front of it, the
   rasteriser's rule of :mod:`lagsplat.render.rasterize`) summed over brush
   samples ``s`` on a 5 x 5 grid of spacing ``sigma`` weighted by
-  ``exp(-|s|^2 / 2 sigma^2)``. On an unoccluded primitive far from others it
+  ``exp(-|s|^2 / 2 sigma^2)``, samples off the image dropped (primitives
+  outside the frame are never seen, so the video leaves their ``J_i`` free). On an unoccluded primitive far from others it
   reduces to the paper's weights; on a thin rod in front of a background it
   selects the rod (paper §4.5: "the first Gaussian it meets becomes the point
   of application").
@@ -74,6 +75,8 @@ class ForceTransport:
         W_inv, mean: the chart's de-whitening ``z = q @ W_inv + mean``.
         cov: ``[K,2,2]`` spatial covariances in pixels^2 (the rendered footprints).
         brush: ``"visible"`` or ``"paper"`` (see the module docstring).
+        size: ``(height, width)`` of the rendered image, px: the visible brush
+            only samples inside it (primitives off the frame are not seen).
 
     Build with :meth:`from_autoencoder`. All tensors float32, CPU.
     """
@@ -89,13 +92,14 @@ class ForceTransport:
         mean: Tensor,
         cov: Tensor | None = None,
         brush: str = "visible",
+        size: tuple[int, int] | None = None,
     ) -> None:
         if brush not in BRUSHES:
             raise ValueError(f"unknown brush {brush!r}; expected one of {BRUSHES}")
         self.c, self.J, self.alpha, self.mu_q, self.L_qq, self.W_inv, self.mean = c, J, alpha, mu_q, L_qq, W_inv, mean
         if cov is None:  # isotropic 1 px footprints when the decoder's are not given
             cov = torch.eye(2).expand(len(c), 2, 2).clone()
-        self.cov, self.brush = cov, brush
+        self.cov, self.brush, self.size = cov, brush, size
 
     @classmethod
     @torch.no_grad()
@@ -112,7 +116,7 @@ class ForceTransport:
         _, cov = ae.decoder.pixel_geometry(ae.height, ae.width, g)
         W_inv = torch.as_tensor(chart.W_inv, dtype=torch.float32)
         mean = torch.as_tensor(chart.mean, dtype=torch.float32)
-        return cls(c, J, g.alpha.clone(), g.mu_q.clone(), g.L_qq.clone(), W_inv, mean, cov.clone(), brush)
+        return cls(c, J, g.alpha.clone(), g.mu_q.clone(), g.L_qq.clone(), W_inv, mean, cov.clone(), brush, (ae.height, ae.width))
 
     @property
     def d(self) -> int:
@@ -162,9 +166,14 @@ class ForceTransport:
         g = torch.arange(-2, 3, dtype=x.dtype) * sigma
         offs = torch.stack(torch.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)  # [25,2]
         k = torch.exp(-0.5 * (offs**2).sum(-1) / sigma**2)
-        pts = (x[:, None, :] + offs[None]).reshape(-1, 2)
-        cw = self.compositing_weights(mu, opacity, pts).reshape(len(x), len(offs), -1)
-        return torch.einsum("s,psk->pk", k, cw)
+        pts = x[:, None, :] + offs[None]  # [P,25,2]
+        cw = self.compositing_weights(mu, opacity, pts.reshape(-1, 2)).reshape(len(x), len(offs), -1)
+        kk = k[None].expand(len(x), -1)
+        if self.size is not None:  # only what is on screen can be touched
+            H, W = self.size
+            inside = (pts[..., 0] >= 0) & (pts[..., 0] <= W) & (pts[..., 1] >= 0) & (pts[..., 1] <= H)
+            kk = kk * inside
+        return torch.einsum("ps,psk->pk", kk, cw)
 
     @staticmethod
     def _normalise(w: Tensor) -> Tensor:

@@ -20,9 +20,9 @@ consequences can be checked without any force measurement:
 
 Where the object is comes from the video, not from the model under test: the
 per-pixel temporal standard deviation of the clip marks moving pixels
-(``>= moving_frac * max``) and static ones (``<= static_factor * median``,
-at least ``3 sigma`` px away from any moving pixel, so the brush cannot reach
-the object).
+(``>= moving_frac * max``) and static ones (``<= static_factor`` times the
+noise floor, at least ``3 sigma`` px away from any pixel that changes, so the
+brush cannot reach anything that moves).
 
 :func:`run_force_checks` returns a JSON-ready dict; :func:`plot_force_checks`
 draws the figure (``python -m lagsplat forces system=<name>`` writes both).
@@ -53,7 +53,7 @@ class ForceCheckConfig:
         sigma: brush radius, pixels.
         grid: spacing of the probe points, pixels.
         moving_frac: a pixel moves if its temporal std is at least this share of the largest.
-        static_factor: a pixel is static if its temporal std is at most this multiple of the median.
+        static_factor: a pixel is static if its temporal std is at most this multiple of the noise floor (10th percentile).
         target_dq: the probe force is scaled so the largest on-object ``|dq|`` is about this (chart units).
         background_ratio: the background check passes when ``median on-object |dq| / max background |dq|`` reaches it.
         seed: seed of the random force pairs of the linearity check.
@@ -76,14 +76,16 @@ def motion_masks(
     The per-pixel std of the intensities (smoothed by a 1 px Gaussian, so
     isolated noisy pixels do not count) marks a pixel as *moving* if it reaches
     ``moving_frac`` of the largest, *changing* if it exceeds ``static_factor``
-    times the median, and *static* if nothing within ``3 sigma`` px changes
-    (the brush cannot reach anything that moves).
+    times the noise floor (the 10th percentile of the std over the frame), and
+    *static* if nothing within ``3 sigma`` px changes (the brush cannot reach
+    anything that moves). Slow brightness changes that follow the object
+    (exposure, reflections, shadows) count as changing.
 
     Args:
         images: uint8 ``[T,H,W,3]`` frames.
         sigma: brush radius, px.
         moving_frac: share of the largest std above which a pixel moves.
-        static_factor: multiple of the median std above which a pixel changes.
+        static_factor: multiple of the noise floor above which a pixel changes.
 
     Returns:
         ``(moving [H,W] bool, static [H,W] bool, std [H,W] float)`` (std of
@@ -99,7 +101,8 @@ def motion_masks(
     if top <= 0:
         raise ValueError("nothing moves in the clip (all pixels constant)")
     moving = std >= moving_frac * top
-    changing = std > max(static_factor * float(np.median(std)), 1e-6 * top)
+    floor = float(np.percentile(std, 10))  # the sensor-noise level of pixels that never change
+    changing = std > max(static_factor * floor, 1e-6 * top)
     static = distance_transform_edt(~changing) >= 3.0 * sigma
     return moving, static, std
 
