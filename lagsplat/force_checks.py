@@ -76,7 +76,8 @@ def motion_masks(
     The per-pixel std of the intensities (smoothed by a 1 px Gaussian, so
     isolated noisy pixels do not count) marks a pixel as *moving* if it reaches
     ``moving_frac`` of the largest, *changing* if it exceeds ``static_factor``
-    times the noise floor (the 10th percentile of the std over the frame), and
+    times the noise floor (the 10th percentile of the std over the frame, at
+    least half a grey level), and
     *static* if nothing within ``3 sigma`` px changes (the brush cannot reach
     anything that moves). Slow brightness changes that follow the object
     (exposure, reflections, shadows) count as changing.
@@ -101,8 +102,10 @@ def motion_masks(
     if top <= 0:
         raise ValueError("nothing moves in the clip (all pixels constant)")
     moving = std >= moving_frac * top
-    floor = float(np.percentile(std, 10))  # the sensor-noise level of pixels that never change
-    changing = std > max(static_factor * floor, 1e-6 * top)
+    # the sensor-noise level of pixels that never change; at least half a grey
+    # level (noise-free synthetic frames have std 0 there)
+    floor = max(float(np.percentile(std, 10)), 0.5 / 255.0)
+    changing = std > static_factor * floor
     static = distance_transform_edt(~changing) >= 3.0 * sigma
     return moving, static, std
 
