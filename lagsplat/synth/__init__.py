@@ -25,6 +25,7 @@ from lagsplat.synth.coupled_carts import (
     render_coupled_carts,
     simulate_coupled_carts,
 )
+from lagsplat.synth.effects import make_effect_clip
 from lagsplat.synth.pendulum import make_pendulum_clip, render_pendulum, simulate_pendulum
 
 __all__ = [
@@ -37,12 +38,14 @@ __all__ = [
     "make_coupled_carts_clip",
     "render_coupled_carts",
     "simulate_coupled_carts",
+    "make_effect_clip",
 ]
 
 #: Generator name (``source.synth``) -> clip factory.
 GENERATORS: dict[str, Callable[..., Clip]] = {
     "pendulum": make_pendulum_clip,
     "coupled_carts": make_coupled_carts_clip,
+    "effects": make_effect_clip,
 }
 
 

@@ -1,0 +1,647 @@
+"""Simple systems with one known unmodelled effect each: the withheld data of the gap diagnosis (issue 7, item 5).
+
+Every clip shows one of two 1-DOF systems, a pendulum or a cart on a spring,
+whose motion obeys a linear-damping law plus *exactly one* candidate effect of
+:mod:`lagsplat.diagnose.effects` (or none: the control). The label is stored in
+``clip.meta["label"]``; a diagnosis that is run blind reads it only to score.
+
+Physics
+-------
+The generalized coordinate ``x`` is the pendulum angle (rad, from the downward
+vertical) or the cart displacement (frame widths). With ``w0 = 2 pi f0``::
+
+    x'' = -w0^2 g(x) - 2 zeta w0 x' + a_eff(x, x', t) + b u(t - tau)
+
+``g(x) = sin x`` (pendulum) or ``x`` (cart); ``u`` is a logged, non-negative
+actuation (``actuated`` clips only; ``tau = 0`` except for the delay effect).
+Effect magnitudes are set relative to the nominal amplitude ``A`` (20 deg or
+0.25 frame widths) and the restoring acceleration ``w0^2 A``:
+
+=================== ======================================================================
+label               ``a_eff`` (``A`` nominal amplitude, ``kappa`` a drawn relative strength)
+=================== ======================================================================
+``none``            0 (control)
+``coulomb``         ``-mu tanh(x' / v_s)``, ``mu = kappa w0^2 A``, ``v_s = 0.002 w0 A``
+``quadratic_drag``  ``-c2 |x'| x'``, ``c2 = kappa / A``
+``end_stop``        ``-k_s w0^2 relu(side (x - x_s)) side``: a stiff one-sided spring at ``x_s``
+``cubic_stiffness`` ``-eps w0^2 x^3 / A^2`` (``eps > 0`` hardening, ``< 0`` softening)
+``periodic_force``  ``kappa w0^2 A cos(Omega t + phi)``, unlogged, ``Omega / w0`` in
+                    ``[2.2, 2.7]`` or ``[0.35, 0.55]`` (off resonance and off the harmonics),
+                    ``t`` the clip time (continuous over the episodes)
+``drift``           stiffness ``w0^2 (1 + alpha (t / T_clip - 1/2))`` or damping ratio
+                    ``zeta(t)`` rising linearly over the clip
+``actuation_delay`` the logged ``u`` acts ``tau`` seconds late (actuated clips)
+``missing_dof``     a second, coupled degree of freedom: the cart drags a lighter second
+                    cart through a spring (both drawn); the pendulum hangs from a pivot
+                    sliding on a horizontal spring (pivot drawn moving); the ratio of the
+                    two modal frequencies is in ``[1.45, 1.8]`` or ``[2.2, 2.6]``
+=================== ======================================================================
+
+Each effect's parameters are drawn from ``np.random.default_rng`` seeded by
+``(seed, system, effect)`` and stored in ``meta["truth"]``. Trajectories are
+integrated with ``scipy.integrate.solve_ivp`` (DOP853, ``rtol = 1e-9``,
+step at most one frame; LSODA for the stiff Coulomb switch and end stop)
+and sampled at ``t_i = i / fps``.
+
+Clip
+----
+``n_episodes`` recordings of ``duration_s`` seconds, stored back to back as in
+:func:`~lagsplat.synth.coupled_carts.make_coupled_carts_clip`: episode ``e``
+starts from its own seeded state (amplitude ``0.75..1 A``, random phase); the
+last ``held_out_episodes`` are held out. ``meta["latent"]`` holds the 1-D
+coordinate a one-dimensional chart reads (the angle ``x``, or the main cart's
+displacement), which the latent-level benchmark uses in place of Stage 1.
+
+Picture: the pendulum in the style of :mod:`lagsplat.synth.pendulum`, the
+cart in the style of :mod:`lagsplat.synth.coupled_carts`, with a static
+bumper drawn where an end stop sits; 64 x 64 by default.
+"""
+
+from __future__ import annotations
+
+import math
+import zlib
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.integrate import solve_ivp
+
+from lagsplat.io.clip import HELD_OUT, TRAIN, Clip
+from lagsplat.synth._clip import check_timing
+from lagsplat.synth._render import (
+    SUPERSAMPLE,
+    Canvas,
+    background,
+    over,
+    parse_size,
+    render_frames,
+)
+from lagsplat.synth.coupled_carts import (
+    CART_HEIGHT,
+    CART_WIDTH,
+    CoupledCarts,
+    render_coupled_carts,
+)
+from lagsplat.synth.pendulum import BOB_RADIUS, PIVOT_Y, ROD_LENGTH
+
+__all__ = [
+    "EFFECTS",
+    "SYSTEMS",
+    "EffectRun",
+    "sample_truth",
+    "simulate_effect",
+    "render_effect",
+    "make_effect_clip",
+    "blind_suite",
+]
+
+#: Effect labels (``"none"`` is the control), in the order of :mod:`lagsplat.diagnose.effects`.
+EFFECTS = (
+    "none",
+    "coulomb",
+    "quadratic_drag",
+    "end_stop",
+    "cubic_stiffness",
+    "periodic_force",
+    "drift",
+    "actuation_delay",
+    "missing_dof",
+)
+#: Simulated systems.
+SYSTEMS = ("pendulum", "cart")
+
+#: Nominal amplitude ``A``: rad (pendulum), frame widths (cart).
+NOMINAL_AMPLITUDE = {"pendulum": math.radians(20.0), "cart": 0.25}
+#: Largest excursion the pictures accept: rad, frame widths.
+MAX_EXCURSION = {"pendulum": math.radians(35.0), "cart": 0.35}
+
+_CART_RAIL_Y = 0.62  # single cart rail height, units of H
+_ROD_HALF_WIDTH = 0.018
+_PIVOT_RADIUS = 0.03
+_ROD_RGB = (0.25, 0.25, 0.28)
+_PIVOT_RGB = (0.15, 0.15, 0.17)
+_BOB_LEFT_RGB = (0.85, 0.20, 0.15)
+_BOB_RIGHT_RGB = (0.15, 0.35, 0.85)
+_CART_RGB = (0.86, 0.16, 0.12)
+_OUTLINE_RGB = (0.12, 0.12, 0.14)
+_WHEEL_RGB = (0.20, 0.20, 0.22)
+_RAIL_RGB = (0.35, 0.35, 0.37)
+_WALL_RGB = (0.45, 0.42, 0.38)
+_BUMPER_RGB = (0.10, 0.55, 0.25)
+_SLIDER_RGB = (0.30, 0.30, 0.34)
+
+
+@dataclass
+class EffectRun:
+    """One simulated clip before rendering.
+
+    Attributes:
+        system: ``"pendulum"`` or ``"cart"``.
+        effect: the label (one of :data:`EFFECTS`).
+        t: float64 ``[T]`` clip time, s (``i / fps``, continuous over episodes).
+        x: float64 ``[T]`` generalized coordinate: rad (pendulum) or frame widths (cart).
+        xdot: float64 ``[T]`` its rate, per second.
+        latent: float64 ``[T]`` what a 1-D chart reads (equal to ``x`` here).
+        second: float64 ``[T]`` the missing degree of freedom (pivot displacement in rod
+            lengths, or the second cart in frame widths), zeros for other effects.
+        u: float32 ``[T,n_u]`` logged actuation (``n_u`` is 1 for actuated clips, else 0).
+        episode: int16 ``[T]`` recording index.
+        split: int8 ``[T]`` ``TRAIN`` / ``HELD_OUT`` (the last episodes held out).
+        truth: JSON-serialisable physical parameters (base system and effect).
+    """
+
+    system: str
+    effect: str
+    t: np.ndarray
+    x: np.ndarray
+    xdot: np.ndarray
+    latent: np.ndarray
+    second: np.ndarray
+    u: np.ndarray
+    episode: np.ndarray
+    split: np.ndarray
+    truth: dict[str, Any] = field(default_factory=dict)
+
+
+def _check_label(system: str, effect: str) -> None:
+    if system not in SYSTEMS:
+        raise ValueError(f"system must be one of {SYSTEMS}, got {system!r}")
+    if effect not in EFFECTS:
+        raise ValueError(f"effect must be one of {EFFECTS}, got {effect!r}")
+
+
+def _rng(seed: int, system: str, effect: str) -> np.random.Generator:
+    """Generator seeded by ``(seed, system, effect)`` (stable across Python runs)."""
+    return np.random.default_rng([int(seed), zlib.crc32(system.encode()), zlib.crc32(effect.encode())])
+
+
+def sample_truth(system: str, effect: str, seed: int = 0, actuated: bool | None = None) -> dict[str, Any]:
+    """The physical parameters of one clip, drawn from ``(seed, system, effect)``.
+
+    Args:
+        system: ``"pendulum"`` or ``"cart"``.
+        effect: one of :data:`EFFECTS`.
+        seed: integer seed; two seeds give two different systems with the same effect.
+        actuated: drive the system with a logged input ``u``; ``None`` means
+            "only for ``actuation_delay``", which requires it.
+
+    Returns:
+        ``{"system", "effect", "f0_hz", "zeta", "amplitude", "actuated", "effect_params": {...}}``
+        (plus ``"actuation"``: gain and input sinusoids, when actuated).
+
+    Raises:
+        ValueError: on an unknown system / effect, or ``actuation_delay`` without actuation.
+    """
+    _check_label(system, effect)
+    act = effect == "actuation_delay" if actuated is None else bool(actuated)
+    if effect == "actuation_delay" and not act:
+        raise ValueError("the actuation_delay effect needs an actuated clip (actuated=True)")
+    rng = _rng(seed, system, effect)
+    f0 = float(rng.uniform(0.6, 1.0))
+    zeta = float(rng.uniform(0.004, 0.012))
+    A = NOMINAL_AMPLITUDE[system]
+    w0 = 2 * math.pi * f0
+    p: dict[str, Any] = {}
+    if effect == "coulomb":
+        kappa = float(rng.uniform(0.006, 0.012))
+        p = {"kappa": kappa, "mu": kappa * w0**2 * A, "v_s": 0.002 * w0 * A}
+    elif effect == "quadratic_drag":
+        kappa = float(rng.uniform(0.03, 0.05))
+        p = {"kappa": kappa, "c2": kappa / A}
+    elif effect == "end_stop":
+        side = 1.0 if rng.uniform() < 0.5 else -1.0
+        p = {"side": side, "x_stop": side * float(rng.uniform(0.55, 0.7)) * A, "k_ratio": float(rng.uniform(15.0, 30.0))}
+    elif effect == "cubic_stiffness":
+        sign = 1.0 if int(seed) % 2 == 0 else -1.0
+        eps = sign * float(rng.uniform(0.2, 0.35))
+        p = {"eps": eps, "kind": "hardening" if eps > 0 else "softening", "k3_over_k1": eps / A**2}
+    elif effect == "periodic_force":
+        # off resonance and off the 2nd / 3rd harmonics (where a residual is read as a distortion of the motion)
+        ratio = float(rng.uniform(2.2, 2.7)) if int(seed) % 2 == 0 else float(rng.uniform(0.35, 0.55))
+        p = {"kappa": float(rng.uniform(0.05, 0.1)), "f_hz": ratio * f0, "phase": float(rng.uniform(0, 2 * math.pi))}
+        p["amplitude"] = p["kappa"] * w0**2 * A
+    elif effect == "drift":
+        if int(seed) % 2 == 0:
+            s = 1.0 if rng.uniform() < 0.5 else -1.0
+            p = {"kind": "stiffness", "alpha": s * float(rng.uniform(0.2, 0.3))}
+        else:
+            p = {"kind": "damping", "zeta_start": 0.003, "zeta_end": float(rng.uniform(0.025, 0.035))}
+    elif effect == "actuation_delay":
+        p = {"tau_s": float(rng.uniform(0.1, 0.2))}
+    elif effect == "missing_dof":
+        ratio = float(rng.uniform(1.45, 1.8)) if int(seed) % 2 == 0 else float(rng.uniform(2.2, 2.6))  # off the harmonics
+        p = {"f2_over_f0": ratio, "zeta2": float(rng.uniform(0.008, 0.02))}
+        if system == "cart":
+            p.update({"m2": float(rng.uniform(0.3, 0.5)), "mode2_share": float(rng.uniform(0.25, 0.4))})
+        else:
+            mu = float(rng.uniform(0.05, 0.1))
+            p.update({"mass_ratio": mu, "pivot_amp": float(rng.uniform(0.06, 0.1))})
+            # the pivot spring is tuned so that the *coupled* small-angle modes have the drawn ratio
+            p["pivot_over_f0"] = _pivot_ratio_for(ratio, mu)
+            p["f_modes_hz"] = [f * f0 for f in _pivot_modes(p["pivot_over_f0"], mu)]
+    out: dict[str, Any] = {
+        "system": system,
+        "effect": effect,
+        "f0_hz": f0,
+        "zeta": zeta,
+        "amplitude": A,
+        "actuated": act,
+        "effect_params": p,
+    }
+    if act:
+        n_c = 3  # one input component in each band, away from the resonance at f0
+        freqs = f0 * np.array([rng.uniform(0.25, 0.4), rng.uniform(0.55, 0.7), rng.uniform(1.5, 1.9)])
+        amps = rng.uniform(0.5, 1.0, n_c)
+        amps /= amps.sum()
+        out["actuation"] = {
+            "gain": float(rng.uniform(0.25, 0.4)) * w0**2 * A,  # acceleration per unit u
+            "freqs_hz": freqs.tolist(),
+            "amps": amps.tolist(),
+            "phases": rng.uniform(0, 2 * math.pi, n_c).tolist(),
+        }
+    return out
+
+
+def _pivot_modes(r_p: float, mu: float) -> tuple[float, float]:
+    """Small-angle modal frequencies (units of ``f0``) of the pendulum on a sprung pivot (:func:`_rhs_pivot`).
+
+    Linearised, ``[[1, 1], [mu, 1]] (theta, X)'' = -diag(1, r_p^2) (theta, X)`` in units of ``w0``.
+    """
+    M = np.array([[1.0, 1.0], [mu, 1.0]])
+    lam = np.sort(np.linalg.eigvals(np.linalg.solve(M, np.diag([1.0, r_p * r_p]))).real)
+    return float(np.sqrt(lam[0])), float(np.sqrt(lam[1]))
+
+
+def _pivot_ratio_for(ratio: float, mu: float) -> float:
+    """Pivot frequency ``wp / w0 >= 1`` giving the coupled mode ratio ``f_2 / f_1 = ratio`` (the ratio grows with ``wp`` there)."""
+    from scipy.optimize import brentq
+
+    def gap(r_p: float) -> float:
+        a, b = _pivot_modes(r_p, mu)
+        return b / a - ratio
+
+    return float(brentq(gap, 1.0, 50.0))
+
+
+def _input(truth: dict[str, Any]) -> Callable[[np.ndarray | float], np.ndarray | float]:
+    """The logged actuation ``u(t) >= 0`` (a sum of sinusoids around its amplitude sum; in [0, 2])."""
+    a = truth["actuation"]
+    f, amp, ph = (np.asarray(a[k]) for k in ("freqs_hz", "amps", "phases"))
+
+    def u(t: np.ndarray | float) -> np.ndarray | float:
+        tt = np.asarray(t, dtype=np.float64)[..., None]
+        return (amp.sum() + (amp * np.sin(2 * math.pi * f * tt + ph)).sum(-1)).astype(np.float64)
+
+    return u
+
+
+def _rhs_1dof(truth: dict[str, Any], T_clip: float) -> Callable[[float, np.ndarray], np.ndarray]:
+    """Right-hand side of ``y = (x, x')`` for every effect except ``missing_dof``."""
+    system, effect = truth["system"], truth["effect"]
+    w0 = 2 * math.pi * truth["f0_hz"]
+    zeta, A, p = truth["zeta"], truth["amplitude"], truth["effect_params"]
+    g = math.sin if system == "pendulum" else (lambda x: x)
+    u = _input(truth) if truth["actuated"] else None
+    gain = truth["actuation"]["gain"] if u is not None else 0.0
+    tau = p.get("tau_s", 0.0)
+
+    def rhs(t: float, y: np.ndarray) -> np.ndarray:
+        x, v = y
+        k2, z = w0 * w0, zeta
+        if effect == "drift":
+            if p["kind"] == "stiffness":
+                k2 = w0 * w0 * (1.0 + p["alpha"] * (t / T_clip - 0.5))
+            else:
+                z = p["zeta_start"] + (p["zeta_end"] - p["zeta_start"]) * t / T_clip
+        a = -k2 * g(x) - 2.0 * z * w0 * v
+        if effect == "coulomb":
+            a -= p["mu"] * math.tanh(v / p["v_s"])
+        elif effect == "quadratic_drag":
+            a -= p["c2"] * abs(v) * v
+        elif effect == "end_stop":
+            pen = p["side"] * (x - p["x_stop"])
+            if pen > 0:
+                a -= p["k_ratio"] * w0 * w0 * pen * p["side"]
+        elif effect == "cubic_stiffness":
+            a -= p["eps"] * w0 * w0 * x**3 / A**2
+        elif effect == "periodic_force":
+            a += p["amplitude"] * math.cos(2 * math.pi * p["f_hz"] * t + p["phase"])
+        if u is not None:
+            a += gain * float(u(t - tau))
+        return np.array([v, a])
+
+    return rhs
+
+
+def _rhs_pivot(truth: dict[str, Any]) -> Callable[[float, np.ndarray], np.ndarray]:
+    """Pendulum on a horizontally sprung pivot, ``y = (theta, X, theta', X')``, ``X`` in rod lengths.
+
+    From ``T = 1/2 (M + m) L^2 X'^2 + m L^2 X' theta' cos theta + 1/2 m L^2 theta'^2``,
+    ``V = 1/2 k X^2 L^2 - m g L cos theta``, divided by ``m L^2`` resp. ``(M + m) L^2``
+    (``mu = m / (M + m)``)::
+
+        theta'' + X'' cos theta           = -w0^2 sin theta - 2 zeta w0 theta'
+        X'' + mu (theta'' cos theta - theta'^2 sin theta) = -wp^2 X - 2 zeta_p wp X'
+    """
+    w0 = 2 * math.pi * truth["f0_hz"]
+    p = truth["effect_params"]
+    wp = w0 * p["pivot_over_f0"]
+    mu, zp, z = p["mass_ratio"], p["zeta2"], truth["zeta"]
+
+    def rhs(_t: float, y: np.ndarray) -> np.ndarray:
+        th, X, om, V = y
+        c, s = math.cos(th), math.sin(th)
+        Mm = np.array([[1.0, c], [mu * c, 1.0]])
+        b = np.array([-w0 * w0 * s - 2 * z * w0 * om, mu * om * om * s - wp * wp * X - 2 * zp * wp * V])
+        acc = np.linalg.solve(Mm, b)
+        return np.array([om, V, acc[0], acc[1]])
+
+    return rhs
+
+
+def _integrate(rhs: Callable, y0: np.ndarray, t: np.ndarray, stiff: bool) -> np.ndarray:
+    dt = float(t[1] - t[0]) if len(t) > 1 else 1.0
+    sol = solve_ivp(
+        rhs, (float(t[0]), float(t[-1])), y0, method="LSODA" if stiff else "DOP853", t_eval=t,
+        rtol=1e-9, atol=1e-11, max_step=dt,
+    )  # fmt: skip
+    if not sol.success or sol.y.shape[1] != len(t):
+        raise ValueError(f"effect simulation failed: {sol.message}")
+    return sol.y.T
+
+
+def simulate_effect(
+    system: str = "pendulum",
+    effect: str = "none",
+    seed: int = 0,
+    actuated: bool | None = None,
+    fps: float = 30.0,
+    duration_s: float = 15.0,
+    n_episodes: int = 4,
+    held_out_episodes: int = 1,
+) -> EffectRun:
+    """Simulate one clip's motion (no pictures).
+
+    Args:
+        system: ``"pendulum"`` or ``"cart"``.
+        effect: one of :data:`EFFECTS`.
+        seed: seeds the parameters (:func:`sample_truth`) and the episode starts.
+        actuated: see :func:`sample_truth`.
+        fps: frame rate, Hz.
+        duration_s: length of each episode, s.
+        n_episodes: recordings (>= 2: the last ``held_out_episodes`` are held out).
+        held_out_episodes: in ``[1, n_episodes - 1]``.
+
+    Returns:
+        The :class:`EffectRun`.
+
+    Raises:
+        ValueError: on invalid arguments, a failed integration, or an
+            excursion beyond what the picture accepts (:data:`MAX_EXCURSION`).
+    """
+    fps_f, dur = check_timing(fps, duration_s)
+    n_ep, n_ho = int(n_episodes), int(held_out_episodes)
+    if n_ep < 2 or not (1 <= n_ho < n_ep):
+        raise ValueError(f"need n_episodes >= 2 and 1 <= held_out_episodes < n_episodes, got {n_episodes}, {held_out_episodes}")
+    truth = sample_truth(system, effect, seed, actuated)
+    T_e = int(round(dur * fps_f))
+    if T_e < 16:
+        raise ValueError(f"each episode has {T_e} frames; need at least 16")
+    T = n_ep * T_e
+    T_clip = T / fps_f
+    t_all = np.arange(T, dtype=np.float64) / fps_f
+    rng = np.random.default_rng([int(seed), 7, zlib.crc32(f"{system}/{effect}".encode())])
+    A = truth["amplitude"]
+    w0 = 2 * math.pi * truth["f0_hz"]
+    p = truth["effect_params"]
+    x = np.empty(T)
+    xd = np.empty(T)
+    second = np.zeros(T)
+    for e in range(n_ep):
+        sl = slice(e * T_e, (e + 1) * T_e)
+        t = t_all[sl]
+        r = rng.uniform(0.75, 1.0)
+        phase = rng.uniform(0, 2 * math.pi)
+        if effect == "end_stop":  # start on the free side of the stop, moving towards it
+            phase = math.pi / 2 * (1 if rng.uniform() < 0.5 else 3) + rng.uniform(-0.4, 0.4)
+        x0, v0 = r * A * math.cos(phase), -r * A * w0 * math.sin(phase)
+        if truth["actuated"]:  # half the free amplitude, around the equilibrium loaded by the mean input
+            x0 = 0.5 * x0 + truth["actuation"]["gain"] * float(np.sum(truth["actuation"]["amps"])) / w0**2
+            v0 = 0.5 * v0
+        if effect == "missing_dof" and system == "cart":
+            xs, vs = _two_carts(truth, r, phase, rng, fps_f, T_e)
+            x[sl], xd[sl], second[sl] = xs[:, 0], vs[:, 0], xs[:, 1]
+            continue
+        if effect == "missing_dof":
+            X0 = p["pivot_amp"] * (1 if rng.uniform() < 0.5 else -1) * rng.uniform(0.7, 1.0)
+            y = _integrate(_rhs_pivot(truth), np.array([x0, X0, v0 / 1.0, 0.0]), t, stiff=False)
+            x[sl], xd[sl], second[sl] = y[:, 0], y[:, 2], y[:, 1]
+            continue
+        stiff = effect in ("coulomb", "end_stop")
+        y = _integrate(_rhs_1dof(truth, T_clip), np.array([x0, v0]), t, stiff)
+        x[sl], xd[sl] = y[:, 0], y[:, 1]
+    peak = float(np.max(np.abs(x)))
+    if peak > MAX_EXCURSION[system]:
+        raise ValueError(f"{system}/{effect} seed {seed}: excursion {peak:.3f} exceeds {MAX_EXCURSION[system]:.3f}")
+    u = np.zeros((T, 0), np.float32)
+    if truth["actuated"]:
+        u = _input(truth)(t_all)[:, None].astype(np.float32)
+    episode = np.repeat(np.arange(n_ep, dtype=np.int16), T_e)
+    split = np.where(episode >= n_ep - n_ho, HELD_OUT, TRAIN).astype(np.int8)
+    truth["n_episodes"], truth["held_out_episodes"], truth["fps"], truth["duration_s"] = n_ep, n_ho, fps_f, dur
+    return EffectRun(system, effect, t_all, x, xd, x.copy(), second, u, episode, split, truth)
+
+
+def _two_carts(
+    truth: dict[str, Any], r: float, phase: float, rng: np.random.Generator, fps: float, n: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Missing DOF of the cart: the main cart coupled to a lighter second cart (exact linear motion).
+
+    Mode 1 (at ``f0``) carries amplitude ``r A`` in the main cart's displacement,
+    mode 2 a share ``mode2_share`` of it, with independent random phases.
+    """
+    from lagsplat.synth.coupled_carts import simulate_coupled_carts
+
+    p = truth["effect_params"]
+    f0 = truth["f0_hz"]
+    sysc = CoupledCarts.from_modes((f0, f0 * p["f2_over_f0"]), (truth["zeta"], p["zeta2"]), (1.0, p["m2"]), p["m2"])
+    Phi = sysc.mode_shapes
+    A = truth["amplitude"]
+    amp = np.array([r * A / abs(Phi[0, 0]), p["mode2_share"] * r * A / abs(Phi[0, 1])])
+    ph = np.array([phase, rng.uniform(0, 2 * math.pi)])
+    wd = 2 * math.pi * sysc.f_modes_damped_hz
+    zw = sysc.decay_rates
+    q0 = amp * np.cos(ph)
+    dq0 = amp * (-zw * np.cos(ph) - wd * np.sin(ph))
+    xs, vs, _ = simulate_coupled_carts(sysc, Phi @ q0, Phi @ dq0, fps, n)
+    big = float(np.max(np.abs(xs)))
+    if big > MAX_EXCURSION["cart"]:  # keep both carts clear of the walls
+        xs, vs = xs * MAX_EXCURSION["cart"] / big, vs * MAX_EXCURSION["cart"] / big
+    truth.setdefault("effect_params", {})["f2_hz"] = float(sysc.f_modes_hz[1])
+    return xs, vs
+
+
+# ---------------------------------------------------------------------- pictures
+def _pendulum_fg(theta: float, pivot_dx: float, W: int, H: int, s: int, slider: bool) -> np.ndarray:
+    """Pendulum at ``theta`` (rad) with the pivot shifted by ``pivot_dx`` (pixels); premultiplied RGBA."""
+    cv = Canvas(W, H, s)
+    px, py = W / 2.0 + pivot_dx, PIVOT_Y * H
+    if slider:
+        cv.rect(px - 0.07 * H, py - 0.05 * H, px + 0.07 * H, py + 0.05 * H, _SLIDER_RGB)
+    ux, uy = math.sin(theta), math.cos(theta)
+    L, r, hw = ROD_LENGTH * H, BOB_RADIUS * H, _ROD_HALF_WIDTH * H
+    bx, by = px + L * ux, py + L * uy
+    nx, ny = uy, -ux
+    cv.convex([(px + hw * nx, py + hw * ny), (bx + hw * nx, by + hw * ny), (bx - hw * nx, by - hw * ny), (px - hw * nx, py - hw * ny)], _ROD_RGB)
+    cv.disc(px, py, _PIVOT_RADIUS * H, _PIVOT_RGB)
+    cv.disc(bx, by, r, _BOB_LEFT_RGB)
+    phi = math.degrees(math.atan2(uy, ux))
+    cv.sector(bx, by, r, phi - 180.0, phi, _BOB_RIGHT_RGB)
+    return cv.reduce(W, H)
+
+
+def _pendulum_backdrop(W: int, H: int, s: int, seed: int, stop: float | None, side: float, rail: bool) -> np.ndarray:
+    cv = Canvas(W, H, s)
+    if rail:
+        cv.rect(0.1 * W, PIVOT_Y * H - 0.012 * H, 0.9 * W, PIVOT_Y * H + 0.012 * H, _RAIL_RGB)
+    if stop is not None:  # a post the bob's edge touches at theta = stop
+        L, r = ROD_LENGTH * H, BOB_RADIUS * H
+        cx = W / 2.0 + L * math.sin(stop) + side * r
+        cy = PIVOT_Y * H + L * math.cos(stop)
+        cv.rect(cx, cy - 0.12 * H, cx + side * 0.05 * W, cy + 0.12 * H, _BUMPER_RGB)
+    return np.clip(over(cv.reduce(W, H), background(W, H, seed)), 0.0, 1.0)
+
+
+def _cart_fg(x: float, W: int, H: int, s: int) -> np.ndarray:
+    """One cart (style of :mod:`~lagsplat.synth.coupled_carts`) at displacement ``x`` frame widths."""
+    cv = Canvas(W, H, s)
+    hw, bh, ol = 0.5 * CART_WIDTH * W, CART_HEIGHT * H, 0.025 * H
+    cx, y = (0.5 + float(x)) * W, _CART_RAIL_Y * H
+    wr = 0.045 * H
+    for sgn in (-1.0, 1.0):
+        cv.disc(cx + sgn * 0.27 * 2.0 * hw, y - wr, wr, _WHEEL_RGB)
+    top, bottom = y - 0.06 * H - bh, y - 0.06 * H
+    cv.rect(cx - hw, top, cx + hw, bottom, _OUTLINE_RGB)
+    cv.rect(cx - hw + ol, top + ol, cx + hw - ol, bottom - ol, _CART_RGB)
+    return cv.reduce(W, H)
+
+
+def _cart_backdrop(W: int, H: int, s: int, seed: int, stop: float | None, side: float) -> np.ndarray:
+    cv = Canvas(W, H, s)
+    ww, y = 0.035 * W, _CART_RAIL_Y * H
+    cv.rect(ww, y, W - ww, y + 0.025 * H, _RAIL_RGB)
+    cv.rect(0.0, y - 0.27 * H, ww, y + 0.025 * H, _WALL_RGB)
+    cv.rect(W - ww, y - 0.27 * H, W, y + 0.025 * H, _WALL_RGB)
+    if stop is not None:  # a bumper the cart's side touches at x = stop
+        cx = (0.5 + stop) * W + side * 0.5 * CART_WIDTH * W
+        cv.rect(cx, y - 0.2 * H, cx + side * 0.04 * W, y, _BUMPER_RGB)
+    return np.clip(over(cv.reduce(W, H), background(W, H, seed)), 0.0, 1.0)
+
+
+def render_effect(run: EffectRun, size: Sequence[int] = (64, 64), seed: int = 0, supersample: int = SUPERSAMPLE) -> np.ndarray:
+    """Render an :class:`EffectRun` as uint8 ``[T,H,W,3]`` RGB frames.
+
+    The end stop is drawn as a static green bumper; the missing DOF as a
+    moving pivot slider (pendulum) or a second cart (cart, drawn by
+    :func:`~lagsplat.synth.coupled_carts.render_coupled_carts`).
+
+    Raises:
+        ValueError: on a bad ``size`` or ``supersample``.
+    """
+    W, H = parse_size(size, 16)
+    s = int(supersample)
+    if s < 1:
+        raise ValueError(f"supersample must be >= 1, got {supersample!r}")
+    p = run.truth["effect_params"]
+    stop = p.get("x_stop") if run.effect == "end_stop" else None
+    side = float(p.get("side", 1.0))
+    if run.system == "cart" and run.effect == "missing_dof":
+        return render_coupled_carts(np.stack([run.x, run.second], 1), size=(W, H), seed=seed, supersample=s)
+    if run.system == "cart":
+        back = _cart_backdrop(W, H, s, seed, stop, side)
+        return render_frames(run.x, lambda xi: _cart_fg(float(xi), W, H, s), back)
+    moving = run.effect == "missing_dof"
+    back = _pendulum_backdrop(W, H, s, seed, stop, side, rail=moving)
+    L = ROD_LENGTH * H
+    states = np.stack([run.x, run.second * L], 1)
+    return render_frames(states, lambda st: _pendulum_fg(float(st[0]), float(st[1]), W, H, s, moving), back)
+
+
+def make_effect_clip(
+    system: str = "pendulum",
+    effect: str = "none",
+    seed: int = 0,
+    actuated: bool | None = None,
+    size: Sequence[int] = (64, 64),
+    fps: float = 30.0,
+    duration_s: float = 15.0,
+    n_episodes: int = 4,
+    held_out_episodes: int = 1,
+) -> Clip:
+    """A rendered clip of a simple system with one known effect (the blind-suite clip).
+
+    Arguments as :func:`simulate_effect`, plus ``size`` (``(W, H)`` pixels).
+    ``seed`` also seeds the background texture.
+
+    ``meta`` holds ``source`` (``"lagsplat.synth.effects"``), ``label`` (the
+    effect), ``system``, ``truth`` (:func:`sample_truth`, completed),
+    ``latent`` (per-frame 1-D coordinate), ``second`` (the missing DOF, or
+    zeros) and ``params`` (every argument).
+
+    Returns:
+        A validated :class:`~lagsplat.io.clip.Clip` with ``episode`` and, when
+        actuated, one actuation channel ``"u1"``.
+
+    Raises:
+        ValueError: as :func:`simulate_effect`.
+    """
+    run = simulate_effect(system, effect, seed, actuated, fps, duration_s, n_episodes, held_out_episodes)
+    W, H = parse_size(size, 16)
+    images = render_effect(run, (W, H), seed)
+    meta = {
+        "source": "lagsplat.synth.effects",
+        "label": effect,
+        "system": system,
+        "truth": run.truth,
+        "latent": [float(v) for v in run.latent],
+        "second": [float(v) for v in run.second],
+        "params": {
+            "system": system, "effect": effect, "seed": int(seed), "actuated": run.truth["actuated"], "size": [W, H],
+            "fps": float(fps), "duration_s": float(duration_s), "n_episodes": int(n_episodes),
+            "held_out_episodes": int(held_out_episodes),
+        },
+    }  # fmt: skip
+    u_names = ["u1"] if run.u.shape[1] else []
+    clip = Clip(images=images, t=run.t, u=run.u, u_names=u_names, split=run.split, meta=meta, episode=run.episode)
+    return clip.validate("lagsplat.synth.effects")
+
+
+def blind_suite(n_per_effect: int = 2, systems: Sequence[str] = SYSTEMS, actuated_controls: bool = True) -> list[dict[str, Any]]:
+    """The blind benchmark suite: ``n_per_effect`` clips per (system, effect), controls included.
+
+    Every effect on every system (``actuation_delay`` on actuated clips), and,
+    with ``actuated_controls``, ``n_per_effect`` actuated clips without effect
+    per system, so that a delay is never found where there is none.
+
+    Returns:
+        ``[{"name", "system", "effect", "seed", "actuated"}]``, each entry the
+        keyword arguments of :func:`make_effect_clip` / :func:`simulate_effect` plus a ``name``.
+
+    Raises:
+        ValueError: if ``n_per_effect < 1`` or a system is unknown.
+    """
+    if int(n_per_effect) < 1:
+        raise ValueError(f"n_per_effect must be >= 1, got {n_per_effect!r}")
+    out = []
+    for system in systems:
+        _check_label(system, "none")
+        for effect in EFFECTS:
+            for seed in range(int(n_per_effect)):
+                act = effect == "actuation_delay"
+                out.append({"name": f"{system}-{effect}-{seed}", "system": system, "effect": effect, "seed": seed, "actuated": act})
+        if actuated_controls:
+            for seed in range(int(n_per_effect)):
+                out.append({"name": f"{system}-none_actuated-{seed}", "system": system, "effect": "none", "seed": 100 + seed, "actuated": True})
+    return out

@@ -1,0 +1,346 @@
+"""Tests of the sim-to-real gap diagnosis at the latent level (lagsplat.diagnose, issue 7 item 3).
+
+No Stage 1: the true 1-D coordinate of a synthetic clip (lagsplat.synth.effects)
+stands in for the chart, linearly mapped and with chart-like white noise; the
+"plain model" is a linear damped oscillator fitted in closed form (the same
+``acceleration`` / ``mass_matrix`` interface as the Lagrangian), or, once, a
+briefly trained Lagrangian.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from lagsplat.chart import Chart
+from lagsplat.diagnose import (
+    EFFECTS,
+    LinearOscillator,
+    diagnose_chart,
+    effect_names,
+    fit_linear_oscillator,
+    residual_force,
+    select_effect,
+)
+from lagsplat.diagnose.residual import chart_noise
+from lagsplat.diagnose.terms import (
+    AugmentedLagrangian,
+    CoulombFriction,
+    CubicStiffness,
+    EndStop,
+    PeriodicForce,
+    QuadraticDrag,
+    StiffnessDampingDrift,
+    build_term,
+    delay_actuation,
+    term_from_spec,
+    with_time_channel,
+)
+from lagsplat.io.clip import TRAIN
+from lagsplat.models.lagrangian import Lagrangian
+from lagsplat.synth.effects import simulate_effect
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
+DT = 1 / 30.0
+
+
+@functools.lru_cache(maxsize=None)
+def _run(system: str, effect: str, seed: int, duration_s: float = 12.0):
+    """The simulated clip, 2 training + 1 held-out episodes (cached: several tests read the same truth)."""
+    return simulate_effect(system, effect, seed, duration_s=duration_s, n_episodes=3)
+
+
+def _chart(system: str, effect: str, seed: int, noise: float = 0.01, duration_s: float = 12.0) -> Chart:
+    """A 1-D chart from the true latent: a linear map (scale, sign, offset), whitening, white noise."""
+    run = _run(system, effect, seed, duration_s)
+    rng = np.random.default_rng(seed + 11)
+    z = -1.7 * run.latent + 0.3
+    tr = run.split == TRAIN
+    q = (z - z[tr].mean()) / z[tr].std() + noise * rng.standard_normal(len(z))
+    I = np.eye(1)
+    return Chart(
+        mean=np.zeros(1), W=I, W_inv=I, q=q[:, None], t=run.t, split=run.split, G_bar=I, A=I, ae_mse=np.zeros(len(q)),
+        ae_floor_train=0.0, ae_floor_held_out=0.0, height=64, width=64, episode=run.episode, u=run.u,
+    )  # fmt: skip
+
+
+def _linear(chart: Chart) -> LinearOscillator:
+    segs = chart.segments(TRAIN)
+    return fit_linear_oscillator([chart.q[s] for s in segs], DT, [chart.u[s] for s in segs] if chart.n_u else None)
+
+
+@functools.lru_cache(maxsize=None)
+def _diagnosed(system: str, effect: str, seed: int, noise: float = 0.01):
+    """``(diagnosis, residual)`` of the linear stand-in on a clip's training episodes (cached across tests)."""
+    chart = _chart(system, effect, seed, noise=noise)
+    return diagnose_chart(_linear(chart), chart)
+
+
+# ------------------------------------------------------------------ residual
+def test_residual_of_the_true_model_is_the_unmodelled_force() -> None:
+    """On an exact linear oscillator plus a known extra force, r recovers the (smoothed) force, in force units."""
+    w0, zeta, mu = 2 * math.pi * 0.7, 0.01, 0.6
+    t = np.arange(900) * DT
+    from scipy.integrate import solve_ivp
+
+    def rhs(_t, y):
+        return [y[1], -w0 * w0 * y[0] - 2 * zeta * w0 * y[1] - mu * math.tanh(y[1] / 0.02)]
+
+    y = solve_ivp(rhs, (0, t[-1]), [1.0, 0.0], t_eval=t, rtol=1e-10, atol=1e-12, method="LSODA").y
+    q = y[0][:, None]
+    truth = LinearOscillator(np.array([[w0 * w0]]), np.array([[2 * zeta * w0]]), np.zeros(1))
+    res = residual_force(truth, [q], DT)
+    f_true = -mu * np.tanh(res.qdot[:, 0] / 0.02)
+    smooth = res.features(lambda st: -mu * np.tanh(st.qdot[:, 0] / 0.02))[:, 0]
+    assert np.corrcoef(res.r[:, 0], smooth)[0, 1] > 0.97
+    assert abs(np.std(res.r[:, 0]) / np.std(smooth) - 1) < 0.1
+    assert np.corrcoef(res.r[:, 0], f_true)[0, 1] > 0.9
+    # without the extra force the residual is a small fraction of the model's force (smoothing bias only)
+    y0 = solve_ivp(lambda _t, s: [s[1], -w0 * w0 * s[0] - 2 * zeta * w0 * s[1]], (0, t[-1]), [1.0, 0.0], t_eval=t, rtol=1e-10, atol=1e-12).y
+    res0 = residual_force(truth, [y0[0][:, None]], DT)
+    assert np.std(res0.r) < 0.02 * np.std(res0.f_model)
+    assert res.n == res0.n == 900 - 2 * math.ceil(3 * res.sigma)
+
+
+def test_noise_level_is_estimated() -> None:
+    rng = np.random.default_rng(0)
+    t = np.arange(2000) * DT
+    x = np.sin(2 * math.pi * 0.8 * t)[:, None]
+    for s in (0.003, 0.01, 0.03):
+        est = chart_noise([x + s * rng.standard_normal(x.shape)])
+        assert est[0] == pytest.approx(s, rel=0.12)
+
+
+def test_residual_rejects_bad_input() -> None:
+    m = LinearOscillator(np.eye(1), np.eye(1) * 0.1, np.zeros(1))
+    with pytest.raises(ValueError, match="long enough"):
+        residual_force(m, [np.zeros((10, 1))], DT)
+    with pytest.raises(ValueError, match="NaN"):
+        residual_force(m, [np.full((100, 1), np.nan)], DT)
+    with pytest.raises(ValueError, match="dt"):
+        residual_force(m, [np.zeros((100, 1))], 0.0)
+    with pytest.raises(KeyError, match="unknown effect"):
+        select_effect(residual_force(m, [np.sin(np.arange(200) * 0.2)[:, None]], DT), candidates=["gremlins"])
+
+
+# ------------------------------------------------------------------ selection (linear stand-in)
+@pytest.mark.parametrize(
+    "effect",
+    ["none", "coulomb", "quadratic_drag", "end_stop", "cubic_stiffness", "periodic_force", "drift", "actuation_delay", "missing_dof"],
+)
+def test_each_effect_is_ranked_first_on_the_cart(effect: str) -> None:
+    diag, res = _diagnosed("cart", effect, 0)
+    assert diag.winner == effect
+    if effect == "none":
+        assert diag.effects == [] and all(not f.significant for f in diag.ranking)
+        assert 0.5 < diag.null["excess_over_noise"] < 1.5  # the residual is the chart noise
+    else:
+        assert diag.ranking[0].effect == effect and diag.ranking[0].significant
+        assert diag.effects[0].delta_bic >= 10 and diag.effects[0].r2 >= 0.1
+        assert np.all(np.isfinite(diag.effects[0].se))
+    json.dumps(diag.to_dict(), allow_nan=False)  # report.json material: strict JSON
+    assert "verdict" in diag.summary()
+
+
+def test_fitted_coefficients_match_the_truth() -> None:
+    """The diagnosed physical numbers agree with the simulated ones (unit-free comparisons)."""
+    diag, _ = _diagnosed("cart", "periodic_force", 0)
+    p = _run("cart", "periodic_force", 0).truth["effect_params"]
+    assert diag.effects[0].params["f_hz"] == pytest.approx(p["f_hz"], rel=0.01)
+
+    diag, _ = _diagnosed("cart", "actuation_delay", 0)
+    tau = _run("cart", "actuation_delay", 0).truth["effect_params"]["tau_s"]
+    assert diag.effects[0].params["tau_s"] == pytest.approx(tau, abs=DT / 2)
+
+    diag, _ = _diagnosed("cart", "missing_dof", 0)
+    run = _run("cart", "missing_dof", 0)
+    assert diag.effects[0].params["f_hz"] == pytest.approx(run.truth["effect_params"]["f2_hz"], rel=0.05)
+
+    diag, _ = _diagnosed("cart", "end_stop", 0)
+    p = _run("cart", "end_stop", 0).truth["effect_params"]
+    it = diag.effects[0].interpretation
+    assert it["side"] == -p["side"] and it["stiffness_ratio"] > 5  # a stiff stop, on the mirrored side (the chart map flips the sign)
+
+    for seed, kind in ((0, "hardening"), (1, "softening")):
+        diag, _ = _diagnosed("cart", "cubic_stiffness", seed)
+        it = diag.effects[0].interpretation
+        eps = _run("cart", "cubic_stiffness", seed).truth["effect_params"]["eps"]
+        assert it["kind"] == kind and abs(it["k3"]) > 3 * it["k3_se"]
+        # relative shift at the largest amplitude against the truth 3 eps (A_max / A)^2 / 8, within 30 %
+        run = _run("cart", "cubic_stiffness", seed)
+        a_max = np.quantile(np.abs(run.x[run.split == TRAIN]), 0.99) / run.truth["amplitude"]
+        assert it["relative_frequency_shift_at_amplitude"] == pytest.approx(3 * eps * a_max**2 / 8, rel=0.3)
+
+
+def test_signatures_read_the_envelope_and_frequency_shift() -> None:
+    assert _diagnosed("cart", "coulomb", 0)[0].evidence["envelope"]["best"] == "linear"
+    assert _diagnosed("cart", "none", 0)[0].evidence["envelope"]["best"] == "exponential"
+    assert _diagnosed("cart", "cubic_stiffness", 0)[0].evidence["frequency"]["z_amp2"] > 3  # hardening: f rises with amplitude
+    assert _diagnosed("cart", "cubic_stiffness", 1)[0].evidence["frequency"]["z_amp2"] < -3  # softening
+    assert abs(_diagnosed("cart", "drift", 0)[0].evidence["frequency"]["z_time"]) > 3  # stiffness drift: f changes with time
+    spec = _diagnosed("cart", "periodic_force", 0)[0].evidence["spectrum"]
+    f = _run("cart", "periodic_force", 0).truth["effect_params"]["f_hz"]
+    assert any(abs(p - f) < 0.05 * f for p in spec["unexplained_peaks_hz"])
+
+
+def test_pendulum_effects_and_control_with_the_linear_stand_in() -> None:
+    for effect in ("none", "coulomb", "missing_dof"):
+        chart = _chart("pendulum", effect, seed=1)
+        diag, _ = diagnose_chart(_linear(chart), chart)
+        assert diag.winner == effect, (effect, diag.summary())
+
+
+def test_control_with_a_trained_lagrangian_is_not_flagged_and_friction_is() -> None:
+    """The paper's model, briefly fitted by Stage 2, as the plain model (its potential misfit must not be flagged)."""
+    from lagsplat.train.stage2 import Stage2Config, train_stage2
+
+    for effect in ("none", "coulomb"):
+        chart = _chart("cart", effect, seed=0)
+        model, _ = train_stage2(chart, Stage2Config(epochs=6, windows_per_epoch=500), seed=0, progress=False)
+        diag, _ = diagnose_chart(model, chart)
+        assert diag.winner == effect, diag.summary()
+
+
+# ------------------------------------------------------------------ terms
+def test_dissipative_terms_never_inject_energy() -> None:
+    g = torch.Generator().manual_seed(0)
+    for d in (1, 3):
+        q = 3 * torch.randn(4000, d, generator=g)
+        qd = 3 * torch.randn(4000, d, generator=g)
+        e = torch.randn(d, generator=g)
+        for term in (CoulombFriction(e, 0.7, 0.05), QuadraticDrag(e, 1.3)):
+            with torch.no_grad():
+                term.raw.fill_(-3.0 + 6.0 * torch.rand((), generator=g).item())
+            with torch.no_grad():
+                p = (qd * term(q, qd)).sum(-1)
+            assert float(p.max()) <= 0.0
+        # the drift's damping part stays above -c_floor: with the floor c0 the total power is <= -(c0 - c_floor)|qdot|^2
+        drift = StiffnessDampingDrift(e, 0.0, -5.0, t_ref=0.0, s0=0.0, c_floor=0.5, k_floor=0.0)
+        t = 100 * torch.rand(4000, generator=g)
+        c0 = 1.0
+        with torch.no_grad():
+            p = (qd * (drift(q, qd, t) - c0 * qd)).sum(-1)
+        e_hat = e / e.norm()
+        assert float((p + (c0 - 0.5) * (qd @ e_hat) ** 2).max()) <= 1e-4
+
+
+def test_conservative_terms_derive_from_their_potential() -> None:
+    torch.manual_seed(0)
+    e = torch.tensor([0.6, -0.8])
+    for term in (EndStop(e, 5.0, 0.3, -1.0), CubicStiffness(e, 2.0, 0.1, 3.0), CubicStiffness(e, -2.0, 0.1, 3.0)):
+        q = torch.randn(256, 2, dtype=torch.float64, requires_grad=True)
+        term = term.double()
+        V = term.potential(q)
+        (grad,) = torch.autograd.grad(V.sum(), q)
+        torch.testing.assert_close(term(q.detach(), torch.zeros_like(q)), -grad, rtol=1e-6, atol=1e-8)
+    # the softening form saturates: it falls only logarithmically, so any quadratic floor keeps the total coercive
+    soft = CubicStiffness(torch.ones(1), -50.0, 0.0, 1.0).double()
+    x = torch.logspace(0, 6, 61, dtype=torch.float64)[:, None]
+    with torch.no_grad():
+        total = 0.01 * 0.5 * x[:, 0] ** 2 + soft.potential(x)
+    assert bool(torch.all(torch.diff(total[-20:]) > 0)) and float(total[-1]) > 1e8
+    with torch.no_grad():
+        assert float(soft(torch.tensor([[1e3]], dtype=torch.float64), torch.zeros(1, 1, dtype=torch.float64)).abs()) < 1.0  # force decays
+
+
+def test_augmented_lagrangian_energy_decreases_and_terms_enter_the_rhs() -> None:
+    torch.manual_seed(0)
+    base = Lagrangian(2, "scalar", c0=0.05).eval()
+    terms = [CoulombFriction(torch.tensor([1.0, 0.0]), 0.3, 0.05), QuadraticDrag(torch.tensor([0.0, 1.0]), 0.2),
+             EndStop(torch.tensor([1.0, 1.0]), 4.0, 0.2, 1.0), CubicStiffness(torch.tensor([1.0, -1.0]), -0.5, 0.0, 3.0)]  # fmt: skip
+    aug = AugmentedLagrangian(base, terms).eval()
+    q = torch.randn(64, 2, requires_grad=True)
+    qd = torch.randn(64, 2, requires_grad=True)
+    E = aug.energy(q, qd)
+    gq, gv = torch.autograd.grad(E.sum(), (q, qd))
+    qdd = aug.acceleration(q.detach(), qd.detach())
+    dE = (gq * qd).sum(-1) + (gv * qdd).sum(-1)
+    assert float(dE.detach().max()) <= 1e-4
+    # the terms enter exactly like an external force
+    f = sum(t(q.detach(), qd.detach()) for t in terms)
+    torch.testing.assert_close(aug.acceleration(q.detach(), qd.detach()), base.acceleration(q.detach(), qd.detach(), f), rtol=1e-5, atol=1e-5)
+    # and the integrators take the augmented model as it is: a free rollout loses energy
+    from lagsplat.dynamics.integrators import rollout
+
+    with torch.no_grad():
+        qs, vs = rollout(aug, q.detach()[:8], qd.detach()[:8], 0.01, 400)
+        E = torch.stack([aug.energy(qs[:, i], vs[:, i]) for i in range(0, 400, 20)], 1)
+    assert torch.isfinite(E).all() and bool((E[:, -1] < E[:, 0]).all())
+    assert float((E[:, 1:] - E[:, :-1]).max()) < 1e-3 * float(E[:, 0].abs().max())
+
+
+def test_time_channel_and_periodic_term() -> None:
+    base = LinearOscillator(np.eye(1) * 4.0, np.eye(1) * 0.1, np.zeros(1))
+    per = PeriodicForce(torch.ones(1), 0.5, 2.0, -1.0).double()
+    aug = AugmentedLagrangian(base, [per], time_channel=True)
+    q, qd = torch.zeros(3, 1, dtype=torch.float64), torch.zeros(3, 1, dtype=torch.float64)
+    t = torch.tensor([0.0, 0.5, 1.0], dtype=torch.float64)
+    a = aug.acceleration(q, qd, u=t[:, None])
+    expect = 2.0 * torch.cos(2 * math.pi * 0.5 * t) - 1.0 * torch.sin(2 * math.pi * 0.5 * t)
+    torch.testing.assert_close(a[:, 0], expect)
+    with pytest.raises(ValueError, match="time"):
+        AugmentedLagrangian(base, [per], time_channel=False)
+    chart = _chart("cart", "none", seed=0, duration_s=4.0)
+    tc = with_time_channel(chart)
+    assert tc.u.shape == (len(chart.t), 1) and np.allclose(tc.u[:, 0], chart.t, atol=1e-4) and chart.u.shape[1] == 0
+
+
+def test_delay_actuation_shifts_the_input() -> None:
+    t = np.arange(100) * 0.01
+    u = np.stack([t, t**2], 1)
+    out = delay_actuation(u, t, 0.05)
+    np.testing.assert_allclose(out[10:, 0], t[10:] - 0.05, atol=1e-6)
+    assert out[0, 0] == pytest.approx(0.0)
+    with pytest.raises(ValueError):
+        delay_actuation(u, t, -0.1)
+
+
+def test_build_term_starts_at_the_diagnosed_values() -> None:
+    diag, res = _diagnosed("cart", "coulomb", 0)
+    fit = diag.effects[0]
+    term = build_term(fit)
+    assert isinstance(term, CoulombFriction)
+    assert term.mu.item() == pytest.approx(fit.coef[0], rel=1e-4)
+    assert term.spec()["mu"] == pytest.approx(fit.coef[0], rel=1e-4) and term.spec()["class"] == "CoulombFriction"
+    f = term(torch.as_tensor(res.q[:50]), torch.as_tensor(res.qdot[:50])).detach().numpy()
+    np.testing.assert_allclose(f[:, 0], -fit.coef[0] * np.tanh(res.qdot[:50, 0] / fit.params["v_s"]), rtol=1e-4, atol=1e-6)
+    assert set(effect_names()) == {e.name for e in EFFECTS}
+    # every term survives a round trip through its spec (what a checkpoint would store)
+    e = torch.tensor([0.6, 0.8])
+    q, qd, t = torch.randn(20, 2), torch.randn(20, 2), torch.rand(20) * 30
+    for term in (CoulombFriction(e, 0.3, 0.1), QuadraticDrag(e, 0.2), EndStop(e, 3.0, 0.1, -1.0), CubicStiffness(e, -0.4, 0.1, 2.0),
+                 PeriodicForce(e, 1.3, 0.2, -0.1), StiffnessDampingDrift(e, 0.01, -0.02, 10.0, 0.0, 0.5, 1.0)):  # fmt: skip
+        again = term_from_spec(term.spec())
+        torch.testing.assert_close(again(q, qd, t), term(q, qd, t))
+    with pytest.raises(KeyError):
+        term_from_spec({"class": "Gremlin"})
+
+
+def test_two_dimensional_chart_finds_the_effect_and_its_direction() -> None:
+    """d = 2: friction on one of two independent oscillators, seen through a rotated chart."""
+    a, b = _run("cart", "coulomb", 0), _run("cart", "none", 1)
+    ang = math.radians(35.0)
+    R = np.array([[math.cos(ang), math.sin(ang)], [-math.sin(ang), math.cos(ang)]])
+    X = np.stack([a.latent / a.latent.std(), b.latent / b.latent.std()], 1)
+    q = X @ R + 0.01 * np.random.default_rng(3).standard_normal(X.shape)
+    I = np.eye(2)
+    chart = Chart(
+        mean=np.zeros(2), W=I, W_inv=I, q=q, t=a.t, split=a.split, G_bar=I, A=I, ae_mse=np.zeros(len(q)),
+        ae_floor_train=0.0, ae_floor_held_out=0.0, height=64, width=64, episode=a.episode, u=a.u,
+    )  # fmt: skip
+    diag, res = diagnose_chart(_linear(chart), chart, candidates=["coulomb", "quadratic_drag", "cubic_stiffness", "drift"])
+    assert res.d == 2 and diag.winner == "coulomb", diag.summary()
+    e = diag.effects[0].direction
+    assert abs(float(e @ R[0])) > math.cos(math.radians(10.0))  # the friction acts along the first oscillator's coordinate
+    # the control direction alone carries nothing
+    chart_b = Chart(
+        mean=np.zeros(1), W=np.eye(1), W_inv=np.eye(1), q=q @ R[1][:, None], t=a.t, split=a.split, G_bar=np.eye(1), A=np.eye(1),
+        ae_mse=np.zeros(len(q)), ae_floor_train=0.0, ae_floor_held_out=0.0, height=64, width=64, episode=a.episode, u=a.u,
+    )  # fmt: skip
+    assert diagnose_chart(_linear(chart_b), chart_b)[0].winner == "none"
