@@ -240,6 +240,23 @@ def _cpu_render(means, conic, opac, colors, r2, bounds, background, height, widt
     """Inference path of :func:`rasterize_cpu`: the same image, no autograd record (``render_kernel``)."""
     from lagsplat.render import cpu_kernels as ck
 
+    k = _prepare_kernel(means, conic, opac, colors, r2, bounds, background, height, width, tile)
+    B, C = colors.shape[0], colors.shape[2]
+    out = np.empty((B, C, height, width), np.float32)
+    x0, x1, y0, y1 = k["bounds"]
+    ck.render_kernel(k["pairs"], k["key_start"], *k["arrays"], x0, x1, y0, y1, height, width, tile, k["ntx"], k["n_tiles"], out)
+    return torch.from_numpy(out)
+
+
+def _prepare_kernel(means, conic, opac, colors, r2, bounds, background, height, width, tile) -> dict:
+    """Bin the (tile, primitive) pairs and lay the inputs out as the compiled kernels take them.
+
+    Returns ``pairs``, ``key_start``, ``ntx``, ``n_tiles``, ``bounds`` (x0, x1,
+    y0, y1 as int64 NumPy arrays) and ``arrays`` = (means, conic, opacity, r2,
+    colours, background), float32 NumPy, primitives flattened to ``B K``.
+    """
+    from lagsplat.render import cpu_kernels as ck
+
     B, K, C = colors.shape
     ntx, nty = math.ceil(width / tile), math.ceil(height / tile)
     n_tiles = ntx * nty
@@ -249,9 +266,10 @@ def _cpu_render(means, conic, opac, colors, r2, bounds, background, height, widt
     m, cn, col = arr(means), arr(conic), arr(colors)
     op, rr = arr(opac).reshape(-1), arr(r2).reshape(-1)
     bg = np.zeros(C, np.float32) if background is None else background.detach().cpu().numpy().astype(np.float32)
-    out = np.empty((B, C, height, width), np.float32)
-    ck.render_kernel(pairs, key_start, m, cn, op, rr, col, bg, x0, x1, y0, y1, height, width, tile, ntx, n_tiles, out)
-    return torch.from_numpy(out)
+    return {
+        "pairs": pairs, "key_start": key_start, "ntx": ntx, "n_tiles": n_tiles,
+        "bounds": (x0, x1, y0, y1), "arrays": (m, cn, op, rr, col, bg),
+    }
 
 
 class _CpuRasterize(torch.autograd.Function):
@@ -262,14 +280,9 @@ class _CpuRasterize(torch.autograd.Function):
         from lagsplat.render import cpu_kernels as ck
 
         B, K, C = colors.shape
-        ntx, nty = math.ceil(width / tile), math.ceil(height / tile)
-        n_tiles = ntx * nty
-        x0, x1, y0, y1, valid = (v.reshape(-1).numpy() for v in bounds)
-        pairs, key_start = ck.bin_pairs(x0, x1, y0, y1, valid, K, n_tiles, ntx, tile)
-        arr = lambda t: np.ascontiguousarray(t.detach().reshape(B * K, -1).numpy(), dtype=np.float32)  # noqa: E731
-        m, cn, col = arr(means), arr(conic), arr(colors)
-        op, rr = arr(opac).reshape(-1), arr(r2).reshape(-1)
-        bg = np.zeros(C, np.float32) if background is None else background.detach().cpu().numpy().astype(np.float32)
+        k = _prepare_kernel(means, conic, opac, colors, r2, bounds, background, height, width, tile)
+        pairs, key_start, ntx, n_tiles = k["pairs"], k["key_start"], k["ntx"], k["n_tiles"]
+        m, cn, op, rr, col, bg = k["arrays"]
         out = np.empty((B, C, height, width), np.float32)
         t_final = np.empty((B, height, width), np.float32)
         t_store = np.empty((len(pairs), tile * tile), np.float32)
