@@ -64,6 +64,7 @@ include: "workflow/rules/stage2.smk"
 include: "workflow/rules/evaluate.smk"
 include: "workflow/rules/report.smk"
 include: "workflow/rules/krauss.smk"
+include: "workflow/rules/diagnose.smk"
 
 
 rule toy:

@@ -5,7 +5,7 @@ One stage per Snakemake rule; each reads only upstream artifacts under
 resolved configuration saved beside it (``config/<stage>.yaml``).
 
 Stages: ``download``, ``ingest``, ``stage1``, ``chart``, ``stage2``,
-``evaluate``, ``figures``, ``table``, ``ablation``, ``krauss_table``, ``all`` (ingest ->
+``evaluate``, ``figures``, ``forces``, ``diagnose``, ``table``, ``ablation``, ``krauss_table``, ``all`` (ingest ->
 figures in one process), and ``view`` (the interactive viewer, which writes
 nothing).
 """
@@ -35,6 +35,8 @@ stages:
              the published soft-robot protocol, lagsplat.evaluate_krauss)
   figures    -> figures/rollout.png
   forces     -> forces.json, figures/forces.png (force-transport checks: background, linearity, kernel)
+  diagnose   -> diagnosis/report.md, report.json, figures/ (sim-to-real gap: which unmodelled effect,
+             where it shows, held-out gap before / after a Stage-2 refit with it; lagsplat.diagnose)
   table      metrics.json of table.systems -> results/tables/<table.name>.tex/.csv
   ablation   variants' metrics.json of one system -> results/tables/<name>_<ablation>.tex/.csv
   krauss_table  soft-robot benchmark (paper Table 4) -> results/tables/krauss.tex/.csv/.md
@@ -298,6 +300,33 @@ def stage_forces(cfg: DictConfig) -> None:
     )
 
 
+def stage_diagnose(cfg: DictConfig) -> None:
+    """Sim-to-real gap diagnosis (issue 7) -> ``diagnosis/report.md``, ``report.json``, ``figures/*.png``.
+
+    Reads ``clip.npz``, ``stage1.pt``, ``chart.npz``, ``stage2.pt`` and
+    ``metrics.json`` (of the variant when ``variant`` is set); settings in the
+    ``diagnose`` group, the gap protocol in ``evaluate``; the refit uses the
+    Stage-2 settings saved in ``stage2.pt``. See :mod:`lagsplat.diagnose.report`.
+    """
+    from lagsplat.diagnose.report import DiagnoseConfig, diagnose_system
+    from lagsplat.evaluate import EvalConfig
+
+    dc = DiagnoseConfig.from_mapping(_container(cfg.diagnose) if cfg.get("diagnose") else None)
+    dc.refit.seed = int(cfg.seed)
+    title = str(cfg.system.get("title", cfg.system.name)) + (f" [{cfg.variant}]" if cfg.get("variant") else "")
+    rep = diagnose_system(_sysdir(cfg), _outdir(cfg), _outdir(cfg) / "diagnosis", dc, EvalConfig(**_container(cfg.evaluate)), title, bool(cfg.progress))
+    red = (rep["gap"].get("reduction") or {}).get("eps_q")
+    print(
+        f"{cfg.system.name}: {rep['verdict_text']}; held-out eps_q {rep['gap']['before']['eps_q']:.4f}"
+        + (f" -> {rep['gap']['after']['eps_q']:.4f} ({100 * red:+.0f} %)" if red is not None else "")
+        + f"; report: {_outdir(cfg) / 'diagnosis' / 'report.md'}"
+    )
+    from lagsplat.io.atomic import atomic_write
+
+    with atomic_write(_outdir(cfg) / "diagnosis" / "config.yaml") as tmp:  # beside the report: the stage writes only under diagnosis/
+        tmp.write_text(OmegaConf.to_yaml(cfg, resolve=True))
+
+
 def stage_table(cfg: DictConfig) -> None:
     """``metrics.json`` of ``table.systems`` -> ``results/tables/<table.name>.tex`` and ``.csv``."""
     from lagsplat.report.tables import physical_table
@@ -391,6 +420,7 @@ STAGES: dict[str, Callable[[DictConfig], None]] = {
     "evaluate": stage_evaluate,
     "figures": stage_figures,
     "forces": stage_forces,
+    "diagnose": stage_diagnose,
     "table": stage_table,
     "ablation": stage_ablation,
     "krauss_table": stage_krauss_table,

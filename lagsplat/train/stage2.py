@@ -6,7 +6,7 @@ import copy
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import numpy as np
 import torch
@@ -127,7 +127,13 @@ def _rollout_error(
 
 
 def train_stage2(
-    chart: Chart, cfg: Stage2Config, seed: int = 0, progress: bool = True, inertia: DecoderInertia | None = None
+    chart: Chart,
+    cfg: Stage2Config,
+    seed: int = 0,
+    progress: bool = True,
+    inertia: DecoderInertia | None = None,
+    augment: Callable[[Lagrangian], torch.nn.Module] | None = None,
+    n_u_model: int | None = None,
 ) -> tuple[Lagrangian, dict]:
     """Fit the Lagrangian by one differentiable Verlet step per window (Eq. 8).
 
@@ -145,9 +151,18 @@ def train_stage2(
         seed: RNG seed.
         progress: tqdm bar with the loss.
         inertia: the :class:`DecoderInertia` when ``cfg.mass == "decoder"``.
+        augment: hook for the gap-diagnosis refit (issue 7, :mod:`lagsplat.diagnose.refit`):
+            called once with the built Lagrangian after its rest state and energy
+            gauge are set, it returns the module that is trained and selected
+            instead (e.g. the fitted weights loaded and effect terms added,
+            :class:`~lagsplat.diagnose.terms.AugmentedLagrangian`); it must keep
+            the ``acceleration(q, qdot, f_ext, u=...)`` interface. ``None``: the plain model.
+        n_u_model: actuation channels the Lagrangian itself reads (default
+            ``chart.n_u``); the chart's channels beyond it are for ``augment``'s
+            module (e.g. the clip time of a time-dependent term).
 
     Returns:
-        ``(model, history)``.
+        ``(model, history)``; ``model`` is ``augment``'s module when given.
 
     Raises:
         ValueError: if the training segment is too short for one window, or
@@ -173,10 +188,12 @@ def train_stage2(
     i_long = int(np.argmax([len(x) for x in q_smooth]))
     longest = q_smooth[i_long]
     f_train = metrics.spectral_peak_frequency(metrics.project(longest, metrics.top_direction(chart.G_bar)), dt)
-    model = cfg.build(d, n_u, inertia)
+    model = cfg.build(d, n_u if n_u_model is None else int(n_u_model), inertia)
     with torch.no_grad():
         model.potential_hat.q_rest.copy_(torch.as_tensor(np.concatenate(q_smooth).mean(0), dtype=torch.float32))
     model.init_energy_scales(2 * math.pi * f_train, cfg.zeta_floor)
+    if augment is not None:
+        model = augment(model)
 
     horizon = max(8, int(round(cfg.select_periods / (f_train * dt))))
     sel_seg, sel_u = longest, u_segs[i_long]

@@ -1,0 +1,659 @@
+"""How far the gap shrinks: refit Stage 2 with the diagnosed effect and measure the held-out gap (issue 7, item 4).
+
+Refit
+-----
+The winning effect(s) of :func:`lagsplat.diagnose.select_effect` become
+energy-consistent torch terms (:func:`lagsplat.diagnose.terms.build_term`)
+added to the Lagrangian (:class:`RefitModel`, an
+:class:`~lagsplat.diagnose.terms.AugmentedLagrangian`), and Stage 2 is run
+again by :func:`lagsplat.train.stage2.train_stage2` itself (same windows, loss,
+optimiser and model selection on *training* rollouts, paper §3.3, Eq. 8),
+through its ``augment`` hook:
+
+* ``init="fitted"`` (default): the Lagrangian starts from the fitted weights
+  and is fine-tuned together with the term for ``epochs`` epochs. In-class
+  effects (cubic stiffness, end stop) start from the part the fitted model
+  lacks (``coef - interpretation["model_carries"]``); the others from the
+  diagnosed coefficients;
+* ``init="scratch"``: a fresh Stage 2 (the configured epochs), the term
+  initialised at the diagnosed coefficients.
+
+An **actuation delay** is not a force: the refit model reads the logged input
+``tau`` seconds late (:func:`~lagsplat.diagnose.terms.delay_actuation`, the
+diagnosed ``tau``). Time-dependent terms (periodic force, drift) read the clip
+time from an extra actuation channel
+(:func:`~lagsplat.diagnose.terms.with_time_channel`). A **missing degree of
+freedom** has no term: the remedy is Stage 1 with one more latent dimension,
+which this module does not run (:attr:`RefitSpec.not_refit`).
+
+``control=True`` also runs the identical fine-tune *without* the term, so that
+what the term buys is separated from what more training buys.
+
+Energy bound
+------------
+The dissipative terms satisfy ``qdot^T f_eff <= 0`` by construction
+(:mod:`lagsplat.diagnose.terms`), so the bound of paper App. A.2
+(``dE/dt <= -c0 |qdot|^2`` on a free rollout) holds for the refit model;
+:func:`energy_check` verifies it numerically (the power of the dissipative
+terms on the training states, and the energy ``T + V + V_eff`` along free
+rollouts of a model without time-dependent terms or inputs).
+
+Held-out gap
+------------
+:func:`held_out_gap` scores a model on the held-out frames, which neither the
+diagnosis (training frames) nor the refit (training frames, selection on
+training rollouts) saw, with the code of :func:`lagsplat.evaluate.evaluate`
+(``eps_q``, ``eps_freq``, ``eps_I``, ``eps_AE``), plus the envelope decay of
+:func:`envelope_decay`: a free rollout from the start of the longest held-out
+segment over its whole length; the amplitude of each half cycle (half the
+difference of consecutive extrema of the most visible coordinate, offset-free)
+is fitted by a linear and an exponential envelope, the form that fits the
+encoded trajectory best is used for both, and the decay is the fraction of
+amplitude lost over the segment, ``D = 1 - A(t_end) / A(t_0)``; the error is
+``|D_sim - D_enc| / max(|D_enc|, 0.05)``. The image gap is the excess over
+the AE floor, ``(eps_I - eps_AE) / eps_AE``.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from lagsplat import metrics
+from lagsplat.diagnose.effects import get_effect
+from lagsplat.diagnose.terms import (
+    AugmentedLagrangian,
+    EffectTerm,
+    build_term,
+    delay_actuation,
+    term_from_spec,
+    with_time_channel,
+)
+from lagsplat.dynamics.integrators import actuation_schedule, initial_state, rollout
+from lagsplat.io.atomic import save_torch
+from lagsplat.io.clip import HELD_OUT, TRAIN
+
+__all__ = [
+    "RefitConfig",
+    "RefitSpec",
+    "RefitModel",
+    "ScaledTerm",
+    "RefitResult",
+    "refit_spec",
+    "model_chart",
+    "refit",
+    "energy_check",
+    "envelope_decay",
+    "held_out_gap",
+    "gap_reduction",
+    "save_refit",
+    "load_refit",
+    "GAP_METRICS",
+]
+
+#: The gap numbers compared before / after (name -> lower is better).
+GAP_METRICS = ("eps_q", "eps_freq", "envelope_decay_error", "image_excess")
+
+
+@dataclass
+class RefitConfig:
+    """Refit settings (``conf/config.yaml``, group ``diagnose.refit``).
+
+    Attributes:
+        enabled: refit when an effect is found.
+        init: ``"fitted"`` (fine-tune the fitted Lagrangian with the term) or ``"scratch"``.
+        epochs: Stage-2 epochs of the fine-tune (``init="fitted"``); ``None`` keeps
+            the Stage-2 setting (always the case for ``"scratch"``).
+        lr: learning rate of the fine-tune (``None``: the Stage-2 one).
+        control: also fine-tune without the term (same settings and seed).
+        seed: RNG seed of the refit.
+        floor_scale: energy-gauge factor ``g`` applied to the fitted model before the
+            fine-tune (``s_M, s_V += log g``, term coefficients ``x g``): the dynamics is
+            unchanged except that the fixed dissipation floor ``c0`` weighs ``g`` times
+            less (paper App. C fixes it at a damping ratio ``stage2.zeta_floor`` of the
+            training frequency, which can exceed the true damping once a dry friction
+            or drag carries the decay). ``1``: no change. Applied to the control too.
+    """
+
+    enabled: bool = True
+    init: str = "fitted"
+    epochs: int | None = 40
+    lr: float | None = None
+    control: bool = True
+    seed: int = 0
+    floor_scale: float = 4.0
+
+    @classmethod
+    def from_mapping(cls, m: Mapping[str, Any] | None) -> RefitConfig:
+        """Build from a (Hydra) mapping; unknown keys raise ``KeyError``."""
+        from lagsplat.train.config import dataclass_from_mapping
+
+        return dataclass_from_mapping(cls, dict(m or {}), "diagnose.refit")
+
+
+class RefitModel(AugmentedLagrangian):
+    """:class:`~lagsplat.diagnose.terms.AugmentedLagrangian` with what the evaluation reads of a Lagrangian.
+
+    :meth:`modal_analysis` is the *base* Lagrangian's linearisation at its rest
+    state (the effect terms are not linearised: a smooth Coulomb switch has no
+    useful slope at rest); it is reported for reference only.
+    """
+
+    def modal_analysis(self, q: torch.Tensor | None = None) -> dict[str, np.ndarray]:
+        """The base model's linear modes (see the class docstring)."""
+        return self.base.modal_analysis(q) if q is not None else self.base.modal_analysis()
+
+    @property
+    def c0(self) -> float:
+        """The base model's dissipation floor."""
+        return float(getattr(self.base, "c0", 0.0))
+
+
+#: Constructor arguments of the terms of :mod:`lagsplat.diagnose.terms` that are generalized-force
+#: coefficients (scaled by :class:`ScaledTerm`); the others are positions, speeds, frequencies, times.
+FORCE_COEFFICIENTS = ("mu", "c2", "k", "k3", "a", "b", "k_rate", "c_rate", "c_floor", "k_floor")
+
+
+class ScaledTerm(EffectTerm):
+    """``scale x inner``: an effect term whose trainable coefficients are of order one.
+
+    Stage 2 trains with Adam, whose steps are about ``lr`` in parameter units
+    whatever the parameter's size; the diagnosed coefficients are in the model's
+    generalized-force units (tens to thousands), where ``lr = 1e-3`` could not
+    move them. The inner term is built at ``coefficients / scale`` and its force
+    and potential are multiplied by the fixed ``scale`` (every term of
+    :mod:`lagsplat.diagnose.terms` is linear in its force coefficients, the
+    drift's clamps included when they are divided too), so the physics and the
+    App. A.2 guarantees are the inner term's.
+
+    Args:
+        inner: the term at unit-scale coefficients.
+        scale: the factor (> 0), generalized-force units.
+
+    Raises:
+        ValueError: if ``scale`` is not positive.
+    """
+
+    def __init__(self, inner: EffectTerm, scale: float) -> None:
+        super().__init__(inner.e)
+        if not (math.isfinite(float(scale)) and scale > 0):
+            raise ValueError(f"scale must be a positive number, got {scale!r}")
+        self.inner = inner
+        self.register_buffer("scale", torch.tensor(float(scale)))
+        self.kind = inner.kind
+        self.needs_time = inner.needs_time
+
+    def magnitude(self, q, qdot, t):
+        return self.scale.to(q.dtype) * self.inner.magnitude(q, qdot, t)
+
+    def forward(self, q, qdot, t=None):
+        return self.scale.to(q.dtype) * self.inner(q, qdot, t)
+
+    def potential(self, q):
+        return self.scale.to(q.dtype) * self.inner.potential(q)
+
+    def spec(self) -> dict[str, Any]:
+        """The inner term's spec with its force coefficients multiplied by ``scale`` (the physical values)."""
+        sp = self.inner.spec()
+        s = float(self.scale)
+        return {k: (float(v) * s if k in FORCE_COEFFICIENTS else v) for k, v in sp.items()}
+
+    def storage(self) -> dict[str, Any]:
+        """What :func:`load_refit` needs to rebuild it: ``{"inner": inner spec, "scale": scale}``."""
+        return {"inner": self.inner.spec(), "scale": float(self.scale)}
+
+
+@dataclass
+class RefitSpec:
+    """What the refit adds, read off a diagnosis.
+
+    Attributes:
+        effects: names of the effects added.
+        terms: the :class:`~lagsplat.diagnose.terms.EffectTerm` modules (at their initial values).
+        time_channel: a term reads the clip time (extra actuation channel).
+        delay_s: actuation delay the refit model reads its input with (0: none).
+        not_refit: ``{effect: remedy}`` of effects that have no Stage-2 term.
+        init_coefficients: ``[spec]`` of each term at its start.
+    """
+
+    effects: list[str] = field(default_factory=list)
+    terms: list[EffectTerm] = field(default_factory=list)
+    time_channel: bool = False
+    delay_s: float = 0.0
+    not_refit: dict[str, str] = field(default_factory=dict)
+    init_coefficients: list[dict[str, Any]] = field(default_factory=list)
+
+    @property
+    def refittable(self) -> bool:
+        """Whether the refit changes the model (a term or a delay)."""
+        return bool(self.terms) or self.delay_s > 0
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready record."""
+        return {
+            "effects": list(self.effects), "time_channel": bool(self.time_channel), "delay_s": float(self.delay_s),
+            "not_refit": dict(self.not_refit), "init_terms": list(self.init_coefficients),
+        }  # fmt: skip
+
+
+def refit_spec(diagnosis: Any, model: Any | None = None, init: str = "fitted", scale: float = 1.0) -> RefitSpec:
+    """The terms (and input delay) that the diagnosis' accepted effects add to the model.
+
+    Args:
+        diagnosis: a :class:`~lagsplat.diagnose.select.Diagnosis` (``effects``).
+        model: the fitted model (dissipation floor of the drift clamp).
+        init: ``"fitted"`` (in-class terms start from the part the model lacks) or ``"scratch"``.
+        scale: factor on every generalized-force coefficient (the gauge change of
+            :attr:`RefitConfig.floor_scale`).
+
+    Returns:
+        The :class:`RefitSpec` (empty when nothing is significant).
+
+    Raises:
+        ValueError: on an unknown ``init``.
+    """
+    if init not in ("fitted", "scratch"):
+        raise ValueError(f"refit init must be 'fitted' or 'scratch', got {init!r}")
+    spec = RefitSpec()
+    for fit in getattr(diagnosis, "effects", []):
+        spec.effects.append(fit.effect)
+        if fit.effect == "actuation_delay":
+            spec.delay_s = float(fit.params["tau_s"])
+            continue
+        if fit.effect == "missing_dof":
+            f = fit.params.get("f_hz")
+            spec.not_refit[fit.effect] = (
+                "a second degree of freedom" + (f" (hidden mode near {float(f):.3g} Hz)" if f else "")
+                + ": no Stage-2 term can add it; rerun Stage 1 with system.d + 1 (then chart, Stage 2)"
+            )  # fmt: skip
+            continue
+        f_use = fit
+        if init == "fitted" and get_effect(fit.effect).in_class and "model_carries" in (fit.interpretation or {}):
+            lack = np.asarray(fit.coef, np.float64) - np.asarray(fit.interpretation["model_carries"], np.float64)
+            f_use = dataclasses.replace(fit, coef=lack)
+        coef = np.asarray(f_use.coef, np.float64) * scale
+        unit = float(np.max(np.abs(coef))) if np.any(coef != 0) else 1.0  # ScaledTerm: order-one trainable coefficients
+        interp = dict(f_use.interpretation or {})
+        if "k_model" in interp:
+            interp["k_model"] = float(interp["k_model"]) * scale / unit
+        f_use = dataclasses.replace(f_use, coef=coef / unit, interpretation=interp)
+        c0 = float(getattr(model, "c0", 1.0)) if model is not None else 1.0
+        inner = build_term(f_use, model, c0=c0 / unit)
+        if inner is None:  # pragma: no cover - build_term returns None only for the two handled above
+            spec.not_refit[fit.effect] = "no Stage-2 term"
+            continue
+        term = ScaledTerm(inner, unit)
+        spec.terms.append(term)
+        spec.time_channel |= bool(term.needs_time)
+        spec.init_coefficients.append(term.spec())
+    return spec
+
+
+def model_chart(chart: Any, delay_s: float = 0.0, time_channel: bool = False) -> Any:
+    """The chart a refit model reads: the same frames and ``q``, its input delayed and/or the time appended.
+
+    Args:
+        chart: the :class:`~lagsplat.chart.Chart`.
+        delay_s: input delay (s, >= 0; only with actuation).
+        time_channel: append the clip time as the last actuation channel.
+
+    Returns:
+        A shallow copy (``chart`` itself when nothing changes).
+    """
+    out = chart
+    if delay_s > 0 and chart.n_u:
+        out = copy.copy(chart)
+        out.u = delay_actuation(chart.u, chart.t, float(delay_s))
+    if time_channel:
+        out = with_time_channel(out)
+    return out
+
+
+@dataclass
+class RefitResult:
+    """A refit model with the chart it reads.
+
+    Attributes:
+        model: the refit model (:class:`RefitModel`, or the plain Lagrangian for a pure delay).
+        chart: the chart it is evaluated on (:func:`model_chart`).
+        spec: what was added; history: the Stage-2 history of the refit.
+        control: the fine-tune without the term (``None`` if not run); control_history its history.
+        fitted_terms: ``[spec]`` of each term after the refit (the identified coefficients).
+    """
+
+    model: nn.Module
+    chart: Any
+    spec: RefitSpec
+    history: dict
+    control: nn.Module | None = None
+    control_history: dict | None = None
+    fitted_terms: list[dict[str, Any]] = field(default_factory=list)
+
+
+def _stage2_settings(stage2_cfg: Any, cfg: RefitConfig) -> Any:
+    s2 = copy.deepcopy(stage2_cfg)
+    if cfg.init == "fitted":
+        if cfg.epochs is not None:
+            s2.epochs = int(cfg.epochs)
+        if cfg.lr is not None:
+            s2.lr = float(cfg.lr)
+    return s2
+
+
+def refit(
+    chart: Any, model: nn.Module, stage2_cfg: Any, diagnosis: Any, cfg: RefitConfig | None = None, inertia: Any | None = None,
+    progress: bool = False,
+) -> RefitResult | None:
+    """Refit Stage 2 with the diagnosed effect(s) added (module docstring).
+
+    Args:
+        chart: the chart the model was fitted on (only its training frames are used).
+        model: the fitted Lagrangian (its weights are the fine-tune's start; not modified).
+        stage2_cfg: the :class:`~lagsplat.train.stage2.Stage2Config` it was fitted with.
+        diagnosis: the :class:`~lagsplat.diagnose.select.Diagnosis`.
+        cfg: refit settings.
+        inertia: the decoder inertia for ``mass="decoder"``.
+        progress: tqdm bar.
+
+    Returns:
+        The :class:`RefitResult`, or ``None`` when nothing is significant or no
+        accepted effect has a Stage-2 remedy (missing degree of freedom only).
+
+    Raises:
+        ValueError: on an unknown ``cfg.init`` or a non-positive ``cfg.floor_scale``.
+    """
+    from lagsplat.train.stage2 import train_stage2
+
+    cfg = cfg or RefitConfig()
+    gauge = float(cfg.floor_scale) if cfg.init == "fitted" else 1.0
+    if not gauge > 0:
+        raise ValueError(f"refit floor_scale must be positive, got {cfg.floor_scale!r}")
+    spec = refit_spec(diagnosis, model, cfg.init, gauge)
+    if not spec.refittable:
+        return None
+    s2 = _stage2_settings(stage2_cfg, cfg)
+    ch = model_chart(chart, spec.delay_s, spec.time_channel)
+    fitted_state = copy.deepcopy(model.state_dict())
+
+    def make(terms: Sequence[EffectTerm], time_channel: bool):
+        def augment(base: nn.Module) -> nn.Module:
+            if cfg.init == "fitted":
+                base.load_state_dict(fitted_state)
+                if gauge != 1.0:
+                    with torch.no_grad():
+                        base.s_M.add_(math.log(gauge))
+                        base.s_V.add_(math.log(gauge))
+            if not terms and not time_channel:
+                return base
+            return RefitModel(base, [copy.deepcopy(t) for t in terms], time_channel=time_channel)
+
+        return augment
+
+    new, hist = train_stage2(ch, s2, seed=cfg.seed, progress=progress, inertia=inertia, augment=make(spec.terms, spec.time_channel), n_u_model=chart.n_u)
+    out = RefitResult(new, ch, spec, hist)
+    if isinstance(new, AugmentedLagrangian):
+        out.fitted_terms = [t.spec() for t in new.terms]
+    if cfg.control:
+        ctrl, ch_hist = train_stage2(chart, s2, seed=cfg.seed, progress=progress, inertia=inertia, augment=make([], False), n_u_model=chart.n_u)
+        out.control, out.control_history = ctrl, ch_hist
+    return out
+
+
+# ---------------------------------------------------------------------- energy bound
+@torch.no_grad()
+def energy_check(model: nn.Module, chart: Any, n_rollouts: int = 8, periods: float = 4.0, seed: int = 0) -> dict[str, Any]:
+    """Numerical check of the energy bound of paper App. A.2 for a refit model.
+
+    * ``max_dissipative_power``: the largest ``qdot^T f_k`` of each dissipative term
+      over the training states (velocities by central differences) and the same
+      states with velocities scaled by 0.1 and 10 (must be ``<= 0``);
+    * without time-dependent terms or inputs, ``max_energy_rise``: the largest rise of
+      ``E = T + V + V_eff`` along free rollouts of ``periods`` natural periods from
+      ``n_rollouts`` training states, relative to the initial energy above the minimum
+      reached (a few 1e-3 from the integrator at most when the bound holds).
+
+    Args:
+        model: a :class:`RefitModel` (a plain Lagrangian passes trivially).
+        chart: the chart (training frames).
+        n_rollouts, periods, seed: the free rollouts.
+
+    Returns:
+        ``{"dissipative_terms", "max_dissipative_power", "max_energy_rise", "holds"}``.
+    """
+    out: dict[str, Any] = {"dissipative_terms": [], "max_dissipative_power": None, "max_energy_rise": None}
+    if not isinstance(model, AugmentedLagrangian):
+        out["holds"] = True
+        return out
+    dt = float(np.median(np.diff(chart.t)))
+    segs = [s for s in chart.segments(TRAIN) if len(s) > 3]
+    q = np.concatenate([chart.q[s][1:-1] for s in segs])
+    v = np.concatenate([(chart.q[s][2:] - chart.q[s][:-2]) / (2 * dt) for s in segs])
+    Q = torch.as_tensor(q, dtype=torch.float32)
+    worst = -float("inf")
+    for term in model.terms:
+        if term.kind != "dissipative":
+            continue
+        out["dissipative_terms"].append(type(term).__name__)
+        for s in (0.1, 1.0, 10.0):
+            Vt = torch.as_tensor(s * v, dtype=torch.float32)
+            P = (Vt * term(Q, Vt, None)).sum(-1)
+            worst = max(worst, float(P.max()))
+    if out["dissipative_terms"]:
+        out["max_dissipative_power"] = worst
+    holds = worst <= 1e-6 if out["dissipative_terms"] else True
+    if not model.time_channel and chart.n_u == 0:
+        rng = np.random.default_rng(seed)
+        idx = rng.choice(len(q), size=min(n_rollouts, len(q)), replace=False)
+        try:
+            f = metrics.spectral_peak_frequency(metrics.project(chart.q[max(segs, key=len)], metrics.top_direction(chart.G_bar)), dt)
+        except ValueError:
+            f = 1.0 / (len(q) * dt)
+        n = int(max(16, round(periods / (f * dt))))
+        qs, vs = rollout(model, torch.as_tensor(q[idx], dtype=torch.float32), torch.as_tensor(v[idx], dtype=torch.float32), dt, n, fast=False)
+        E = model.energy(qs.reshape(-1, chart.d), vs.reshape(-1, chart.d)).reshape(len(idx), n).double().numpy()
+        if np.isfinite(E).all():
+            q_rest = getattr(model.base, "q_rest", None)
+            E_rest = float(model.potential(q_rest.detach()[None].float())[0]) if q_rest is not None else float(E.min())
+            scale = np.maximum(E[:, 0] - min(E_rest, float(E.min())), 1e-12)
+            run_min = np.minimum.accumulate(E, axis=1)
+            rise = (E[:, 1:] - run_min[:, :-1]).max(1) / scale
+            out["max_energy_rise"] = float(max(rise.max(), 0.0))
+            holds = holds and out["max_energy_rise"] < 0.05
+        else:
+            out["max_energy_rise"] = float("inf")
+            holds = False
+    out["holds"] = bool(holds)
+    return out
+
+
+# ---------------------------------------------------------------------- held-out gap
+def _half_cycle_amplitudes(p: np.ndarray, t: np.ndarray, period_frames: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(t_k, A_k)``: half the difference of consecutive alternating extrema and its mid time."""
+    from scipy.signal import find_peaks
+
+    gap = max(1, int(0.35 * period_frames))
+    i_max, _ = find_peaks(p, distance=gap)
+    i_min, _ = find_peaks(-p, distance=gap)
+    idx = np.sort(np.concatenate([i_max, i_min]))
+    if len(idx) < 2:
+        return np.zeros(0), np.zeros(0)
+    return 0.5 * (t[idx[1:]] + t[idx[:-1]]), 0.5 * np.abs(np.diff(p[idx]))
+
+
+def _envelope_fit(t: np.ndarray, a: np.ndarray, form: str) -> tuple[np.ndarray, float]:
+    """``(coef, sse)`` of ``A = c0 + c1 t`` (linear) or ``log A = c0 + c1 t`` (exponential, weighted by A^2)."""
+    X = np.stack([np.ones_like(t), t], 1)
+    if form == "linear":
+        c = np.linalg.lstsq(X, a, rcond=None)[0]
+        return c, float(np.sum((a - X @ c) ** 2))
+    w = np.sqrt(a**2)
+    c = np.linalg.lstsq(X * w[:, None], np.log(a) * w, rcond=None)[0]
+    return c, float(np.sum((a - np.exp(X @ c)) ** 2))
+
+
+def _envelope_at(c: np.ndarray, t: float, form: str) -> float:
+    return float(c[0] + c[1] * t) if form == "linear" else float(math.exp(c[0] + c[1] * t))
+
+
+@torch.no_grad()
+def envelope_decay(chart: Any, model: nn.Module, sigma: float = 1.0) -> dict[str, Any]:
+    """Envelope decay of a free rollout over the longest held-out segment against the encoded one (module docstring).
+
+    Args:
+        chart: the chart (the model's: :func:`model_chart` for a refit model).
+        model: the model.
+        sigma: smoothing of the encoded trajectory, frames.
+
+    Returns:
+        ``{"form", "decay_encoded", "decay_model", "error", "n_half_cycles", "reliable"}``
+        (``error`` ``None`` when fewer than 3 half cycles are found in either).
+    """
+    held = chart.segments(HELD_OUT)
+    out: dict[str, Any] = {"form": None, "decay_encoded": None, "decay_model": None, "error": None, "n_half_cycles": 0, "reliable": False}
+    if not held:
+        return out
+    ho = max(held, key=len)
+    dt = float(np.median(np.diff(chart.t)))
+    q_s = metrics.gaussian_smooth(chart.q[ho], sigma)
+    n = len(q_s)
+    if n < 16:
+        return out
+    top = metrics.top_direction(chart.G_bar)
+    p_enc = q_s @ top
+    try:
+        f = metrics.spectral_peak_frequency(p_enc, dt)
+    except ValueError:
+        return out
+    period = 1.0 / (f * dt)
+    q0, v0 = initial_state(q_s, np.array([0]), dt)
+    u = chart.u[ho]
+    sim, _ = rollout(model, q0, v0, dt, n, u=actuation_schedule(u[None] if u.shape[1] else None, dt))
+    p_sim = sim[0].double().numpy() @ top
+    t = chart.t[ho] - chart.t[ho][0]
+    te, ae = _half_cycle_amplitudes(p_enc, t, period)
+    out["n_half_cycles"] = int(len(ae))
+    if len(ae) < 3 or not np.isfinite(p_sim).all():
+        return out
+    ts, as_ = _half_cycle_amplitudes(p_sim, t, period)
+    if len(as_) < 3 or np.any(ae <= 0) or np.any(as_ <= 0):
+        return out
+    fits = {form: _envelope_fit(te, ae, form) for form in ("linear", "exponential")}
+    form = min(fits, key=lambda k: fits[k][1])
+    c_e = fits[form][0]
+    c_s, _ = _envelope_fit(ts, as_, form)
+    t0, t1 = float(t[0]), float(t[-1])
+    D_e = 1.0 - _envelope_at(c_e, t1, form) / max(_envelope_at(c_e, t0, form), 1e-12)
+    D_s = 1.0 - _envelope_at(c_s, t1, form) / max(_envelope_at(c_s, t0, form), 1e-12)
+    out.update(form=form, decay_encoded=D_e, decay_model=D_s, error=abs(D_s - D_e) / max(abs(D_e), 0.05), reliable=bool(abs(D_e) >= 0.05))
+    return out
+
+
+class _NullDecoder:
+    """Stand-in autoencoder for a latent-only evaluation (renders one black pixel)."""
+
+    height = width = 1
+
+    def decode(self, z: torch.Tensor) -> torch.Tensor:
+        return torch.zeros(z.shape[0], 3, 1, 1)
+
+
+def held_out_gap(chart: Any, model: nn.Module, clip: Any | None = None, ae: Any | None = None, eval_cfg: Any | None = None, source: str = "<clip>") -> dict[str, Any]:
+    """The gap of a model on the held-out frames (module docstring).
+
+    Args:
+        chart: the chart the model reads (:func:`model_chart` for a refit model).
+        model: the model (``acceleration``; ``modal_analysis`` for the evaluation record).
+        clip, ae: the clip and autoencoder for the image error; both ``None``: latent numbers only.
+        eval_cfg: :class:`lagsplat.evaluate.EvalConfig` (default settings if ``None``).
+        source: file name for error messages.
+
+    Returns:
+        ``{"eps_q", "eps_freq", "eps_I", "eps_AE", "image_excess", "envelope_decay_error",
+        "envelope": {...}, "f_sim_hz", "f_enc_hz", "n_diverged"}`` (image entries ``None`` without frames).
+
+    Raises:
+        lagsplat.io.clip.ClipError: if the held-out segment is too short (see :func:`lagsplat.evaluate.evaluate`).
+    """
+    from lagsplat.evaluate import EvalConfig, evaluate
+
+    cfg = eval_cfg or EvalConfig()
+    latent_only = clip is None or ae is None
+    if latent_only:
+        ch = copy.copy(chart)
+        ch.ae_mse = np.ones(len(chart.t))
+        clip_ = SimpleNamespace(images=np.zeros((len(chart.t), 1, 1, 3), np.uint8), meta={})
+        m = evaluate(clip_, _NullDecoder(), ch, model, cfg, source)
+    else:
+        m = evaluate(clip, ae, chart, model, cfg, source)
+    env = envelope_decay(chart, model, cfg.sigma)
+    v = {k: e["value"] for k, e in m.items()}
+    eps_I = None if latent_only else v["eps_I"]
+    eps_AE = None if latent_only else v["eps_AE"]
+    return {
+        "eps_q": v["eps_q"], "eps_freq": v["eps_freq"], "eps_I": eps_I, "eps_AE": eps_AE,
+        "image_excess": None if latent_only else (eps_I - eps_AE) / max(eps_AE, 1e-300),
+        "envelope_decay_error": env["error"], "envelope": env, "f_sim_hz": v["f_sim_hz"], "f_enc_hz": v["f_enc_hz"],
+        "n_diverged": v["n_diverged"], "horizon": m["eps_q"]["horizon"],
+    }  # fmt: skip
+
+
+def gap_reduction(before: Mapping[str, Any], after: Mapping[str, Any]) -> dict[str, float | None]:
+    """``1 - after / before`` for each of :data:`GAP_METRICS` (positive: the gap shrank; ``None`` if undefined)."""
+    out: dict[str, float | None] = {}
+    for k in GAP_METRICS:
+        b, a = before.get(k), after.get(k)
+        if b is None or a is None or not (math.isfinite(b) and math.isfinite(a)) or b <= 0:
+            out[k] = None
+        else:
+            out[k] = float(1.0 - a / b)
+    return out
+
+
+# ---------------------------------------------------------------------- persistence
+def save_refit(path: str | Path, result: RefitResult, stage2_cfg: Any) -> Path:
+    """Write the refit model atomically: base weights, term specs and state, delay, settings."""
+    m = result.model
+    base = m.base if isinstance(m, AugmentedLagrangian) else m
+    return save_torch(path, {
+        "base_state_dict": base.state_dict(), "terms": [t.storage() for t in getattr(m, "terms", [])],
+        "state_dict": m.state_dict(), "time_channel": bool(getattr(m, "time_channel", False)),
+        "delay_s": float(result.spec.delay_s), "config": dataclasses.asdict(stage2_cfg), "d": int(base.d),
+        "n_u": int(getattr(base, "n_u", 0)), "effects": list(result.spec.effects), "history": result.history,
+    })  # fmt: skip
+
+
+def load_refit(path: str | Path, inertia: Any | None = None) -> tuple[nn.Module, dict]:
+    """Rebuild a model saved by :func:`save_refit` (eval mode); ``(model, checkpoint)``.
+
+    The model reads the chart ``model_chart(chart, ck["delay_s"], ck["time_channel"])``
+    (:func:`model_chart`: the input delayed and / or the clip time appended).
+
+    Raises:
+        FileNotFoundError: if ``path`` does not exist.
+        KeyError: if a term class is unknown.
+    """
+    from lagsplat.train.stage2 import Stage2Config
+
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: refit checkpoint not found")
+    ck = torch.load(path, map_location="cpu", weights_only=False)
+    cfg = Stage2Config.from_mapping(ck["config"])
+    base = cfg.build(ck["d"], ck["n_u"], inertia)
+    base.load_state_dict(ck["base_state_dict"])
+    if not ck["terms"] and not ck["time_channel"]:
+        return base.eval(), ck
+    terms = [ScaledTerm(term_from_spec(dict(sp["inner"])), sp["scale"]) for sp in ck["terms"]]
+    model = RefitModel(base, terms, time_channel=ck["time_channel"])
+    model.load_state_dict(ck["state_dict"])
+    return model.eval(), ck
