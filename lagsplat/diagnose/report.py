@@ -37,6 +37,7 @@ import torch
 
 from lagsplat import metrics
 from lagsplat.diagnose import diagnose_chart
+from lagsplat.diagnose.select import _plain
 from lagsplat.diagnose.refit import (
     GAP_METRICS,
     RefitConfig,
@@ -102,21 +103,6 @@ class DiagnoseConfig:
         """Plain record (saved in ``report.json``)."""
         return {"split": self.split, "sigma": self.sigma, "select": dict(self.select), "where": asdict(self.where), "refit": asdict(self.refit)}
 
-
-def _plain(x: Any) -> Any:
-    if isinstance(x, dict):
-        return {str(k): _plain(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_plain(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _plain(x.tolist())
-    if isinstance(x, (np.floating, float)):
-        return float(x) if math.isfinite(float(x)) else None
-    if isinstance(x, (np.integer,)):
-        return int(x)
-    if isinstance(x, np.bool_):
-        return bool(x)
-    return x
 
 
 # ---------------------------------------------------------------------- reliability

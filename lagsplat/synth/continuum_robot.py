@@ -1,7 +1,7 @@
 """An offline surrogate of the Krauss pneumatic soft continuum robot (one or two segments).
 
 Writes a clip in the layout of the published soft-robot recordings (Krauss et
-al., processed NPZ; ``/work/shared/notes/reference_implementation.md`` section
+al., processed NPZ; the team notes ``reference_implementation.md`` section
 2.1-2.3, ``baselines.md`` A.1): ``images`` ``(T, 3, 32, 32)`` float32 RGB in
 [0, 1] (exact multiples of 1/255), one ``(T,)`` pressure vector per chamber,
 ``p1, p2`` for one segment and ``p1..p4`` for two (the same keys as the real
