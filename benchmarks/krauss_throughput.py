@@ -52,7 +52,7 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--seconds", type=float, default=40.0, help="length of the simulated clip")
-    ap.add_argument("--steps", type=int, default=12, help="Stage-1 steps of the longer run (the short one has a third)")
+    ap.add_argument("--steps", type=int, default=30, help="Stage-1 steps of the longer run (the short one has a third)")
     args = ap.parse_args(argv)
 
     import torch
