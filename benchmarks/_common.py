@@ -47,3 +47,20 @@ def print_table(rows: list[dict]) -> pd.DataFrame:
     except ImportError:  # tabulate missing
         print(table.to_string(index=False))
     return table
+
+
+def score_verdicts(rows: list[dict]) -> tuple[pd.DataFrame, float, int, int]:
+    """Print the per-clip table and the confusion matrix of a blind diagnosis run.
+
+    ``rows`` carry ``truth`` and ``verdict`` (effect names, ``"none"`` for a
+    control) and ``ok`` (verdict correct). Returns ``(table, top-1 accuracy,
+    controls flagged, controls)``.
+    """
+    import pandas as pd
+
+    table = print_table(rows)
+    conf = pd.crosstab(table["truth"], table["verdict"], rownames=["truth"], colnames=["verdict"])
+    print("\nconfusion matrix (rows: truth, columns: verdict)")
+    print(conf.to_string())
+    controls = table[table["truth"] == "none"]
+    return table, float(table["ok"].mean()), int((controls["verdict"] != "none").sum()), len(controls)

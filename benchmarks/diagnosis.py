@@ -59,7 +59,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import lagsplat  # noqa: F401  (sets the OpenMP wait policy before torch)
 import numpy as np
 import torch
-from _common import print_table
+from _common import score_verdicts
 
 from lagsplat.chart import build_chart, load_chart, save_chart
 from lagsplat.diagnose.refit import GAP_METRICS, RefitConfig
@@ -251,20 +251,14 @@ def main() -> None:
         return
     import pandas as pd
 
-    table = print_table(rows)
-    conf = pd.crosstab(table["truth"], table["verdict"], rownames=["truth"], colnames=["verdict"])
-    print("\nconfusion matrix (rows: truth, columns: verdict)")
-    print(conf.to_string())
-    acc = float(table["ok"].mean())
-    controls = table[table["truth"] == "none"]
-    flagged = int((controls["verdict"] != "none").sum())
+    table, acc, flagged, n_controls = score_verdicts(rows)
     effects = table[(table["truth"] != "none") & table["refit"]]
     med = {k: (float(np.nanmedian(effects[f"red_{k}"].astype(float))) if len(effects) and effects[f"red_{k}"].notna().any() else None) for k in GAP_METRICS}
     med_c = {k: (float(np.nanmedian(effects[f"red_ctrl_{k}"].astype(float))) if len(effects) and effects[f"red_ctrl_{k}"].notna().any() else None) for k in GAP_METRICS}
     per_stage = pd.DataFrame(list(timings.values())).median().round(1).to_dict()
     print(f"\nbudget: {args.budget}, clips {len(table)}")
     print(f"top-1 accuracy: {acc:.3f} ({int(table['ok'].sum())}/{len(table)})")
-    print(f"controls flagged: {flagged}/{len(controls)}")
+    print(f"controls flagged: {flagged}/{n_controls}")
     rel = table[table["reliable"]]
     print(f"reliable upstream (chart continuous, decoder shows motion; lagsplat.diagnose.report.reliability): {len(rel)}/{len(table)}"
           + (f"; top-1 accuracy on those {float(rel['ok'].mean()):.3f}" if len(rel) else ""))  # fmt: skip

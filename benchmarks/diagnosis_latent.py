@@ -37,7 +37,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import numpy as np
 import torch
-from _common import print_table
+from _common import score_verdicts
 
 import lagsplat  # noqa: F401  (OpenMP wait policy before torch)
 from lagsplat.chart import Chart
@@ -107,18 +107,11 @@ def main() -> None:
         })  # fmt: skip
         records.append({"entry": entry, "diagnosis": diag.to_dict()})
         print(f"{entry['name']:28s} -> {diag.winner}", flush=True)
-    import pandas as pd
 
-    table = print_table(rows)
-    conf = pd.crosstab(table["truth"], table["verdict"], rownames=["truth"], colnames=["verdict"])
-    print("\nconfusion matrix (rows: truth, columns: verdict)")
-    print(conf.to_string())
-    acc = float(table["ok"].mean())
-    controls = table[table["truth"] == "none"]
-    flagged = int((controls["verdict"] != "none").sum())
+    table, acc, flagged, n_controls = score_verdicts(rows)
     print(f"\nmodel: {args.model}, noise {args.noise:g}, clips {len(table)}")
     print(f"top-1 accuracy: {acc:.3f} ({int(table['ok'].sum())}/{len(table)})")
-    print(f"controls flagged: {flagged}/{len(controls)}")
+    print(f"controls flagged: {flagged}/{n_controls}")
     if args.json:
         write_json(args.json, {"args": vars(args), "accuracy": acc, "controls_flagged": flagged, "clips": records})
 
