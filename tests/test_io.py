@@ -235,6 +235,27 @@ def test_real_webm_ingest_crop_resize(tmp_path):
     assert clip.meta["timing"]["rule"] == "config_fps" and clip.meta["timing"]["warnings"]
 
 
+@needs_real
+def test_real_bouncing_cart_system_config():
+    """conf/system/bouncing_cart.yaml on the real clip: regular 30 fps container timestamps (no
+    source.fps needed), the launching hand's frames dropped, the cart's whole travel inside the crop."""
+    from lagsplat.cli import compose
+
+    cfg = compose(["system=bouncing_cart", f"raw_dir={REAL}"])
+    assert cfg.system.source.get("fps") is None
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", TimingWarning)
+        clip = ingest(cfg.system)
+    assert clip.images.shape == (316, 30, 104, 3)  # frames [12, 328) of 328, crop 520x150 -> 104x30
+    np.testing.assert_allclose(clip.t, np.arange(316) / 30.0, atol=1e-9)
+    assert clip.meta["timing"]["rule"] == "timestamps" and clip.meta["timing"]["container_fps"] == 30.0
+    assert (clip.split == TRAIN).sum() == int(0.6 * 316) == 189 and (clip.split == HELD_OUT).sum() == 127
+    assert clip.meta["source"]["sha256"] == cfg.system.source.sha256
+    std = clip.images.astype(np.float32).mean(-1).std(0)  # [H, W] temporal std: where the cart moves
+    rows, cols = np.nonzero(std > 0.2 * std.max())
+    assert rows.min() > 0 and rows.max() < 29 and cols.max() < 103  # not cut by the top, bottom or right edge
+
+
 # --------------------------------------------------------------------------- image folders
 def _write_png(path: Path, img: np.ndarray) -> None:
     if img.ndim == 3 and img.shape[2] == 3:

@@ -102,6 +102,20 @@ def test_snakemake_dry_run_plans_downloads_when_clips_are_absent(tmp_path):
     assert f"{tmp_path}/oscillating_cart.webm" in r.stdout and f"{tmp_path}/red_apple_pendulum.mov" in r.stdout
 
 
+@pytest.mark.parametrize("system,file", [
+    ("oscillating_cart", "oscillating_cart.webm"),
+    ("red_apple_pendulum", "red_apple_pendulum.mov"),
+    ("bouncing_cart", "bouncing_cart.mp4"),
+])
+def test_snakemake_dry_run_of_the_diagnosis_of_a_real_clip(tmp_path, system, file):
+    res = tmp_path / "res"
+    r = run(["snakemake", "-n", f"{res}/{system}/diagnosis/report.md", "--config", f"raw_dir={tmp_path}", f"results_dir={res}"])
+    assert r.returncode == 0, r.stdout + r.stderr
+    for rule in ("download", "ingest", "stage1", "chart", "stage2", "evaluate", "diagnose"):
+        assert f"rule {rule}:" in r.stdout, rule
+    assert f"{tmp_path}/{file}" in r.stdout
+
+
 @pytest.mark.slow
 def test_snakemake_end_to_end_on_the_tiny_toy(tmp_path):
     res = tmp_path / "results"
