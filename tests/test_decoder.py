@@ -305,3 +305,27 @@ def test_kinematic_penalty_is_zero_without_motion_and_shrinks_jacobians() -> Non
         kinematic_penalty(dec, z_std).backward()
         opt.step()
     assert float(dec.geometry().J.abs().mean()) < 0.5 * j0
+
+
+@pytest.mark.parametrize("d", [1, 2])
+def test_state_coupling_decay_scales_only_the_jacobians(d: int) -> None:
+    """decay_state_coupling shrinks J_i = L_sq L_qq^-1 by (1 - rate) and leaves footprint, gate, means untouched."""
+    from lagsplat.train.stage1 import decay_state_coupling
+
+    torch.manual_seed(0)
+    dec = ConditionedGaussians(32, d)
+    with torch.no_grad():
+        dec.L_raw.normal_(0.0, 0.5)
+        dec.mu_raw.normal_()
+        dec.mu_q.normal_()
+    g0 = dec.geometry()
+    decay_state_coupling(dec, 0.25)
+    g1 = dec.geometry()
+    assert torch.allclose(g1.J, 0.75 * g0.J, atol=1e-6)
+    assert g0.J.abs().max() > 0.05  # the check above is not vacuous
+    for a, b in ((g0.cov, g1.cov), (g0.L_qq, g1.L_qq), (g0.mu_s, g1.mu_s), (g0.alpha, g1.alpha)):
+        assert torch.equal(a, b)
+    decay_state_coupling(dec, 0.0)
+    assert torch.equal(dec.geometry().J, g1.J)
+    with pytest.raises(ValueError, match=r"\[0, 1\)"):
+        decay_state_coupling(dec, 1.0)

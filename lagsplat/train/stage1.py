@@ -40,6 +40,7 @@ class Stage1Config:
     w_aniso: float = 0.01
     w_nonlocal: float = 0.0
     w_kinematic: float = 0.0
+    j_decay: float = 0.0
     ssim_window: int = 7
     aniso_max_ratio: float = 5.0
     sigma_xy: float = 0.05
@@ -169,6 +170,8 @@ def train_stage1(clip: Clip, cfg: Stage1Config, d: int, seed: int = 0, progress:
         nn.utils.clip_grad_norm_(enc.parameters(), cfg.grad_clip)
         nn.utils.clip_grad_norm_(dec_params, cfg.grad_clip)
         opt.step()
+        if cfg.j_decay > 0:
+            decay_state_coupling(dec, cfg.lr_decoder * cfg.j_decay)
         lv = float(loss.detach())
         ema = lv if ema is None else 0.95 * ema + 0.05 * lv
         if step % 10 == 0:
@@ -195,6 +198,37 @@ def train_stage1(clip: Clip, cfg: Stage1Config, d: int, seed: int = 0, progress:
                 history["recycled"].append((step, n_dead))
     bar.close()
     return model.eval(), history
+
+
+@torch.no_grad()
+def decay_state_coupling(dec: ConditionedGaussians, rate: float) -> None:
+    """Decoupled decay of the decoder's state coupling, ``L_sq <- (1 - rate) L_sq`` (Stage 1, optional).
+
+    ``L_sq`` is the spatial-latent block of each primitive's Cholesky factor in
+    the space-state volume; it is the only free parameter of the constant
+    Jacobian ``J_i = L_sq L_qq^-1`` (Schur mean, paper Eq. 2 and Eq. 9) and
+    leaves the footprint ``Sigma_s|q = L_ss L_ss^T`` and the gate untouched.
+    Applied after each Adam step, outside the adaptive normalisation
+    (decoupled weight decay, Loshchilov & Hutter, ICLR 2019): Adam moves every
+    parameter by about the learning rate whatever its gradient's size, so a
+    primitive whose motion the images do not constrain (static background over
+    a smooth texture) random-walks its ``J_i`` away from the initial zero, and a
+    penalty added to the loss (``w_kinematic``) is normalised away with it. The
+    decay pulls such Jacobians back to zero, so a force on static background
+    transports to nothing (paper §4.5), while Jacobians the reconstruction pins
+    are restored by their own gradient at every step.
+
+    Args:
+        dec: the decoder being trained.
+        rate: per-step factor ``lr_decoder * j_decay`` (``stage1.j_decay``, per unit learning rate), in ``[0, 1)``.
+
+    Raises:
+        ValueError: if ``rate`` is not in ``[0, 1)``.
+    """
+    if not 0.0 <= rate < 1.0:
+        raise ValueError(f"state-coupling decay per step must be in [0, 1), got {rate}")
+    sq = (dec.tril_i >= dec.d) & (dec.tril_j < dec.d)
+    dec.L_raw[:, sq] *= 1.0 - rate
 
 
 def save_stage1(path: str | Path, model: AutoEncoder, config: Mapping[str, Any], history: dict, d: int) -> Path:
