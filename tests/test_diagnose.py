@@ -196,6 +196,31 @@ def test_pendulum_effects_and_control_with_the_linear_stand_in() -> None:
         assert diag.winner == effect, (effect, diag.summary())
 
 
+def test_quadratic_drag_is_found_on_the_wide_residual_and_the_control_stays_clean() -> None:
+    """Out-of-class candidates are fitted at 1.5x the smoothing (lagsplat.diagnose.residual, "Smoothing width").
+
+    At 2 % chart noise the drag (most of the energy loss) is buried in the
+    differentiated noise of the sharp residual and missed there; on the wide one it
+    is found, while the control at the same noise stays "nothing significant".
+    """
+    from lagsplat.diagnose import residual_from_chart
+
+    chart = _chart("pendulum", "quadratic_drag", seed=1, noise=0.02)
+    model = _linear(chart)
+    diag, res = diagnose_chart(model, chart)
+    assert res.wide is not None and res.wide.sigma == pytest.approx(1.5 * res.sigma) and res.wide.wide is None
+    assert diag.settings["sigma_frames_out_of_class"] == pytest.approx(res.wide.sigma)
+    assert diag.null["out_of_class"]["sigma_frames"] == pytest.approx(res.wide.sigma)
+    assert diag.winner == "quadratic_drag", diag.summary()
+    assert diag.effects[0].coef[0] > 3 * diag.effects[0].se[0]
+    sharp = select_effect(residual_from_chart(model, chart, wide_factor=None))
+    assert sharp.winner == "none" and sharp.settings["sigma_frames_out_of_class"] == pytest.approx(res.sigma)
+    # the reported null is the sharp residual's either way
+    assert diag.null["excess_over_noise"] == pytest.approx(sharp.null["excess_over_noise"])
+    control = _chart("pendulum", "none", seed=1, noise=0.02)
+    assert diagnose_chart(_linear(control), control)[0].winner == "none"
+
+
 def test_control_with_a_trained_lagrangian_is_not_flagged_and_friction_is() -> None:
     """The paper's model, briefly fitted by Stage 2, as the plain model (its potential misfit must not be flagged)."""
     from lagsplat.train.stage2 import Stage2Config, train_stage2

@@ -422,7 +422,12 @@ def render_markdown(rep: Mapping[str, Any]) -> str:
              f"(null fit: {_f(null['excess_over_noise'])}).")  # fmt: skip
     if null.get("warning"):
         L.append(f"- warning: {null['warning']}")
-    L += ["", "## Evidence", "", "Ranking (first round; Delta BIC against the nuisance-only fit, higher is better):", "",
+    st = dg["settings"]
+    smooth = ""
+    if st.get("sigma_frames_out_of_class") is not None:  # the two regressions' smoothing (lagsplat.diagnose.select, "Band of the out-of-class regression")
+        smooth = (f"; in-class candidates (end stop, cubic stiffness) on the residual smoothed over {_f(st['sigma_frames'], '.2f')} frames, "
+                  f"the other candidates over {_f(st['sigma_frames_out_of_class'], '.2f')}")  # fmt: skip
+    L += ["", "## Evidence", "", f"Ranking (first round; Delta BIC against the nuisance-only fit, higher is better{smooth}):", "",
           "| effect | Delta BIC | R2 | CV gain | physical | significant | coefficients (value +- s.e.) |", "|---|---|---|---|---|---|---|"]  # fmt: skip
     for c in dg["ranking"]:
         coefs = "; ".join(f"{n} = {_f(v['value'])} +- {_f(v['se'], '.2g')}" for n, v in c["coefficients"].items())
