@@ -369,3 +369,21 @@ def test_two_dimensional_chart_finds_the_effect_and_its_direction() -> None:
         ae_mse=np.zeros(len(q)), ae_floor_train=0.0, ae_floor_held_out=0.0, height=64, width=64, episode=a.episode, u=a.u,
     )  # fmt: skip
     assert diagnose_chart(_linear(chart_b), chart_b)[0].winner == "none"
+
+
+def test_harmonics_of_the_recorded_motion_are_not_sought_as_modes_or_forces() -> None:
+    """A hidden mode / periodic force is not sought at 2x the *recorded* oscillation frequency even when the
+    model's linearised mode is a few percent off (blind-suite control cart-none-1: mode 0.779 Hz, motion 0.753 Hz,
+    a 1.465 Hz chart harmonic was taken for a hidden mode)."""
+    from types import SimpleNamespace
+
+    from lagsplat.diagnose.effects import _allowed
+
+    dt = 1 / 30
+    res = SimpleNamespace(meta={"model_freqs_hz": [0.779]}, f_dominant_hz=0.753, dt=dt, n_u=0,
+                          states=[SimpleNamespace(t=np.arange(180) * dt)])  # fmt: skip
+    assert not _allowed(res, 1.465)  # 1.95x the motion: its 2nd harmonic
+    assert not _allowed(res, 1.56)  # 2x the model's mode
+    assert _allowed(res, 1.15) and _allowed(res, 1.85)  # 1.5x and 2.45x the motion: where the suite's hidden modes lie
+    res.meta["model_freqs_hz"], res.f_dominant_hz = [0.8], 0.8  # model and motion at 0.8 Hz: 1.465 Hz is 1.83x, sought again
+    assert _allowed(res, 1.465)

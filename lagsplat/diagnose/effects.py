@@ -76,16 +76,21 @@ def _relu(x: np.ndarray) -> np.ndarray:
 def _excluded(res: Residual) -> tuple[tuple[float, float], ...]:
     """``(frequency, relative half-width)`` bands where a periodic force or hidden mode is not sought.
 
-    The model's own modes (``res.meta["model_freqs_hz"]``, else the dominant
-    frequency; +-10 %), their harmonics and, with several modes, their sum and
-    difference frequencies (+-12 % of the mode frequency): a residual there is a
-    misfit or a distortion (a nonlinear chart or force) of the motion the model
-    has, not a force or a mode it lacks (and a force locked to a harmonic could
-    not be told from one); and the logged inputs' strongest
-    frequencies (+-10 %), where an unlogged force cannot be told from an input-gain error.
+    The model's own modes (``res.meta["model_freqs_hz"]``) and the dominant
+    frequency of the encoded motion itself (+-10 %), their harmonics and, with
+    several modes, their sum and difference frequencies (+-12 % of the mode
+    frequency): a residual there is a misfit or a distortion (a nonlinear chart
+    or force) of the motion the model has, not a force or a mode it lacks (and a
+    force locked to a harmonic could not be told from one); and the logged
+    inputs' strongest frequencies (+-10 %), where an unlogged force cannot be
+    told from an input-gain error. The observed frequency counts besides the
+    model's linearised ones because a chart distortion puts its harmonics at
+    multiples of the motion *as recorded*: on a control clip of the blind suite
+    (``cart-none-1``, model mode 0.78 Hz, motion 0.755 Hz) the 2nd harmonic of the
+    motion, 1.465 Hz, sat just outside the band around twice the model's mode
+    and was taken for a hidden mode.
     """
-    base = sorted(f for f in res.meta.get("model_freqs_hz", []) if math.isfinite(f) and f > 0) or [res.f_dominant_hz]
-    base = [f for f in base if math.isfinite(f) and f > 0]
+    base = sorted({f for f in [*res.meta.get("model_freqs_hz", []), res.f_dominant_hz] if math.isfinite(f) and f > 0})
     f_max = 0.25 / res.dt
     # harmonics k f (k >= 2) up to the band edge, each +-0.12 f: a distorted chart or force puts power there
     out = [(f, 0.1) for f in base] + [(k * f, 0.12 / k) for f in base for k in range(2, int(f_max / f) + 2)]
