@@ -189,6 +189,29 @@ def test_signatures_read_the_envelope_and_frequency_shift() -> None:
     assert any(abs(p - f) < 0.05 * f for p in spec["unexplained_peaks_hz"])
 
 
+def test_a_distorted_chart_of_an_isochronous_motion_is_not_a_cubic_stiffness() -> None:
+    """A chart q = s + b s^3 makes a linear oscillator anharmonic in q, but not in time (its periods stay put).
+
+    In q the waveform carries a Duffing-like cubic (the linear stand-in leaves a large cubic residual), so
+    only the recorded timing tells the two apart: the cubic candidate is rejected for its zero-crossing
+    periods, which do not shift with amplitude, while a true hardening through a linear chart is kept.
+    """
+    run = _run("cart", "none", 0)
+    tr = run.split == TRAIN
+    s = (run.latent - run.latent[tr].mean()) / run.latent[tr].std()
+    q = s + 0.08 * s**3
+    q = (q - q[tr].mean()) / q[tr].std() + 0.01 * np.random.default_rng(3).standard_normal(len(q))
+    base = _chart("cart", "none", 0)
+    chart = Chart(**{**base.__dict__, "q": q[:, None]})
+    diag, _ = diagnose_chart(_linear(chart), chart)
+    assert diag.winner == "none", diag.summary()
+    cubic = next(f for f in diag.ranking if f.effect == "cubic_stiffness")
+    assert cubic.delta_bic > 10 and abs(cubic.interpretation["relative_frequency_shift_at_amplitude"]) >= 0.03  # big in q...
+    assert abs(cubic.interpretation["measured_frequency_shift"]) < 0.015  # ...but the periods do not move
+    assert "recorded periods" in cubic.interpretation["below_practical_size"]
+    assert _diagnosed("cart", "cubic_stiffness", 0)[0].winner == "cubic_stiffness"
+
+
 def test_pendulum_effects_and_control_with_the_linear_stand_in() -> None:
     for effect in ("none", "coulomb", "missing_dof"):
         chart = _chart("pendulum", effect, seed=1)

@@ -36,6 +36,9 @@ Where the search is restricted:
 * ``cubic_stiffness`` and ``end_stop`` are *in class* (:attr:`Effect.in_class`):
   a convex potential can partly follow them, so they are fitted against the
   model's linearisation and must reach a physical size (:meth:`Effect.practical`);
+  a cubic stiffness must also shift the recorded periods with amplitude in its
+  own direction (``res.meta["frequency_signature"]``, set by
+  :func:`~lagsplat.diagnose.select.select_effect`), which a distorted chart cannot;
 * ``periodic_force`` and ``missing_dof`` are not sought near the model's own
   modes, their harmonics and combination tones, nor near the logged
   inputs' frequencies (:func:`_excluded`), where a residual is a distortion of
@@ -322,10 +325,20 @@ class _Cubic(Effect):
         return (lambda st: -((self.coords(st, e)[0] - s_bar) ** 3)), ["k3"]
 
     def practical(self, interpretation, thresholds):
-        shift = abs(interpretation.get("relative_frequency_shift_at_amplitude", float("nan")))
+        pred = interpretation.get("relative_frequency_shift_at_amplitude", float("nan"))
         lo = thresholds.get("min_cubic_shift", 0.03)
-        if not (shift >= lo):
-            return False, f"frequency shift {100 * shift:.1f} % at the largest amplitude, below {100 * lo:g} %"
+        if not (abs(pred) >= lo):
+            return False, f"frequency shift {100 * abs(pred):.1f} % at the largest amplitude, below {100 * lo:g} %"
+        # A Duffing term shifts the period with amplitude; a chart that stretches large excursions
+        # (q a nonlinear function of the physical coordinate) does not: zero-crossing periods are
+        # chart-invariant. Accept only a shift the recording shows, with the sign of k3.
+        meas = interpretation.get("measured_frequency_shift")
+        if meas is not None and math.isfinite(meas) and not (meas * pred > 0 and abs(meas) >= 0.5 * lo):
+            return False, (
+                f"the recorded periods shift by {100 * meas:+.1f} % at the largest amplitude (frequency vs amplitude^2, "
+                f"z = {interpretation.get('measured_frequency_z', float('nan')):.1f}) where this k3 predicts {100 * pred:+.1f} %: "
+                "the anharmonic waveform in q comes from the chart, not from a stiffness"
+            )
         return True, ""
 
     def interpret(self, coef, se, params, res, e, scale):
@@ -336,9 +349,13 @@ class _Cubic(Effect):
         # the linear stiffness without the part of the cubic that a straight-line fit absorbs
         k1 = scale["k"] - k3 * float(np.mean(x**4) / max(np.mean(x**2), 1e-300))
         shift = 3.0 * k3 * A * A / (8.0 * k1) if k1 > 0 else float("nan")
+        fsig = res.meta.get("frequency_signature") or {}  # select_effect's evidence (chart-invariant periods)
+        meas = fsig.get("relative_shift_at_max_amplitude") if fsig.get("n_periods", 0) >= 6 else None
         return {
             "k3": k3, "k3_se": float(se[0]), "kind": "hardening" if k3 > 0 else "softening",
             "relative_frequency_shift_at_amplitude": shift, "amplitude": A, "s_bar": float(s.mean()), "k_linear": k1,
+            "measured_frequency_shift": None if meas is None else float(meas),
+            "measured_frequency_z": None if meas is None else float(fsig["z_amp2"]),
             "text": f"{'hardening' if k3 > 0 else 'softening'} cubic stiffness k3 = {k3:.3g} +- {se[0]:.2g}: "
             f"frequency {'+' if shift >= 0 else ''}{100 * shift:.1f} % at amplitude {A:.3g} (Duffing, 3 k3 A^2 / 8 k); "
             "in the latent coordinate, where a chart that stretches or compresses large excursions looks the same",

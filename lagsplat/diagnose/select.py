@@ -509,7 +509,12 @@ def select_effect(
       the linear nuisance, added back), with the linear and inertia nuisance;
       they must also reach a physical size (``min_cubic_shift``: relative
       frequency shift at the largest amplitude; ``min_stop_stiffness_ratio``:
-      stop stiffness over the spring's).
+      stop stiffness over the spring's). A cubic stiffness must moreover show in
+      the recorded *timing*: the frequency-vs-amplitude^2 shift of the evidence
+      (zero-crossing periods, which no monotone chart changes) must have the
+      sign of ``k3`` and at least half the practical size, since a chart that
+      stretches large excursions makes an isochronous oscillation look
+      anharmonic in ``q`` but leaves its period alone.
 
     Args:
         res: the residual (:func:`~lagsplat.diagnose.residual.residual_force`), normally
@@ -543,6 +548,9 @@ def select_effect(
     effs = [get_effect(c) for c in candidates] if candidates is not None else list(EFFECTS)
     effs = [e for e in effs if e.applicable(res)]
     thresholds = {"min_cubic_shift": min_cubic_shift, "min_stop_stiffness_ratio": min_stop_stiffness_ratio}
+    # the chart-invariant signatures, read before the fits: a cubic stiffness must also show in the timing
+    ev = signatures(res, model_freqs_hz=model_freqs_hz)
+    res.meta["frequency_signature"] = ev["frequency"]
     folds = _folds(res, n_folds, block_s)
     X_lin = _linear_features(res)
     if res.n <= 2 * (X_lin.shape[1] + 9) + 4:
@@ -627,7 +635,6 @@ def select_effect(
             f"{math.sqrt(left):.1f}x the chart noise (rms) and no candidate explains it: the model misfits within its own "
             "class (e.g. a distorted chart: try stage2.mass=learned or a better Stage 1), or the effect is not in the library"
         )
-    ev = signatures(res, model_freqs_hz=model_freqs_hz)
     settings = {
         "min_delta_bic": min_delta_bic, "min_r2": min_r2, "min_cv_gain": min_cv_gain, **thresholds, "max_effects": max_effects,
         "n_folds": n_folds, "candidates": [e.name for e in effs], "sigma_frames": res.sigma, "spacing": res.spacing,
