@@ -35,7 +35,7 @@ from lagsplat.diagnose.refit import (
     refit_spec,
     save_refit,
 )
-from lagsplat.diagnose.report import DiagnoseConfig, diagnose_artifacts, render_markdown
+from lagsplat.diagnose.report import DiagnoseConfig, diagnose_artifacts, held_out_check, render_markdown
 from lagsplat.diagnose.terms import CoulombFriction
 from lagsplat.diagnose.where import REGIONS, WhereConfig, localise, split_code
 from lagsplat.dynamics.integrators import rollout
@@ -282,7 +282,7 @@ def test_markdown_of_a_refit_report_has_the_before_after_table() -> None:
                                    "coefficients": {"mu": {"value": 1.0, "se": 0.1}}}], "evidence": {}, "settings": {}},
         "where": {"notes": []},
         "gap": {"definition": {"frames": "held-out frames"}, "before": gap, "after": aft, "control": gap, "reduction": gap_reduction(gap, aft),
-                "reduction_vs_control": gap_reduction(gap, aft)},
+                "reduction_vs_control": gap_reduction(gap, aft), "held_out_check": {"confirmed": True, "text": "the refit with coulomb shrinks it"}},
         "refit": {"done": True, "spec": {"init_terms": [{"class": "CoulombFriction", "direction": [1.0], "mu": 1.0, "v_s": 0.1}], "delay_s": 0.0, "not_refit": {}},
                   "fitted_terms": [{"class": "CoulombFriction", "direction": [1.0], "mu": 0.9, "v_s": 0.1}], "selected_epoch": 3,
                   "selected_train_nrmse": 0.1, "control_selected_train_nrmse": 0.2,
@@ -293,6 +293,22 @@ def test_markdown_of_a_refit_report_has_the_before_after_table() -> None:
     md = render_markdown(rep)
     assert "| eps_q (latent NRMSE, 2 periods) | 0.1 | 0.05 | 0.1 | +50 % | +50 % |" in md
     assert "CoulombFriction along [1.0]: mu 1 -> 0.9" in md and "energy bound (App. A.2): holds" in md
+    assert "- held-out check: the refit with coulomb shrinks it." in md
+
+
+def test_held_out_check_confirms_only_a_refit_that_beats_before_and_control() -> None:
+    before = {"eps_q": 0.1, "image_excess": 1.0}
+    good, worse = {"eps_q": 0.05, "image_excess": 0.5}, {"eps_q": 0.12, "image_excess": 0.9}
+    ctrl = {"eps_q": 0.06, "image_excess": 0.6}
+    gap = lambda after, c: {"before": before, "after": after, "control": c, "reduction": gap_reduction(before, after),  # noqa: E731
+                            "reduction_vs_control": gap_reduction(c, after) if c else None}  # fmt: skip
+    ok = held_out_check(gap(good, ctrl), ["coulomb"])
+    assert ok["confirmed"] and ok["text"].startswith("the refit with coulomb shrinks")
+    assert not held_out_check(gap(worse, ctrl), ["drift"])["confirmed"]  # the gap grew
+    assert not held_out_check(gap(good, {"eps_q": 0.04, "image_excess": 0.6}), ["drift"])["confirmed"]  # more training alone did better
+    assert held_out_check({"before": before, "after": None, "reduction": None}, ["drift"]) is None
+    rep_gap = gap(worse, ctrl) | {"held_out_check": held_out_check(gap(worse, ctrl), ["drift"])}
+    assert "does not shrink the held-out gap" in held_out_check(rep_gap, ["drift"])["text"]
 
 
 def test_cli_diagnose_stage_on_a_tiny_system(tmp_path) -> None:
