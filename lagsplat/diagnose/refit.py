@@ -92,6 +92,7 @@ __all__ = [
     "refit_spec",
     "model_chart",
     "refit",
+    "choose_by_refit",
     "energy_check",
     "envelope_decay",
     "held_out_gap",
@@ -123,6 +124,11 @@ class RefitConfig:
             less (paper App. C fixes it at a damping ratio ``stage2.zeta_floor`` of the
             training frequency, which can exceed the true damping once a dry friction
             or drag carries the decay). ``1``: no change. Applied to the control too.
+        choose: when several candidates with a Stage-2 remedy pass the significance
+            rule, confirm the Delta-BIC winner by its refit's *training*-rollout error
+            and fall back to the best rival whose refit beats the identified model
+            (:func:`choose_by_refit`, the model selection of paper §3.3);
+            ``False``: the Delta-BIC order decides alone.
     """
 
     enabled: bool = True
@@ -132,6 +138,7 @@ class RefitConfig:
     control: bool = True
     seed: int = 0
     floor_scale: float = 4.0
+    choose: bool = True
 
     @classmethod
     def from_mapping(cls, m: Mapping[str, Any] | None) -> RefitConfig:
@@ -407,6 +414,68 @@ def refit(
         ctrl, ch_hist = train_stage2(chart, s2, seed=cfg.seed, progress=progress, inertia=inertia, augment=make([], False), n_u_model=chart.n_u)
         out.control, out.control_history = ctrl, ch_hist
     return out
+
+
+def choose_by_refit(
+    chart: Any, model: nn.Module, stage2_cfg: Any, diagnosis: Any, baseline_nrmse: float | None, cfg: RefitConfig | None = None,
+    inertia: Any | None = None,
+) -> tuple[Any, list[dict[str, Any]]]:
+    """Confirm the Delta-BIC winner by refitting it; if the refit does not help, the best significant rival that does.
+
+    Several effects can explain one residual about equally (an end stop and a
+    stiffening drift both raise the frequency of a bouncing motion as it decays).
+    The residual regression ranks them by Delta BIC on the residual alone. Adding
+    the winner to the model and fitting again (:func:`refit`, without the control)
+    asks whether it makes the *model* follow the training video better: the
+    paper's model selection criterion (§3.3: multi-step rollout NRMSE on training
+    frames, ``history["selected_nrmse"]`` of :func:`lagsplat.train.stage2.train_stage2`),
+    against the identified model's own ``baseline_nrmse``. When it does, the winner
+    stands (one extra refit). When it does not, each other significant candidate
+    is refit and the one with the lowest training-rollout NRMSE *below the
+    baseline* is taken; if none gets below it, the Delta-BIC winner stands. The
+    rollout error rewards any added flexibility, not the right physics (on a
+    dry-friction clip a cubic-stiffness refit can follow the training video
+    better than the friction's, by correcting the model's frequency), so it never
+    ranks candidates whose refits help: it only rejects a winner whose refit
+    makes the model follow its own training video worse. Held-out frames are not read. Applies when
+    there is one accepted effect (``max_effects = 1``, the default) and at least two
+    significant candidates with a Stage-2 refit (a missing degree of freedom has
+    none and is never compared).
+
+    Args:
+        chart, model, stage2_cfg, inertia: as for :func:`refit`.
+        diagnosis: the :class:`~lagsplat.diagnose.select.Diagnosis`.
+        baseline_nrmse: the identified model's training-rollout NRMSE (Stage-2
+            ``selected_nrmse``); ``None``: nothing is compared.
+        cfg: refit settings (its ``control`` is ignored here).
+
+    Returns:
+        ``(diagnosis, candidates)``: the diagnosis with the chosen effect as its
+        winner (the input itself when the winner stands or nothing is compared),
+        and one record per candidate refit (``effect``, ``delta_bic``,
+        ``train_rollout_nrmse``, ``chosen``), empty when nothing was compared.
+    """
+    cfg = cfg or RefitConfig()
+    effects = list(getattr(diagnosis, "effects", []))
+    refittable = [f for f in diagnosis.ranking if f.significant and f.effect != "missing_dof"]
+    if baseline_nrmse is None or len(effects) != 1 or effects[0].effect == "missing_dof" or len(refittable) < 2:
+        return diagnosis, []
+    quiet = dataclasses.replace(cfg, control=False)
+    first = next((f for f in refittable if f.effect == effects[0].effect), effects[0])
+    order = [first, *[f for f in refittable if f is not first]]
+    rows: list[dict[str, Any]] = []
+    for fit in order:
+        r = refit(chart, model, stage2_cfg, dataclasses.replace(diagnosis, winner=fit.effect, effects=[fit]), quiet, inertia)
+        err = float(r.history.get("selected_nrmse", math.inf)) if r is not None else math.inf
+        rows.append({"effect": fit.effect, "delta_bic": float(fit.delta_bic), "train_rollout_nrmse": err, "chosen": False})
+        if fit is first and err < baseline_nrmse:
+            break  # the winner is confirmed: no rival is refit
+    better = [k for k, r in enumerate(rows) if r["train_rollout_nrmse"] < baseline_nrmse]
+    k = min(better, key=lambda k: rows[k]["train_rollout_nrmse"]) if better else 0
+    rows[k]["chosen"] = True
+    if k == 0:
+        return diagnosis, rows
+    return dataclasses.replace(diagnosis, winner=order[k].effect, effects=[order[k]]), rows
 
 
 # ---------------------------------------------------------------------- energy bound

@@ -41,6 +41,7 @@ from lagsplat.diagnose.select import _plain
 from lagsplat.diagnose.refit import (
     GAP_METRICS,
     RefitConfig,
+    choose_by_refit,
     energy_check,
     gap_reduction,
     held_out_gap,
@@ -276,6 +277,14 @@ def diagnose_artifacts(
     elif stage2_cfg is None:
         refit_rec["reason"] = "no Stage-2 settings given: no refit"
     else:
+        if cfg.refit.choose:
+            t1 = time.perf_counter()
+            base = (stage2_history or {}).get("selected_nrmse")
+            diag, choice = choose_by_refit(chart, model, stage2_cfg, diag, None if base is None else float(base), cfg.refit, inertia)
+            refit_rec["baseline_train_rollout_nrmse"] = None if base is None else float(base)
+            if choice:
+                refit_rec["choice"] = choice
+                timings["choice_s"] = time.perf_counter() - t1
         r = refit(chart, model, stage2_cfg, diag, cfg.refit, inertia, progress)
         if r is None:
             from lagsplat.diagnose.refit import refit_spec
@@ -461,6 +470,19 @@ def render_markdown(rep: Mapping[str, Any]) -> str:
              f"(null fit: {_f(null['excess_over_noise'])}).")  # fmt: skip
     if null.get("warning"):
         L.append(f"- warning: {null['warning']}")
+    choice = (rep.get("refit") or {}).get("choice")
+    if choice:
+        rows = ", ".join(f"{c['effect']} {_f(c['train_rollout_nrmse'], '.3f')}" for c in choice)
+        won, first = next(c for c in choice if c["chosen"]), choice[0]
+        base = rep["refit"].get("baseline_train_rollout_nrmse")
+        if won is not first:
+            how = f"is not confirmed (its refit follows the training video worse than the identified model), {won['effect']} is taken instead"
+        elif base is not None and first["train_rollout_nrmse"] < base:
+            how = "is confirmed"
+        else:
+            how = "stands (no candidate's refit follows the training video better than the identified model)"
+        L.append(f"- several candidates are significant; the Delta-BIC winner {first['effect']} {how}, by the training-rollout NRMSE "
+                 f"of the model refit with each (paper §3.3; identified model {_f(base, '.3f')}): {rows}.")  # fmt: skip
     check = (rep.get("gap") or {}).get("held_out_check")
     if check:
         L.append(f"- held-out check: {check['text']}.")
