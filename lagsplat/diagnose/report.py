@@ -482,7 +482,7 @@ def render_markdown(rep: Mapping[str, Any]) -> str:
         else:
             how = "stands (no candidate's refit follows the training video better than the identified model)"
         L.append(f"- several candidates are significant; the Delta-BIC winner {first['effect']} {how}, by the training-rollout NRMSE "
-                 f"of the model refit with each (paper §3.3; identified model {_f(base, '.3f')}): {rows}.")  # fmt: skip
+                 f"of the model refit with {'it' if len(choice) == 1 else 'each'} (paper §3.3; identified model {_f(base, '.3f')}): {rows}.")  # fmt: skip
     check = (rep.get("gap") or {}).get("held_out_check")
     if check:
         L.append(f"- held-out check: {check['text']}.")
