@@ -24,6 +24,7 @@ from lagsplat.chart import Chart, save_chart
 from lagsplat.diagnose import diagnose_chart
 from lagsplat.diagnose.refit import (
     RefitConfig,
+    add_control,
     choose_by_refit,
     RefitModel,
     energy_check,
@@ -208,15 +209,21 @@ def test_the_winner_is_confirmed_by_its_refit_or_replaced_by_a_rival_whose_refit
     rc = RefitConfig(epochs=8)
     sig = [f.effect for f in diag.ranking if f.significant]
     assert sig[:1] == ["coulomb"] and len(sig) >= 2
-    assert choose_by_refit(chart, model, cfg, diag, None, rc) == (diag, [])  # no baseline: nothing compared
+    assert choose_by_refit(chart, model, cfg, diag, None, rc) == (diag, [], None)  # no baseline: nothing compared
     lone = dataclasses.replace(diag, ranking=[f if f.effect == "coulomb" else dataclasses.replace(f, significant=False) for f in diag.ranking])
-    assert choose_by_refit(chart, model, cfg, lone, 1.0, rc) == (lone, [])  # one significant candidate: nothing to choose
+    assert choose_by_refit(chart, model, cfg, lone, 1.0, rc) == (lone, [], None)  # one significant candidate: nothing to choose
     dof = dataclasses.replace(diag.effects[0], effect="missing_dof", params={"f_hz": 1.9})
     diag = dataclasses.replace(diag, ranking=[*diag.ranking, dof])
 
-    same, rows = choose_by_refit(chart, model, cfg, diag, math.inf, rc)  # any refit beats an infinite baseline
+    same, rows, made = choose_by_refit(chart, model, cfg, diag, math.inf, rc)  # any refit beats an infinite baseline
     assert same is diag and [(r["effect"], r["chosen"]) for r in rows] == [("coulomb", True)]  # confirmed: no rival refit
-    same, rows = choose_by_refit(chart, model, cfg, diag, 0.0, rc)  # no refit beats a zero baseline
+    assert made.spec.effects == ["coulomb"] and made.control is None
+    add_control(made, chart, model, cfg, rc)  # the control is the same as refit()'s own
+    full = refit(chart, model, cfg, diag, rc)
+    q, v = torch.randn(8, 1), torch.randn(8, 1)
+    assert torch.equal(made.model.acceleration(q, v), full.model.acceleration(q, v))
+    assert torch.equal(made.control.acceleration(q, v), full.control.acceleration(q, v))
+    same, rows, _ = choose_by_refit(chart, model, cfg, diag, 0.0, rc)  # no refit beats a zero baseline
     assert same is diag and [r["effect"] for r in rows] == sig and rows[0]["chosen"]  # all refit, the winner stands
     nrmse = {r["effect"]: r["train_rollout_nrmse"] for r in rows}
     assert all(0 < v < 1 for v in nrmse.values())
@@ -224,7 +231,8 @@ def test_the_winner_is_confirmed_by_its_refit_or_replaced_by_a_rival_whose_refit
     # measured on this fixture: the rival's refit follows the training rollouts slightly better than the friction's (the
     # criterion rewards fit, not physics; hence it only ever rejects a winner whose refit fails to beat the identified model)
     assert nrmse[rival] < nrmse["coulomb"]
-    chosen, rows = choose_by_refit(chart, model, cfg, diag, 0.5 * (nrmse[rival] + nrmse["coulomb"]), rc)  # winner fails, rival not
+    chosen, rows, made = choose_by_refit(chart, model, cfg, diag, 0.5 * (nrmse[rival] + nrmse["coulomb"]), rc)  # winner fails, rival not
+    assert made.spec.effects == [rival]
     assert chosen.winner == rival and chosen.labels == [rival] and [r["effect"] for r in rows if r["chosen"]] == [rival]
     assert chosen.ranking is diag.ranking  # the evidence stays as the regression found it
 

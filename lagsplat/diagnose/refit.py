@@ -93,6 +93,7 @@ __all__ = [
     "model_chart",
     "refit",
     "choose_by_refit",
+    "add_control",
     "energy_check",
     "envelope_decay",
     "held_out_gap",
@@ -390,36 +391,61 @@ def refit(
         return None
     s2 = _stage2_settings(stage2_cfg, cfg)
     ch = model_chart(chart, spec.delay_s, spec.time_channel)
-    fitted_state = copy.deepcopy(model.state_dict())
-
-    def make(terms: Sequence[EffectTerm], time_channel: bool):
-        def augment(base: nn.Module) -> nn.Module:
-            if cfg.init == "fitted":
-                base.load_state_dict(fitted_state)
-                if gauge != 1.0:
-                    with torch.no_grad():
-                        base.s_M.add_(math.log(gauge))
-                        base.s_V.add_(math.log(gauge))
-            if not terms and not time_channel:
-                return base
-            return RefitModel(base, [copy.deepcopy(t) for t in terms], time_channel=time_channel)
-
-        return augment
-
-    new, hist = train_stage2(ch, s2, seed=cfg.seed, progress=progress, inertia=inertia, augment=make(spec.terms, spec.time_channel), n_u_model=chart.n_u)
+    augment = _augmenter(model, cfg, gauge, spec.terms, spec.time_channel)
+    new, hist = train_stage2(ch, s2, seed=cfg.seed, progress=progress, inertia=inertia, augment=augment, n_u_model=chart.n_u)
     out = RefitResult(new, ch, spec, hist)
     if isinstance(new, AugmentedLagrangian):
         out.fitted_terms = [t.spec() for t in new.terms]
     if cfg.control:
-        ctrl, ch_hist = train_stage2(chart, s2, seed=cfg.seed, progress=progress, inertia=inertia, augment=make([], False), n_u_model=chart.n_u)
-        out.control, out.control_history = ctrl, ch_hist
+        add_control(out, chart, model, stage2_cfg, cfg, inertia, progress)
     return out
+
+
+def _augmenter(model: nn.Module, cfg: RefitConfig, gauge: float, terms: Sequence[EffectTerm], time_channel: bool):
+    """The ``augment`` hook of :func:`~lagsplat.train.stage2.train_stage2` for a refit (fitted start, gauge, terms)."""
+    fitted_state = copy.deepcopy(model.state_dict())
+
+    def augment(base: nn.Module) -> nn.Module:
+        if cfg.init == "fitted":
+            base.load_state_dict(fitted_state)
+            if gauge != 1.0:
+                with torch.no_grad():
+                    base.s_M.add_(math.log(gauge))
+                    base.s_V.add_(math.log(gauge))
+        if not terms and not time_channel:
+            return base
+        return RefitModel(base, [copy.deepcopy(t) for t in terms], time_channel=time_channel)
+
+    return augment
+
+
+def add_control(
+    result: RefitResult, chart: Any, model: nn.Module, stage2_cfg: Any, cfg: RefitConfig, inertia: Any | None = None, progress: bool = False
+) -> RefitResult:
+    """Run the control of a refit (the identical fine-tune without the term) into ``result.control``.
+
+    Args:
+        result: the refit (from :func:`refit` or :func:`choose_by_refit`); modified in place.
+        chart, model, stage2_cfg, inertia, progress: as for :func:`refit`.
+        cfg: the refit settings the result was made with (same seed, epochs, gauge).
+
+    Returns:
+        ``result``, with ``control`` and ``control_history`` set.
+    """
+    from lagsplat.train.stage2 import train_stage2
+
+    gauge = float(cfg.floor_scale) if cfg.init == "fitted" else 1.0
+    s2 = _stage2_settings(stage2_cfg, cfg)
+    result.control, result.control_history = train_stage2(
+        chart, s2, seed=cfg.seed, progress=progress, inertia=inertia, augment=_augmenter(model, cfg, gauge, [], False), n_u_model=chart.n_u
+    )
+    return result
 
 
 def choose_by_refit(
     chart: Any, model: nn.Module, stage2_cfg: Any, diagnosis: Any, baseline_nrmse: float | None, cfg: RefitConfig | None = None,
     inertia: Any | None = None,
-) -> tuple[Any, list[dict[str, Any]]]:
+) -> tuple[Any, list[dict[str, Any]], RefitResult | None]:
     """Confirm the Delta-BIC winner by refitting it; if the refit does not help, the best significant rival that does.
 
     Several effects can explain one residual about equally (an end stop and a
@@ -450,32 +476,35 @@ def choose_by_refit(
         cfg: refit settings (its ``control`` is ignored here).
 
     Returns:
-        ``(diagnosis, candidates)``: the diagnosis with the chosen effect as its
-        winner (the input itself when the winner stands or nothing is compared),
-        and one record per candidate refit (``effect``, ``delta_bic``,
-        ``train_rollout_nrmse``, ``chosen``), empty when nothing was compared.
+        ``(diagnosis, candidates, result)``: the diagnosis with the chosen effect as
+        its winner (the input itself when the winner stands or nothing is compared),
+        one record per candidate refit (``effect``, ``delta_bic``,
+        ``train_rollout_nrmse``, ``chosen``), empty when nothing was compared, and the
+        chosen effect's refit without its control (:func:`add_control` adds it;
+        ``None`` when nothing was compared).
     """
     cfg = cfg or RefitConfig()
     effects = list(getattr(diagnosis, "effects", []))
     refittable = [f for f in diagnosis.ranking if f.significant and f.effect != "missing_dof"]
     if baseline_nrmse is None or len(effects) != 1 or effects[0].effect == "missing_dof" or len(refittable) < 2:
-        return diagnosis, []
+        return diagnosis, [], None
     quiet = dataclasses.replace(cfg, control=False)
     first = next((f for f in refittable if f.effect == effects[0].effect), effects[0])
     order = [first, *[f for f in refittable if f is not first]]
     rows: list[dict[str, Any]] = []
+    fits: list[RefitResult | None] = []
     for fit in order:
         r = refit(chart, model, stage2_cfg, dataclasses.replace(diagnosis, winner=fit.effect, effects=[fit]), quiet, inertia)
         err = float(r.history.get("selected_nrmse", math.inf)) if r is not None else math.inf
         rows.append({"effect": fit.effect, "delta_bic": float(fit.delta_bic), "train_rollout_nrmse": err, "chosen": False})
+        fits.append(r)
         if fit is first and err < baseline_nrmse:
             break  # the winner is confirmed: no rival is refit
     better = [k for k, r in enumerate(rows) if r["train_rollout_nrmse"] < baseline_nrmse]
     k = min(better, key=lambda k: rows[k]["train_rollout_nrmse"]) if better else 0
     rows[k]["chosen"] = True
-    if k == 0:
-        return diagnosis, rows
-    return dataclasses.replace(diagnosis, winner=order[k].effect, effects=[order[k]]), rows
+    chosen = diagnosis if k == 0 else dataclasses.replace(diagnosis, winner=order[k].effect, effects=[order[k]])
+    return chosen, rows, fits[k]
 
 
 # ---------------------------------------------------------------------- energy bound

@@ -41,6 +41,7 @@ from lagsplat.diagnose.select import _plain
 from lagsplat.diagnose.refit import (
     GAP_METRICS,
     RefitConfig,
+    add_control,
     choose_by_refit,
     energy_check,
     gap_reduction,
@@ -277,15 +278,19 @@ def diagnose_artifacts(
     elif stage2_cfg is None:
         refit_rec["reason"] = "no Stage-2 settings given: no refit"
     else:
+        chosen = None
         if cfg.refit.choose:
             t1 = time.perf_counter()
             base = (stage2_history or {}).get("selected_nrmse")
-            diag, choice = choose_by_refit(chart, model, stage2_cfg, diag, None if base is None else float(base), cfg.refit, inertia)
+            diag, choice, chosen = choose_by_refit(chart, model, stage2_cfg, diag, None if base is None else float(base), cfg.refit, inertia)
             refit_rec["baseline_train_rollout_nrmse"] = None if base is None else float(base)
             if choice:
                 refit_rec["choice"] = choice
                 timings["choice_s"] = time.perf_counter() - t1
-        r = refit(chart, model, stage2_cfg, diag, cfg.refit, inertia, progress)
+        if chosen is not None:  # the chosen effect's refit is made: only its control is left to run
+            r = add_control(chosen, chart, model, stage2_cfg, cfg.refit, inertia, progress) if cfg.refit.control else chosen
+        else:
+            r = refit(chart, model, stage2_cfg, diag, cfg.refit, inertia, progress)
         if r is None:
             from lagsplat.diagnose.refit import refit_spec
 
