@@ -383,7 +383,7 @@ def refit(
     from lagsplat.train.stage2 import train_stage2
 
     cfg = cfg or RefitConfig()
-    gauge = float(cfg.floor_scale) if cfg.init == "fitted" else 1.0
+    gauge = _gauge(cfg)
     if not gauge > 0:
         raise ValueError(f"refit floor_scale must be positive, got {cfg.floor_scale!r}")
     spec = refit_spec(diagnosis, model, cfg.init, gauge)
@@ -399,6 +399,11 @@ def refit(
     if cfg.control:
         add_control(out, chart, model, stage2_cfg, cfg, inertia, progress)
     return out
+
+
+def _gauge(cfg: RefitConfig) -> float:
+    """The energy-gauge factor a refit applies (:attr:`RefitConfig.floor_scale`; 1 for a scratch refit)."""
+    return float(cfg.floor_scale) if cfg.init == "fitted" else 1.0
 
 
 def _augmenter(model: nn.Module, cfg: RefitConfig, gauge: float, terms: Sequence[EffectTerm], time_channel: bool):
@@ -434,10 +439,9 @@ def add_control(
     """
     from lagsplat.train.stage2 import train_stage2
 
-    gauge = float(cfg.floor_scale) if cfg.init == "fitted" else 1.0
     s2 = _stage2_settings(stage2_cfg, cfg)
     result.control, result.control_history = train_stage2(
-        chart, s2, seed=cfg.seed, progress=progress, inertia=inertia, augment=_augmenter(model, cfg, gauge, [], False), n_u_model=chart.n_u
+        chart, s2, seed=cfg.seed, progress=progress, inertia=inertia, augment=_augmenter(model, cfg, _gauge(cfg), [], False), n_u_model=chart.n_u
     )
     return result
 
@@ -478,8 +482,8 @@ def choose_by_refit(
     Returns:
         ``(diagnosis, candidates, result)``: the diagnosis with the chosen effect as
         its winner (the input itself when the winner stands or nothing is compared),
-        one record per candidate refit (``effect``, ``delta_bic``,
-        ``train_rollout_nrmse``, ``chosen``), empty when nothing was compared, and the
+        one record per candidate refit (``effect``, ``delta_bic``, ``train_rollout_nrmse``,
+        ``beats_identified``: below ``baseline_nrmse``, ``chosen``), empty when nothing was compared, and the
         chosen effect's refit without its control (:func:`add_control` adds it;
         ``None`` when nothing was compared).
     """
@@ -489,18 +493,19 @@ def choose_by_refit(
     if baseline_nrmse is None or len(effects) != 1 or effects[0].effect == "missing_dof" or len(refittable) < 2:
         return diagnosis, [], None
     quiet = dataclasses.replace(cfg, control=False)
-    first = next((f for f in refittable if f.effect == effects[0].effect), effects[0])
-    order = [first, *[f for f in refittable if f is not first]]
+    first = effects[0]
+    order = [first, *[f for f in refittable if f.effect != first.effect]]
     rows: list[dict[str, Any]] = []
     fits: list[RefitResult | None] = []
     for fit in order:
         r = refit(chart, model, stage2_cfg, dataclasses.replace(diagnosis, winner=fit.effect, effects=[fit]), quiet, inertia)
         err = float(r.history.get("selected_nrmse", math.inf)) if r is not None else math.inf
-        rows.append({"effect": fit.effect, "delta_bic": float(fit.delta_bic), "train_rollout_nrmse": err, "chosen": False})
+        beats = err < baseline_nrmse
+        rows.append({"effect": fit.effect, "delta_bic": float(fit.delta_bic), "train_rollout_nrmse": err, "beats_identified": beats, "chosen": False})
         fits.append(r)
-        if fit is first and err < baseline_nrmse:
+        if fit is first and beats:
             break  # the winner is confirmed: no rival is refit
-    better = [k for k, r in enumerate(rows) if r["train_rollout_nrmse"] < baseline_nrmse]
+    better = [k for k, r in enumerate(rows) if r["beats_identified"]]
     k = min(better, key=lambda k: rows[k]["train_rollout_nrmse"]) if better else 0
     rows[k]["chosen"] = True
     chosen = diagnosis if k == 0 else dataclasses.replace(diagnosis, winner=order[k].effect, effects=[order[k]])

@@ -282,8 +282,9 @@ def diagnose_artifacts(
         if cfg.refit.choose:
             t1 = time.perf_counter()
             base = (stage2_history or {}).get("selected_nrmse")
-            diag, choice, chosen = choose_by_refit(chart, model, stage2_cfg, diag, None if base is None else float(base), cfg.refit, inertia)
-            refit_rec["baseline_train_rollout_nrmse"] = None if base is None else float(base)
+            base = None if base is None else float(base)
+            diag, choice, chosen = choose_by_refit(chart, model, stage2_cfg, diag, base, cfg.refit, inertia)
+            refit_rec["baseline_train_rollout_nrmse"] = base
             if choice:
                 refit_rec["choice"] = choice
                 timings["choice_s"] = time.perf_counter() - t1
@@ -482,7 +483,7 @@ def render_markdown(rep: Mapping[str, Any]) -> str:
         base = rep["refit"].get("baseline_train_rollout_nrmse")
         if won is not first:
             how = f"is not confirmed (its refit follows the training video worse than the identified model), {won['effect']} is taken instead"
-        elif base is not None and first["train_rollout_nrmse"] < base:
+        elif first["beats_identified"]:
             how = "is confirmed"
         else:
             how = "stands (no candidate's refit follows the training video better than the identified model)"
