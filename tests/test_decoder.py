@@ -329,3 +329,64 @@ def test_state_coupling_decay_scales_only_the_jacobians(d: int) -> None:
     assert torch.equal(dec.geometry().J, g1.J)
     with pytest.raises(ValueError, match=r"\[0, 1\)"):
         decay_state_coupling(dec, 1.0)
+
+
+def test_render_extra_channels_are_the_visible_brush_compositing_weights() -> None:
+    """render(extra=J) composites J_i with the rasteriser's weights T_i a_i: the field the visible brush reads (lagsplat.force)."""
+    from lagsplat.force import ForceTransport
+
+    torch.manual_seed(1)
+    H, W = 10, 14
+    dec = ConditionedGaussians(40, 1)
+    dec.init_from_frame(torch.rand(3, H, W), torch.randn(32, 1))
+    with torch.no_grad():
+        dec.L_raw[:, 1:3] = torch.randn(40, 2) * 0.3  # non-zero L_sq: J_i != 0
+        dec.logit_alpha.normal_(1.0, 0.5)
+    z = torch.tensor([[0.3]])
+    J_px, cov_px = dec.pixel_geometry(H, W)
+    img, field = dec.render(z, H, W, extra=J_px.reshape(40, -1))
+    assert torch.allclose(img, dec(z, H, W))  # the colour channels are unchanged
+    g = dec.geometry()
+    means, gate, _ = dec.condition(z)
+    tr = ForceTransport(means[0] * torch.tensor([W, H]), J_px, g.alpha, g.mu_q, g.L_qq, torch.eye(1), torch.zeros(1), cov_px)
+    ys, xs = torch.meshgrid(torch.arange(H) + 0.5, torch.arange(W) + 0.5, indexing="ij")
+    pts = torch.stack([xs.flatten(), ys.flatten()], 1)
+    cw = tr.compositing_weights(means[0] * torch.tensor([W, H]), (g.alpha[None] * gate)[0], pts)  # [HW,K]
+    expect = (cw @ J_px.reshape(40, -1)).T.reshape(2, H, W)
+    assert float(expect.abs().max()) > 0.05  # not vacuous
+    assert torch.allclose(field[0], expect, atol=1e-4)
+
+
+def test_static_motion_penalty_reads_only_static_pixels_and_moves_matter_off_them() -> None:
+    """Mean squared motion field over the static pixels; descent on it stops what is shown there from moving."""
+    from lagsplat.train.losses import static_motion_penalty
+
+    motion = torch.zeros(2, 2, 4, 5)
+    motion[:, :, :, 3:] = 2.0  # moving matter on the two right columns
+    static = torch.zeros(4, 5, dtype=torch.bool)
+    static[:, :3] = True
+    assert float(static_motion_penalty(motion, static)) == 0.0
+    static[0, 4] = True  # one static pixel under moving matter: 2^2 + 2^2 over 13 pixels
+    assert float(static_motion_penalty(motion, static)) == pytest.approx(8.0 / 13.0)
+    assert float(static_motion_penalty(motion, torch.zeros(4, 5, dtype=torch.bool))) == 0.0
+
+    torch.manual_seed(0)
+    H, W = 8, 8
+    dec = ConditionedGaussians(24, 1)
+    dec.init_from_frame(torch.rand(3, H, W), torch.randn(16, 1))
+    with torch.no_grad():
+        dec.L_raw[:, 1:3] = torch.randn(24, 2) * 0.5
+    static = torch.ones(H, W, dtype=torch.bool)
+    z = torch.randn(4, 1)
+
+    def penalty() -> torch.Tensor:
+        J_px, _ = dec.pixel_geometry(H, W)
+        return static_motion_penalty(dec.render(z, H, W, extra=J_px.reshape(24, -1))[1], static)
+
+    p0 = float(penalty())
+    opt = torch.optim.Adam(dec.parameters(), lr=0.05)
+    for _ in range(60):
+        opt.zero_grad()
+        penalty().backward()
+        opt.step()
+    assert p0 > 1.0 and float(penalty()) < 0.05 * p0

@@ -221,20 +221,48 @@ class ConditionedGaussians(nn.Module):
         ``geom``: a precomputed :meth:`geometry` (a frozen decoder rendered many
         times, e.g. by the viewer, need not rebuild it per frame).
         """
+        return self.render(q, height, width, backend, geom)[0]
+
+    def render(
+        self,
+        q: Tensor,
+        height: int,
+        width: int,
+        backend: Backend | None = None,
+        geom: DecoderGeometry | None = None,
+        extra: Tensor | None = None,
+    ) -> tuple[Tensor, Tensor | None]:
+        """Render ``q [B,d]`` and, in the same compositing pass, per-primitive channels ``extra``.
+
+        Args:
+            q, height, width, backend, geom: as :meth:`forward`.
+            extra: ``[K,C]`` values composited like colours over a zero
+                background, e.g. each primitive's Jacobian in pixels: the
+                result at pixel ``p`` is ``sum_i T_i(p) a_i(p) extra_i``, the
+                same compositing weights the visible brush of
+                :mod:`lagsplat.force` uses.
+
+        Returns:
+            ``(image [B,3,H,W] in [0, 1], extra image [B,C,H,W] or None)``.
+        """
         means, gate, g = self.condition(q, geom)
         scale = means.new_tensor([float(width), float(height)])
         cov_px = g.cov * scale[None, :, None] * scale[None, None, :]
+        colors, bg = g.colors, self.background
+        if extra is not None:
+            colors = torch.cat([colors, extra.to(colors.dtype)], 1)
+            bg = torch.cat([bg, bg.new_zeros(extra.shape[1])])
         img = rasterize(
             means * scale,
             cov_px,
             g.alpha[None] * gate,
-            g.colors,
+            colors,
             height,
             width,
-            background=self.background,
+            background=bg,
             backend=backend or self.backend,
         )
-        return img.clamp(0.0, 1.0)
+        return img[:, :3].clamp(0.0, 1.0), (img[:, 3:] if extra is not None else None)
 
     # ----------------------------------------------------------- initialisation
     @staticmethod

@@ -93,3 +93,28 @@ def kinematic_penalty(decoder, z_std: Tensor) -> Tensor:
     Jz = g.J * z_std.reshape(1, 1, -1).clamp_min(1e-3)
     w = g.alpha
     return (w * Jz.pow(2).sum((1, 2))).sum() / w.sum().clamp_min(1e-12)
+
+
+def static_motion_penalty(motion: Tensor, static: Tensor) -> Tensor:
+    """Matter shown on pixels that never change does not move (Stage 1, optional).
+
+    ``motion [B,C,H,W]`` is the decoder's composited motion field at the batch
+    states, ``sum_i T_i(p) a_i(p) J_i diag(z_std)`` in pixels (channels: the
+    ``2 d`` entries of the Jacobian times the spread of each latent, from
+    :meth:`~lagsplat.models.decoder.ConditionedGaussians.render` with
+    ``extra``); ``static [H,W]`` marks the pixels whose colour never changes in
+    the training frames (:func:`lagsplat.force_checks.motion_masks`). The
+    penalty is the mean squared motion over those pixels, in px^2: what a
+    force applied there would move (the visible brush of :mod:`lagsplat.force`
+    pulls back exactly this field, paper Eq. 9), which paper §4.5 requires to
+    vanish on background. The reconstruction loss alone leaves it free
+    wherever a primitive that moves with the object reaches over static
+    texture (a large or elongated footprint straddling the object's edge) or
+    slides over flat colour.
+
+    Returns:
+        Scalar tensor, px^2 (zero when no pixel is static).
+    """
+    if not bool(static.any()):
+        return motion.new_zeros(())
+    return motion.pow(2).sum(1)[:, static].mean()

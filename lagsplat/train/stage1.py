@@ -16,7 +16,7 @@ from lagsplat.io.clip import Clip
 from lagsplat.models.decoder import ConditionedGaussians
 from lagsplat.models.encoder import CpAEEncoder, nonlocal_filter_penalty
 from lagsplat.train.config import dataclass_from_mapping
-from lagsplat.train.losses import kinematic_penalty, reconstruction_loss
+from lagsplat.train.losses import kinematic_penalty, reconstruction_loss, static_motion_penalty
 
 __all__ = ["Stage1Config", "AutoEncoder", "train_stage1", "save_stage1", "load_stage1", "frames_to_tensor"]
 
@@ -27,7 +27,12 @@ class Stage1Config:
 
     Attributes mirror the paper's App. C: loss weights 0.08 L1 + 0.02 (1 - SSIM)
     + 0.01 anisotropy with a 7x7 SSIM window, Adam, recycling of primitives
-    whose opacity falls below ``alpha_dead``.
+    whose opacity falls below ``alpha_dead``. Optional priors on the
+    decoder's kinematics, all off by default (the paper's loss):
+    ``w_kinematic`` (:func:`~lagsplat.train.losses.kinematic_penalty`),
+    ``j_decay`` (:func:`decay_state_coupling`) and ``w_static`` with
+    ``static_margin`` (px; :func:`~lagsplat.train.losses.static_motion_penalty`
+    on :func:`static_pixels` of the training frames).
     """
 
     n_gaussians: int = 1024
@@ -41,6 +46,8 @@ class Stage1Config:
     w_nonlocal: float = 0.0
     w_kinematic: float = 0.0
     j_decay: float = 0.0
+    w_static: float = 0.0
+    static_margin: float = 1.0
     ssim_window: int = 7
     aniso_max_ratio: float = 5.0
     sigma_xy: float = 0.05
@@ -134,6 +141,8 @@ def train_stage1(clip: Clip, cfg: Stage1Config, d: int, seed: int = 0, progress:
     X = frames_to_tensor(frames)
     N, _, H, W = X.shape
 
+    static = static_pixels(frames, cfg.static_margin) if cfg.w_static > 0 else None
+
     enc = CpAEEncoder(d, cfg.encoder_channels, cfg.encoder_kernel)
     dec = ConditionedGaussians(cfg.n_gaussians, d, backend=cfg.backend, background=cfg.background)
     with torch.no_grad():
@@ -157,7 +166,12 @@ def train_stage1(clip: Clip, cfg: Stage1Config, d: int, seed: int = 0, progress:
         pos += len(idx)
         x = X[idx]
         z = enc(x)
-        pred = dec(z, H, W)
+        if static is not None:
+            zs = z.detach().std(0).clamp_min(1e-3) if len(idx) > 1 else torch.ones(d)
+            J_px, _ = dec.pixel_geometry(H, W)
+            pred, motion = dec.render(z, H, W, extra=(J_px * zs.reshape(1, 1, -1)).reshape(dec.K, -1))
+        else:
+            pred = dec(z, H, W)
         loss, parts = reconstruction_loss(
             pred, x, dec, cfg.w_l1, cfg.w_ssim, cfg.w_aniso, cfg.ssim_window, cfg.aniso_max_ratio
         )
@@ -165,6 +179,8 @@ def train_stage1(clip: Clip, cfg: Stage1Config, d: int, seed: int = 0, progress:
             loss = loss + cfg.w_nonlocal * nonlocal_filter_penalty(enc.large_kernels())
         if cfg.w_kinematic > 0:
             loss = loss + cfg.w_kinematic * kinematic_penalty(dec, z.detach().std(0))
+        if static is not None:
+            loss = loss + cfg.w_static * static_motion_penalty(motion, static)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         nn.utils.clip_grad_norm_(enc.parameters(), cfg.grad_clip)
@@ -198,6 +214,22 @@ def train_stage1(clip: Clip, cfg: Stage1Config, d: int, seed: int = 0, progress:
                 history["recycled"].append((step, n_dead))
     bar.close()
     return model.eval(), history
+
+
+def static_pixels(frames: np.ndarray, margin: float = 1.0) -> Tensor | None:
+    """Pixels whose colour never changes in ``frames`` (uint8 ``[T,H,W,3]``), at least ``margin`` px from any that does.
+
+    The ``changing`` rule of :func:`lagsplat.force_checks.motion_masks`
+    (temporal std above 1.5x the noise floor); ``[H,W]`` bool, or ``None``
+    when nothing in the frames changes (no motion to separate from).
+    """
+    from lagsplat.force_checks import motion_masks
+
+    try:
+        _, static, _ = motion_masks(frames, sigma=max(margin, 1e-6) / 3.0)
+    except ValueError:
+        return None
+    return torch.from_numpy(static)
 
 
 @torch.no_grad()
