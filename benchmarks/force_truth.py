@@ -130,14 +130,14 @@ def main() -> None:
         sel = tr.select(q0, x, args.sigma)
         th = true_angle(F, r)
         d_true = r * L_px * np.array([math.sin(th), math.cos(th) - 1.0])
-        setups.append((r, F, sel, th, d_true, tr.pullback(sel, torch.tensor([F], dtype=torch.float32))))
+        setups.append((r, F, sel, th, d_true, tr.pullback(sel, torch.as_tensor(F[None], dtype=torch.float32))))
 
     def equilibrium(kappa: float, f_lat: torch.Tensor) -> torch.Tensor:
         return model.loaded_equilibrium(kappa * f_lat, q0=q0)
 
     # kappa of each read-out from the first force
     r0, _, sel0, _, d0, f0 = setups[0]
-    kappa_point = calibrate_kappa(model, tr, sel0, torch.tensor([setups[0][1]], dtype=torch.float32), float(np.linalg.norm(d0)), q_rest=q0)
+    kappa_point = calibrate_kappa(model, tr, sel0, torch.as_tensor(setups[0][1][None], dtype=torch.float32), float(np.linalg.norm(d0)), q_rest=q0)
     target = float(np.linalg.norm(d0))
     log_k = brentq(lambda lk: float(np.linalg.norm(disp_chart(equilibrium(math.exp(lk), f0), r0))) - target, math.log(1e-6), math.log(1e6), xtol=1e-10)
     kappa_chart = math.exp(log_k)
