@@ -149,3 +149,13 @@ def test_snakemake_end_to_end_on_the_tiny_toy(tmp_path):
     for v in ("mass_learned", "mass_decoder", "mass_constant"):
         assert (sysdir / "variants" / v / "stage2.pt").exists()
         assert json.loads((sysdir / "variants" / v / "metrics.json").read_text())["stage2"]["mass"] == v.split("_")[1]
+    # the force checks on the trained model, through both brushes
+    r4 = run(["snakemake", "-c2", f"{res}/toy_tiny/forces.json", "--config", f"results_dir={res}"], timeout=900)
+    assert r4.returncode == 0, r4.stdout[-3000:] + r4.stderr[-3000:]
+    assert "rule stage1:" not in r4.stdout + r4.stderr
+    fj = json.loads((sysdir / "forces.json").read_text())
+    assert fj["brush"] == "visible" and set(fj["other_brushes"]) == {"paper"}
+    for r in (fj, fj["other_brushes"]["paper"]):
+        assert r["linearity"]["f_lat_rel_err"] < 1e-9 and r["kernel"]["rel"] < 1e-6
+        assert r["background"]["on_object_median_dq"] > 0
+    assert len(fj["lever"]["r_px"]) == len(fj["lever"]["f_lat"]) > 2 and (sysdir / "figures" / "forces.png").exists()
