@@ -455,10 +455,9 @@ def test_jvp_of_tiles_equals_finite_difference() -> None:
     torch.testing.assert_close((tan_m * up).sum(), (gm * tangents[0]).sum(), rtol=1e-9, atol=1e-12)
 
 
-@pytest.mark.xfail(strict=True, reason="known defect: numba's OpenMP layer resets the shared OpenMP thread count at its "
-                   "first parallel launch, so torch's thread setting (CLI threads=) is lost; fix pending")
 def test_compiled_rasterisation_keeps_torch_thread_count() -> None:
-    """``threads=`` must survive the numba kernels, or results depend on the machine's core count.
+    """``threads=`` survives the numba kernels (numba's OpenMP layer resets the shared thread count
+    at its first parallel launch), else results depend on the machine's core count.
 
     Run in a fresh interpreter: the reset happens at numba's first parallel launch only.
     """

@@ -244,7 +244,7 @@ def _cpu_render(means, conic, opac, colors, r2, bounds, background, height, widt
     B, C = colors.shape[0], colors.shape[2]
     out = np.empty((B, C, height, width), np.float32)
     x0, x1, y0, y1 = k["bounds"]
-    ck.render_kernel(k["pairs"], k["key_start"], *k["arrays"], x0, x1, y0, y1, height, width, tile, k["ntx"], k["n_tiles"], out)
+    _parallel(ck.render_kernel, k["pairs"], k["key_start"], *k["arrays"], x0, x1, y0, y1, height, width, tile, k["ntx"], k["n_tiles"], out)
     return torch.from_numpy(out)
 
 
@@ -286,7 +286,7 @@ class _CpuRasterize(torch.autograd.Function):
         out = np.empty((B, C, height, width), np.float32)
         t_final = np.empty((B, height, width), np.float32)
         t_store = np.empty((len(pairs), tile * tile), np.float32)
-        ck.forward_kernel(pairs, key_start, m, cn, op, rr, col, bg, height, width, tile, ntx, n_tiles, out, t_final, t_store)
+        _parallel(ck.forward_kernel, pairs, key_start, m, cn, op, rr, col, bg, height, width, tile, ntx, n_tiles, out, t_final, t_store)
         ctx.saved = (pairs, key_start, m, cn, op, rr, col, bg, t_final, t_store)
         ctx.dims = (B, K, C, height, width, tile, ntx, n_tiles)
         return torch.from_numpy(out)
@@ -299,7 +299,7 @@ class _CpuRasterize(torch.autograd.Function):
         B, K, C, height, width, tile, ntx, n_tiles = ctx.dims
         g_pair = np.zeros((len(pairs), 6 + C), np.float32)
         go = np.ascontiguousarray(grad_out.detach().numpy(), dtype=np.float32)
-        ck.backward_kernel(pairs, key_start, m, cn, op, rr, col, bg, height, width, tile, ntx, n_tiles, go, t_final, t_store, g_pair)
+        _parallel(ck.backward_kernel, pairs, key_start, m, cn, op, rr, col, bg, height, width, tile, ntx, n_tiles, go, t_final, t_store, g_pair)
         g = torch.zeros(B * K, 6 + C).index_add_(0, torch.from_numpy(pairs), torch.from_numpy(g_pair))
         return (
             g[:, 0:2].reshape(B, K, 2),
@@ -339,6 +339,21 @@ def rasterize_cpu(
     return _CpuRasterize.apply(
         means.float(), conic.float(), opacities.float(), colors.float(), r2, bounds, background, height, width, tile
     )
+
+
+def _parallel(kernel, *args) -> None:
+    """Run a parallel numba kernel, keeping torch's thread count.
+
+    Numba's OpenMP threading layer sets the process-wide OpenMP thread count
+    to ``NUMBA_NUM_THREADS`` (the machine's cores by default) at its first
+    parallel launch, which torch then reads back: without the restore, a
+    ``threads=`` setting is lost after the first rasterisation and results
+    depend on the core count (torch's reductions are ordered by thread).
+    """
+    n = torch.get_num_threads()
+    kernel(*args)
+    if torch.get_num_threads() != n:
+        torch.set_num_threads(n)
 
 
 def _numba_available() -> bool:
