@@ -136,11 +136,10 @@ def main() -> None:
         return model.loaded_equilibrium(kappa * f_lat, q0=q0)
 
     # kappa of each read-out from the first force
-    r0, _, sel0, _, d0, f0 = setups[0]
-    kappa_point = calibrate_kappa(model, tr, sel0, torch.as_tensor(setups[0][1][None], dtype=torch.float32), float(np.linalg.norm(d0)), q_rest=q0)
-    target = float(np.linalg.norm(d0))
-    log_k = brentq(lambda lk: float(np.linalg.norm(disp_chart(equilibrium(math.exp(lk), f0), r0))) - target, math.log(1e-6), math.log(1e6), xtol=1e-10)
-    kappa_chart = math.exp(log_k)
+    r0, F0, sel0, _, d0, _ = setups[0]
+    calib = (model, tr, sel0, torch.as_tensor(F0[None], dtype=torch.float32), float(np.linalg.norm(d0)))
+    kappa_point = calibrate_kappa(*calib, q_rest=q0)
+    kappa_chart = calibrate_kappa(*calib, q_rest=q0, readout=lambda q_eq: float(np.linalg.norm(disp_chart(q_eq, r0))))
 
     rows = []
     for k, (r, F, sel, th, d_true, f_lat) in enumerate(setups):

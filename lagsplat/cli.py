@@ -297,11 +297,10 @@ def stage_forces(cfg: DictConfig) -> None:
     pub = public_result(res)
     pub["brush"] = tr.brush
     # the same checks through the other brush (lagsplat.force.BRUSHES), for comparison
-    pub["other_brushes"] = {
-        name: {k: v for k, v in public_result(run_force_checks(model, ForceTransport.from_autoencoder(ae, chart, brush=name), clip.images, rest, fc)).items() if k in ("background", "linearity", "kernel")}
-        for name in BRUSHES
-        if name != tr.brush
-    }
+    pub["other_brushes"] = {}
+    for name in (b for b in BRUSHES if b != tr.brush):
+        other = run_force_checks(model, ForceTransport.from_autoencoder(ae, chart, brush=name), clip.images, rest, fc)
+        pub["other_brushes"][name] = {k: other[k] for k in ("background", "linearity", "kernel")}
     write_json(out / "forces.json", pub)
     for name, r in {tr.brush: pub, **pub["other_brushes"]}.items():
         b, lin, ker = r["background"], r["linearity"], r["kernel"]

@@ -289,6 +289,7 @@ def calibrate_kappa(
     displacement_px: float,
     q_rest: Tensor | None = None,
     bracket: tuple[float, float] = (1e-6, 1e6),
+    readout=None,
 ) -> float:
     """The energy factor ``kappa`` from one known (force, displacement) pair (paper §3.4).
 
@@ -307,6 +308,9 @@ def calibrate_kappa(
         displacement_px: measured static displacement of that point, pixels (> 0).
         q_rest: unloaded state (default: the model's rest state).
         bracket: search interval for ``kappa``.
+        readout: optional ``q_eq [1,d] -> displacement (px)`` measuring the
+            static displacement another way (e.g. through a known chart of
+            the body); default ``|p(q_eq) - p(q_rest)|`` of the selection.
 
     Returns:
         ``kappa`` (user force units -> pixel-force units of the model).
@@ -321,10 +325,11 @@ def calibrate_kappa(
     q0 = model.q_rest.detach()[None] if q_rest is None else q_rest.reshape(1, -1)
     p0 = transport.application_point(q0, sel)
     base = transport.pullback(sel, f)
+    if readout is None:
+        readout = lambda q_eq: float((transport.application_point(q_eq, sel) - p0).norm())  # noqa: E731
 
     def gap(log_k: float) -> float:
-        q_eq = model.loaded_equilibrium(math.exp(log_k) * base, q0=q0)
-        return float((transport.application_point(q_eq, sel) - p0).norm()) - displacement_px
+        return readout(model.loaded_equilibrium(math.exp(log_k) * base, q0=q0)) - displacement_px
 
     lo, hi = math.log(bracket[0]), math.log(bracket[1])
     g_lo, g_hi = gap(lo), gap(hi)

@@ -380,8 +380,7 @@ def test_static_motion_penalty_reads_only_static_pixels_and_moves_matter_off_the
     z = torch.randn(4, 1)
 
     def penalty() -> torch.Tensor:
-        J_px, _ = dec.pixel_geometry(H, W)
-        return static_motion_penalty(dec.render(z, H, W, extra=J_px.reshape(24, -1))[1], static)
+        return static_motion_penalty(dec.render_motion(z, H, W, torch.ones(1))[1], static)
 
     p0 = float(penalty())
     opt = torch.optim.Adam(dec.parameters(), lr=0.05)

@@ -13,6 +13,7 @@ import pytest
 import torch
 
 from lagsplat.synth.pendulum import make_pendulum_clip
+from lagsplat.train.losses import static_motion_penalty
 from lagsplat.train.stage1 import Stage1Config, frames_to_tensor, static_pixels, train_stage1
 
 
@@ -20,9 +21,8 @@ def _static_motion_and_mse(ae, clip, static: torch.Tensor) -> tuple[float, float
     X = frames_to_tensor(clip.images[clip.train_idx])
     with torch.no_grad():
         z = ae.encode(X)
-        J_px, _ = ae.decoder.pixel_geometry(ae.height, ae.width)
-        img, motion = ae.decoder.render(z, ae.height, ae.width, extra=(J_px * z.std(0).reshape(1, 1, -1)).reshape(ae.decoder.K, -1))
-    rms_static = float(motion.pow(2).sum(1)[:, static].mean().sqrt())
+        img, motion = ae.decoder.render_motion(z, ae.height, ae.width, z.std(0))
+    rms_static = float(static_motion_penalty(motion, static).sqrt())
     return rms_static, float((img - X).pow(2).mean())
 
 

@@ -264,6 +264,20 @@ class ConditionedGaussians(nn.Module):
         )
         return img[:, :3].clamp(0.0, 1.0), (img[:, 3:] if extra is not None else None)
 
+    def render_motion(self, q: Tensor, height: int, width: int, q_std: Tensor) -> tuple[Tensor, Tensor]:
+        """Render ``q [B,d]`` with its motion field, ``sum_i T_i a_i J_i diag(q_std)`` in pixels.
+
+        The field a force applied at each pixel is pulled back through (the
+        visible brush of :mod:`lagsplat.force`, paper Eq. 9), scaled by the
+        spread ``q_std [d]`` of the latent; :meth:`render` with ``extra`` the
+        per-primitive pixel Jacobians.
+
+        Returns:
+            ``(image [B,3,H,W], motion [B,2d,H,W])``.
+        """
+        J_px, _ = self.pixel_geometry(height, width)
+        return self.render(q, height, width, extra=(J_px * q_std.reshape(1, 1, -1)).reshape(self.K, -1))
+
     # ----------------------------------------------------------- initialisation
     @staticmethod
     def _raw_positions(idx: Tensor, height: int, width: int) -> Tensor:

@@ -168,8 +168,7 @@ def train_stage1(clip: Clip, cfg: Stage1Config, d: int, seed: int = 0, progress:
         z = enc(x)
         if static is not None:
             zs = z.detach().std(0).clamp_min(1e-3) if len(idx) > 1 else torch.ones(d)
-            J_px, _ = dec.pixel_geometry(H, W)
-            pred, motion = dec.render(z, H, W, extra=(J_px * zs.reshape(1, 1, -1)).reshape(dec.K, -1))
+            pred, motion = dec.render_motion(z, H, W, zs)
         else:
             pred = dec(z, H, W)
         loss, parts = reconstruction_loss(
