@@ -173,6 +173,16 @@ def test_banded_wide_rod_and_counter_arm() -> None:
     # the bands alternate colours along the rod
     col = wide[int(0.2 * 64) : int(0.7 * 64), 32]
     assert len(np.unique((col.mean(-1) > 120).astype(int))) == 2
+    # stripes across the width: a checkerboard, so a row across the rod shows both colours
+    # (motion across the rod is seen along the rod's axis, not only at its two edges)
+    checker = render_pendulum([0.0], size=(64, 64), rod_width=0.1, rod_bands=6, rod_above=0.1, rod_stripes=2)[0].astype(float)
+    light = lambda im, y: (im[y, 29:35].mean(-1) > 120).astype(int)  # noqa: E731  (pixels inside the rod, x = 28.8 .. 35.2)
+    assert all(len(np.unique(light(wide, y))) == 1 for y in (13, 21, 28, 35))  # bands only (rows inside bands): one colour per row
+    assert all(len(np.unique(light(checker, y))) == 2 for y in (13, 21, 28, 35))
+    assert not np.any(light(checker, 28)[:3] == light(checker, 28)[3:])  # left and right halves swap
+    assert np.array_equal(render_pendulum([0.3], rod_width=0.1, rod_bands=6, rod_stripes=1), render_pendulum([0.3], rod_width=0.1, rod_bands=6))
+    with pytest.raises(ValueError, match="rod_stripes"):
+        render_pendulum([0.0], rod_stripes=-1)
     with pytest.raises(ValueError, match="rod_width"):
         render_pendulum([0.0], rod_width=0.5)
     with pytest.raises(ValueError, match="rod_above"):

@@ -146,14 +146,28 @@ def simulate_pendulum(
 
 
 def _foreground(
-    theta: float, W: int, H: int, s: int, rod_width: float = 2 * _ROD_HALF_WIDTH, rod_bands: int = 0, rod_above: float = 0.0
+    theta: float,
+    W: int,
+    H: int,
+    s: int,
+    rod_width: float = 2 * _ROD_HALF_WIDTH,
+    rod_bands: int = 0,
+    rod_above: float = 0.0,
+    rod_stripes: int = 0,
 ) -> np.ndarray:
     """The pendulum at angle ``theta`` (rad), drawn at ``s`` x resolution and area-reduced.
 
     ``rod_width`` is in units of ``H``; ``rod_bands > 0`` paints the rod in that
-    many equal bands of alternating colours (texture along the rod, so its
-    motion is visible all along it); ``rod_above`` (units of ``H``) extends the
+    many equal bands of alternating colours along the rod; ``rod_stripes > 1``
+    also splits it into that many stripes across its width, the cells
+    alternating as on a checkerboard; ``rod_above`` (units of ``H``) extends the
     rod beyond the pivot, opposite the bob (a counter-arm, like a metronome's).
+
+    A point of the rod moves across it (tangentially) as the pendulum swings.
+    Band edges run across the rod, so they slide along themselves under that
+    motion and show it only through their tilt; stripe edges run along the rod
+    and show it directly (the aperture problem: only the motion across an edge
+    is seen), so with stripes every point of the rod shows how far it moves.
 
     Returns float64 ``[H, W, 4]``: RGB premultiplied, and coverage.
     """
@@ -164,19 +178,23 @@ def _foreground(
     bx, by = px + L * ux, py + L * uy
     nx, ny = uy, -ux  # unit normal pointing to the rod's image-right side when hanging
 
-    def strip(s0: float, s1: float) -> list[tuple[float, float]]:
-        """The rod between arc positions ``s0 < s1`` (px from the pivot, + towards the bob)."""
+    def strip(s0: float, s1: float, n0: float = -hw, n1: float = hw) -> list[tuple[float, float]]:
+        """The rod between arc positions ``s0 < s1`` (px from the pivot, + towards the bob) and normal offsets ``n0 < n1`` (px)."""
         return [
-            (px + s0 * ux + hw * nx, py + s0 * uy + hw * ny),
-            (px + s1 * ux + hw * nx, py + s1 * uy + hw * ny),
-            (px + s1 * ux - hw * nx, py + s1 * uy - hw * ny),
-            (px + s0 * ux - hw * nx, py + s0 * uy - hw * ny),
+            (px + s0 * ux + n1 * nx, py + s0 * uy + n1 * ny),
+            (px + s1 * ux + n1 * nx, py + s1 * uy + n1 * ny),
+            (px + s1 * ux + n0 * nx, py + s1 * uy + n0 * ny),
+            (px + s0 * ux + n0 * nx, py + s0 * uy + n0 * ny),
         ]
 
     top = -rod_above * H
     cv.convex(strip(top, L), _ROD_RGB)
-    for k in range(1, int(rod_bands), 2):  # odd bands in the second colour
-        cv.convex(strip(top + (L - top) * k / rod_bands, top + (L - top) * (k + 1) / rod_bands), _ROD_BAND_RGB)
+    nb, ns = max(1, int(rod_bands)), max(1, int(rod_stripes))
+    for k in range(nb):  # cells with an odd band + stripe index in the second colour
+        for j in range(ns):
+            if (k + j) % 2 == 1:
+                s0, s1 = top + (L - top) * k / nb, top + (L - top) * (k + 1) / nb
+                cv.convex(strip(s0, s1, -hw + 2 * hw * j / ns, -hw + 2 * hw * (j + 1) / ns), _ROD_BAND_RGB)
     cv.disc(px, py, _PIVOT_RADIUS * H, _PIVOT_RGB)
     cv.disc(bx, by, r, _BOB_LEFT_RGB)
     # Right half: the half-disc on the +normal side, i.e. angles [phi - 180, phi]
@@ -194,6 +212,7 @@ def render_pendulum(
     rod_width: float = 2 * _ROD_HALF_WIDTH,
     rod_bands: int = 0,
     rod_above: float = 0.0,
+    rod_stripes: int = 0,
 ) -> np.ndarray:
     """Render pendulum frames for a sequence of angles.
 
@@ -208,6 +227,9 @@ def render_pendulum(
         rod_bands: number of alternating colour bands along the rod (0: plain).
         rod_above: length of rod beyond the pivot, opposite the bob, units of
             ``H`` (in ``[0, PIVOT_Y)``; 0: none).
+        rod_stripes: number of stripes across the rod's width, alternating
+            with the bands as a checkerboard (0 or 1: none); they show the
+            rod's motion across itself (see ``_foreground``).
 
     Returns:
         uint8 ``[T, H, W, 3]`` RGB frames.
@@ -230,7 +252,10 @@ def render_pendulum(
     ra = float(rod_above)
     if not (math.isfinite(ra) and 0.0 <= ra < PIVOT_Y):
         raise ValueError(f"rod_above must be in [0, {PIVOT_Y}) (units of the frame height), got {rod_above!r}")
-    return render_frames(th, lambda angle: _foreground(float(angle), W, H, s, rw, nb, ra), background(W, H, seed))
+    ns = int(rod_stripes)
+    if ns < 0 or ns != rod_stripes:
+        raise ValueError(f"rod_stripes must be a non-negative integer, got {rod_stripes!r}")
+    return render_frames(th, lambda angle: _foreground(float(angle), W, H, s, rw, nb, ra, ns), background(W, H, seed))
 
 
 def make_pendulum_clip(
@@ -245,6 +270,7 @@ def make_pendulum_clip(
     rod_width: float = 2 * _ROD_HALF_WIDTH,
     rod_bands: int = 0,
     rod_above: float = 0.0,
+    rod_stripes: int = 0,
 ) -> Clip:
     """The synthetic damped-pendulum clip with its ground truth.
 
@@ -275,11 +301,11 @@ def make_pendulum_clip(
         theta0_deg: release angle (degrees), from rest.
         train_fraction: share of frames used for training, in ``(0, 1)``.
         seed: seed of the background texture only; everything else is fixed.
-        rod_width, rod_bands, rod_above: rod width (units of ``H``), colour
-            bands along it and counter-arm beyond the pivot, see
-            :func:`render_pendulum` (the defaults draw the toy's thin
-            plain rod; a wide banded rod makes the whole body's motion visible,
-            as the force ground truth ``conf/system/pendulum_force.yaml`` needs).
+        rod_width, rod_bands, rod_above, rod_stripes: rod width (units of
+            ``H``), colour bands along it, counter-arm beyond the pivot and
+            stripes across it, see :func:`render_pendulum` (the defaults draw
+            the toy's thin plain rod; a wide checkered rod shows every point's
+            motion, as the force ground truth ``conf/system/pendulum_force.yaml`` needs).
 
     Returns:
         A validated :class:`~lagsplat.io.clip.Clip`.
@@ -297,7 +323,7 @@ def make_pendulum_clip(
     theta0 = math.radians(float(theta0_deg))
     theta, t = simulate_pendulum(f_natural_hz, zeta, theta0, fps_f, T)
     images = render_pendulum(
-        theta, size=(W, H), seed=seed, rod_width=rod_width, rod_bands=rod_bands, rod_above=rod_above
+        theta, size=(W, H), seed=seed, rod_width=rod_width, rod_bands=rod_bands, rod_above=rod_above, rod_stripes=rod_stripes
     )
 
     split = np.full(T, HELD_OUT, np.int8)
@@ -327,6 +353,7 @@ def make_pendulum_clip(
             "rod_width": float(rod_width),
             "rod_bands": int(rod_bands),
             "rod_above": float(rod_above),
+            "rod_stripes": int(rod_stripes),
         },
     }
     clip = Clip(images=images, t=t, split=split, meta=meta)
