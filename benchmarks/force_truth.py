@@ -60,6 +60,18 @@ def true_angle(F: np.ndarray, r: float) -> float:
     return brentq(g, -math.pi / 2 + 1e-9, math.pi / 2 - 1e-9)
 
 
+def constant_j_angle(F: np.ndarray, r: float, kappa: float) -> float:
+    """Static angle (rad) of the exact *constant-Jacobian* pendulum: Eq. 9's own error, free of any learning.
+
+    The true potential ``1 - cos(theta)`` and the true Jacobian of the point at
+    radius ``r``, but frozen at rest, ``r (1, 0)`` (paper Eq. 9: constant
+    ``J_i``), so the generalized force is ``kappa r Fx`` whatever the angle and
+    ``sin(theta) = kappa r Fx``. The vertical component drops out: what this
+    angle misses against :func:`true_angle` is built into the method.
+    """
+    return math.asin(max(-1.0, min(1.0, kappa * r * F[0])))
+
+
 def chart_readout(chart, clip, degree: int = 3) -> tuple[np.poly1d, float]:
     """Cubic ``theta(q)`` (rad) fitted to the encoded training frames and their true angles; its rms residual (deg)."""
     train = clip.split == TRAIN
@@ -79,7 +91,12 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--results", default="results/pendulum_force", help="folder of a trained pendulum system (pendulum_force or toy)")
     ap.add_argument("--brush", default="visible", choices=["visible", "paper"], help="brush weighting (lagsplat.force)")
-    ap.add_argument("--sigma", type=float, default=1.5, help="brush radius, pixels")
+    ap.add_argument(
+        "--sigma", type=float, default=0.5,
+        help="brush radius, pixels (default 0.5: a point force, the truth's; the visible brush reaches 2 sigma, so at 1.5 px "
+        "a click 4.5 px above the pivot puts 8 %% of the force on the static pivot disc and the background above the arm, "
+        "and one on the rod's axis samples its anti-aliased edges)",
+    )
     ap.add_argument("--max-deg", type=float, default=5.0, help="direction tolerance counted in the summary (issue 5)")
     ap.add_argument("--max-pct", type=float, default=10.0, help="magnitude tolerance counted in the summary (issue 5)")
     args = ap.parse_args()
@@ -141,11 +158,18 @@ def main() -> None:
     kappa_point = calibrate_kappa(*calib, q_rest=q0)
     kappa_chart = calibrate_kappa(*calib, q_rest=q0, readout=lambda q_eq: float(np.linalg.norm(disp_chart(q_eq, r0))))
 
+    # Eq. 9's own floor: the exact pendulum with its Jacobians frozen at rest, kappa from the same first force
+    kappa_exact = math.sin(setups[0][3]) / (r0 * F0[0])
+
+    def disp_at(th: float, r: float) -> np.ndarray:
+        return r * L_px * np.array([math.sin(th), math.cos(th) - 1.0])
+
     rows = []
     for k, (r, F, sel, th, d_true, f_lat) in enumerate(setups):
         dp = disp_point(equilibrium(kappa_point, f_lat), sel)
         dc = disp_chart(equilibrium(kappa_chart, f_lat), r)
-        rows.append((k, r, F, math.degrees(th), d_true, dp, *score(d_true, dp), dc, *score(d_true, dc)))
+        floor = score(d_true, disp_at(constant_j_angle(F, r, kappa_exact), r))[1]
+        rows.append((k, r, F, math.degrees(th), d_true, dp, *score(d_true, dp), dc, *score(d_true, dc), floor))
 
     print(
         f"pendulum model: {d} ({W}x{H} px, rod {L_px:.1f} px), brush {args.brush} sigma {args.sigma} px; "
@@ -153,25 +177,29 @@ def main() -> None:
         f"chart read-out theta(q): cubic on {int((clip.split == TRAIN).sum())} training frames, rms {fit_rms_deg:.3f} deg"
     )
     print(
-        "| # | radius | force (Fx, Fy) | true angle (deg) | true disp (px) | application point disp (px) | dir err (deg) | mag err (%) "
+        "| # | radius | force (Fx, Fy) | true angle (deg) | true disp (px) | Eq. 9 floor: mag err (%) "
+        "| application point disp (px) | dir err (deg) | mag err (%) "
         "| chart read-out disp (px) | dir err (deg) | mag err (%) |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
-    for k, r, F, th, dt_, dp, ang_p, mag_p, dc, ang_c, mag_c in rows:
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for k, r, F, th, dt_, dp, ang_p, mag_p, dc, ang_c, mag_c, floor in rows:
         tag = " (calibration)" if k == 0 else ""
         print(
-            f"| {k}{tag} | {r:.2f} | ({F[0]:+.3f}, {F[1]:+.3f}) | {th:+.2f} | ({dt_[0]:+.2f}, {dt_[1]:+.2f}) | "
+            f"| {k}{tag} | {r:.2f} | ({F[0]:+.3f}, {F[1]:+.3f}) | {th:+.2f} | ({dt_[0]:+.2f}, {dt_[1]:+.2f}) | {floor:+.1f} | "
             f"({dp[0]:+.2f}, {dp[1]:+.2f}) | {ang_p:+.2f} | {mag_p:+.1f} | ({dc[0]:+.2f}, {dc[1]:+.2f}) | {ang_c:+.2f} | {mag_c:+.1f} |"
         )
     test = rows[1:]
+    # forces Eq. 9 itself carries: its floor leaves at least half the magnitude tolerance to the model
+    carried = [r for r in test if abs(r[11]) < 0.5 * args.max_pct]
     print()
     for name, ia, im in (("application point", 6, 7), ("chart read-out", 9, 10)):
-        ok = [r for r in test if abs(r[ia]) <= args.max_deg and abs(r[im]) <= args.max_pct]
-        print(
-            f"{name}: over {len(test)} forces after calibration, max |direction error| {max(abs(r[ia]) for r in test):.2f} deg, "
-            f"max |magnitude error| {max(abs(r[im]) for r in test):.1f} %, median |magnitude error| {np.median([abs(r[im]) for r in test]):.1f} %; "
-            f"{len(ok)} of {len(test)} within {args.max_deg:g} deg and {args.max_pct:g} %"
-        )
+        for label, sub in (("", test), (f" [the {len(carried)} Eq. 9 carries: floor below {0.5 * args.max_pct:g} %]", carried)):
+            ok = [r for r in sub if abs(r[ia]) <= args.max_deg and abs(r[im]) <= args.max_pct]
+            print(
+                f"{name}{label}: over {len(sub)} forces after calibration, max |direction error| {max(abs(r[ia]) for r in sub):.2f} deg, "
+                f"max |magnitude error| {max(abs(r[im]) for r in sub):.1f} %, median |magnitude error| {np.median([abs(r[im]) for r in sub]):.1f} %; "
+                f"{len(ok)} of {len(sub)} within {args.max_deg:g} deg and {args.max_pct:g} %"
+            )
 
 
 if __name__ == "__main__":
