@@ -66,6 +66,11 @@ def true_angle(F: np.ndarray, r: float) -> float:
     return brentq(g, -math.pi / 2 + 1e-9, math.pi / 2 - 1e-9)
 
 
+def arc_displacement(theta: float, r: float, L_px: float) -> np.ndarray:
+    """Displacement (px, image axes) of the rod point at radius ``r`` (units of the rod ``L_px``) swung from rest to ``theta`` (rad)."""
+    return r * L_px * np.array([math.sin(theta), math.cos(theta) - 1.0])
+
+
 def constant_j_angle(F: np.ndarray, r: float, kappa: float) -> float:
     """Static angle (rad) of the exact *constant-Jacobian* pendulum: Eq. 9's own error, free of any learning.
 
@@ -155,8 +160,7 @@ def force_truth(d: Path, args: argparse.Namespace) -> tuple[int, int, int, int, 
         return (tr.application_point(q_eq, sel) - tr.application_point(q0, sel))[0].detach().numpy().astype(float)
 
     def disp_chart(q_eq: torch.Tensor, r: float) -> np.ndarray:
-        th = float(theta_of_q(float(q_eq[0, 0]))) - th0
-        return r * L_px * np.array([math.sin(th), math.cos(th) - 1.0])
+        return arc_displacement(float(theta_of_q(float(q_eq[0, 0]))) - th0, r, L_px)
 
     setups = []
     for r, F in cases:
@@ -164,29 +168,26 @@ def force_truth(d: Path, args: argparse.Namespace) -> tuple[int, int, int, int, 
         x = torch.as_tensor((pivot + [0.0, r * L_px])[None], dtype=torch.float32)
         sel = tr.select(q0, x, args.sigma)
         th = true_angle(F, r)
-        d_true = r * L_px * np.array([math.sin(th), math.cos(th) - 1.0])
+        d_true = arc_displacement(th, r, L_px)
         setups.append((r, F, sel, th, d_true, tr.pullback(sel, torch.as_tensor(F[None], dtype=torch.float32))))
 
     def equilibrium(kappa: float, f_lat: torch.Tensor) -> torch.Tensor:
         return model.loaded_equilibrium(kappa * f_lat, q0=q0)
 
     # kappa of each read-out from the first force
-    r0, F0, sel0, _, d0, _ = setups[0]
+    r0, F0, sel0, th_cal, d0, _ = setups[0]
     calib = (model, tr, sel0, torch.as_tensor(F0[None], dtype=torch.float32), float(np.linalg.norm(d0)))
     kappa_point = calibrate_kappa(*calib, q_rest=q0)
     kappa_chart = calibrate_kappa(*calib, q_rest=q0, readout=lambda q_eq: float(np.linalg.norm(disp_chart(q_eq, r0))))
 
     # Eq. 9's own floor: the exact pendulum with its Jacobians frozen at rest, kappa from the same first force
-    kappa_exact = math.sin(setups[0][3]) / (r0 * F0[0])
-
-    def disp_at(th: float, r: float) -> np.ndarray:
-        return r * L_px * np.array([math.sin(th), math.cos(th) - 1.0])
+    kappa_exact = math.sin(th_cal) / (r0 * F0[0])
 
     rows = []
     for k, (r, F, sel, th, d_true, f_lat) in enumerate(setups):
         dp = disp_point(equilibrium(kappa_point, f_lat), sel)
         dc = disp_chart(equilibrium(kappa_chart, f_lat), r)
-        floor = score(d_true, disp_at(constant_j_angle(F, r, kappa_exact), r))[1]
+        floor = score(d_true, arc_displacement(constant_j_angle(F, r, kappa_exact), r, L_px))[1]
         rows.append((k, r, F, math.degrees(th), d_true, dp, *score(d_true, dp), dc, *score(d_true, dc), floor))
 
     print(
@@ -209,19 +210,19 @@ def force_truth(d: Path, args: argparse.Namespace) -> tuple[int, int, int, int, 
     test = rows[1:]
     # forces Eq. 9 itself carries: its floor leaves at least half the magnitude tolerance to the model
     carried = [r for r in test if abs(r[11]) < 0.5 * args.max_pct]
+
+    def n_ok(sub: list, ia: int = 9, im: int = 10) -> int:
+        """Forces of ``sub`` within both tolerances (columns ``ia`` direction, ``im`` magnitude; default: chart read-out)."""
+        return sum(abs(r[ia]) <= args.max_deg and abs(r[im]) <= args.max_pct for r in sub)
+
     print()
     for name, ia, im in (("application point", 6, 7), ("chart read-out", 9, 10)):
         for label, sub in (("", test), (f" [the {len(carried)} Eq. 9 carries: floor below {0.5 * args.max_pct:g} %]", carried)):
-            ok = [r for r in sub if abs(r[ia]) <= args.max_deg and abs(r[im]) <= args.max_pct]
             print(
                 f"{name}{label}: over {len(sub)} forces after calibration, max |direction error| {max(abs(r[ia]) for r in sub):.2f} deg, "
                 f"max |magnitude error| {max(abs(r[im]) for r in sub):.1f} %, median |magnitude error| {np.median([abs(r[im]) for r in sub]):.1f} %; "
-                f"{len(ok)} of {len(sub)} within {args.max_deg:g} deg and {args.max_pct:g} %"
+                f"{n_ok(sub, ia, im)} of {len(sub)} within {args.max_deg:g} deg and {args.max_pct:g} %"
             )
-
-    def n_ok(sub: list) -> int:
-        return sum(abs(r[9]) <= args.max_deg and abs(r[10]) <= args.max_pct for r in sub)
-
     return n_ok(test), len(test), n_ok(carried), len(carried), max(abs(r[10]) for r in test)
 
 

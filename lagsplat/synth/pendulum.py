@@ -204,6 +204,14 @@ def _foreground(
     return cv.reduce(W, H)
 
 
+def _count(value: Any, name: str) -> int:
+    """``value`` as a non-negative integer; ValueError naming ``name`` otherwise."""
+    n = int(value)
+    if n < 0 or n != value:
+        raise ValueError(f"{name} must be a non-negative integer, got {value!r}")
+    return n
+
+
 def render_pendulum(
     theta: Sequence[float] | np.ndarray,
     size: tuple[int, int] = (64, 64),
@@ -244,17 +252,13 @@ def render_pendulum(
         raise ValueError("theta contains NaN or inf")
     W, H = parse_size(size, 8)
     s = check_supersample(supersample)
-    rw, nb = float(rod_width), int(rod_bands)
+    rw = float(rod_width)
     if not (math.isfinite(rw) and 0.0 < rw <= 2 * BOB_RADIUS):
         raise ValueError(f"rod_width must be in (0, {2 * BOB_RADIUS}] (units of the frame height), got {rod_width!r}")
-    if nb < 0 or nb != rod_bands:
-        raise ValueError(f"rod_bands must be a non-negative integer, got {rod_bands!r}")
+    nb, ns = _count(rod_bands, "rod_bands"), _count(rod_stripes, "rod_stripes")
     ra = float(rod_above)
     if not (math.isfinite(ra) and 0.0 <= ra < PIVOT_Y):
         raise ValueError(f"rod_above must be in [0, {PIVOT_Y}) (units of the frame height), got {rod_above!r}")
-    ns = int(rod_stripes)
-    if ns < 0 or ns != rod_stripes:
-        raise ValueError(f"rod_stripes must be a non-negative integer, got {rod_stripes!r}")
     return render_frames(th, lambda angle: _foreground(float(angle), W, H, s, rw, nb, ra, ns), background(W, H, seed))
 
 
