@@ -166,9 +166,10 @@ def run_clip(entry: dict, budget: str, root: Path, seed: int, force: bool, dof_r
 def refit_missing_dof(d: Path, s1: Stage1Config, s2: Stage2Config, b: dict, seed: int) -> None:
     """The remedy of a missing degree of freedom: Stage 1, chart and Stage 2 again with ``d = 2``; its held-out gap.
 
-    The two charts differ, so only the image error over the AE floor compares
-    like with like; ``eps_q``, ``eps_freq`` and the envelope are each read in the
-    model's own chart (normalised, hence comparable in scale).
+    The two charts differ, so only the image error compares like with like,
+    and only over one floor (:func:`over_common_floor`); ``eps_q``,
+    ``eps_freq`` and the envelope are each read in the model's own chart
+    (normalised, hence comparable in scale).
     """
     from lagsplat.diagnose.refit import gap_reduction, held_out_gap
 
@@ -181,8 +182,27 @@ def refit_missing_dof(d: Path, s1: Stage1Config, s2: Stage2Config, b: dict, seed
     model, h2 = train_stage2(chart, s2, seed=seed, progress=False)
     save_stage2(d2 / "stage2.pt", model, s2, h2)
     after = held_out_gap(chart, model, clip, ae, EvalConfig(), str(d2))
-    before = json.loads((d / "diagnosis" / "report.json").read_text())["gap"]["before"]
+    before, after = over_common_floor(json.loads((d / "diagnosis" / "report.json").read_text())["gap"]["before"], after)
     write_json(d2 / "gap.json", {"before": before, "after": after, "reduction": gap_reduction(before, after), "d": 2})
+
+
+def over_common_floor(before: dict, after: dict) -> tuple[dict, dict]:
+    """Image error over the lower of two AE floors, for gaps of models with different autoencoders.
+
+    ``image_excess = (eps_I - eps_AE) / eps_AE`` (paper §4.1) subtracts what the
+    autoencoder cannot draw. A ``d = 1`` autoencoder of a clip with two moving
+    bodies cannot draw the second one's motion, so its floor holds part of the
+    gap that the ``d = 2`` remedy is meant to close, and each model over its own
+    floor would compare two different things (the remedy's lower floor alone
+    raises its ratio). Both are taken over ``min(eps_AE)`` instead: the floor
+    the images allow. The per-model floors stay in ``eps_AE``; the one used is
+    ``eps_AE_common``. Returns new dicts; ``image_excess`` is ``None`` in both
+    when either lacks an image error (latent-only gap).
+    """
+    if before.get("eps_I") is None or after.get("eps_I") is None:
+        return dict(before, image_excess=None), dict(after, image_excess=None)
+    floor = min(float(before["eps_AE"]), float(after["eps_AE"]))
+    return tuple(dict(g, eps_AE_common=floor, image_excess=(float(g["eps_I"]) - floor) / max(floor, 1e-300)) for g in (before, after))
 
 
 def score(entry: dict, budget: str, root: Path, timing: dict) -> dict:
