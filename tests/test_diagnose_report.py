@@ -295,6 +295,30 @@ def test_envelope_decay_reads_the_decay_of_a_linear_oscillator() -> None:
     assert envelope_decay(chart, weak)["error"] > 0.3
 
 
+def test_envelope_decay_of_dry_friction_started_mid_swing() -> None:
+    # A linear envelope loses a fixed amplitude per cycle, so its fractional decay depends on the
+    # starting energy: the held-out segment starts at a zero crossing (top speed), where the
+    # smoothed trajectory's replicated first frame would halve the velocity read off it.
+    from scipy.integrate import solve_ivp
+
+    from lagsplat.diagnose import AugmentedLagrangian, LinearOscillator
+
+    w, mu, v_s = 2 * math.pi * 0.8, 0.2, 0.02
+    t = np.arange(700) * DT
+    sol = solve_ivp(lambda _, y: [y[1], -w * w * y[0] - mu * math.tanh(y[1] / v_s)], (0, t[-1]), [1.0, 0.0], t_eval=t, rtol=1e-10, atol=1e-12)
+    q = sol.y[0][:, None]
+    start = int(round((10.0 + 0.25 / 0.8) / DT))  # a quarter period after a turning point of the undamped clock
+    start += int(np.argmin(np.abs(q[start - 5 : start + 6, 0]))) - 5  # the nearest zero crossing
+    split = (np.arange(700) >= start).astype(np.int8)
+    I = np.eye(1)
+    chart = Chart(mean=np.zeros(1), W=I, W_inv=I, q=q, t=t, split=split, G_bar=I, A=I, ae_mse=np.zeros(700), ae_floor_train=0.0,
+                  ae_floor_held_out=0.0, height=8, width=8)  # fmt: skip
+    exact = AugmentedLagrangian(LinearOscillator(np.array([[w * w]]), np.zeros((1, 1)), np.zeros(1)), [CoulombFriction(np.ones(1), mu, v_s)])
+    env = envelope_decay(chart, exact)
+    assert env["form"] == "linear" and env["reliable"]
+    assert env["error"] < 0.05, env
+
+
 # ------------------------------------------------------------------ report and CLI
 def test_report_writer_on_the_pushed_pendulum(tmp_path) -> None:
     ae, chart, model, clip = _pushed_pendulum()
