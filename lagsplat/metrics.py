@@ -40,6 +40,7 @@ __all__ = [
     "forward_difference_velocity",
     "central_difference_velocity",
     "gaussian_smooth",
+    "smoothing_edge",
 ]
 
 
@@ -536,3 +537,14 @@ def gaussian_smooth(q: Any, sigma_frames: float) -> np.ndarray:
     if s == 0.0:
         return a.copy()
     return gaussian_filter1d(a, s, axis=0, mode="nearest")
+
+
+def smoothing_edge(sigma_frames: float) -> int:
+    """Frames at each end of a :func:`gaussian_smooth`'ed segment that its edge replication reaches.
+
+    ``ceil(4 sigma)`` (scipy's kernel is truncated at 4 sigma). Within them the
+    smoothed trajectory is pulled towards a constant, so a velocity read there
+    is biased low: at a mid-swing first frame, about half the true speed with
+    ``sigma = 1``. Rollouts that must start from the true state start past them.
+    """
+    return int(math.ceil(4.0 * max(float(sigma_frames), 0.0)))

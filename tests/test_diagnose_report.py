@@ -39,7 +39,7 @@ from lagsplat.diagnose.refit import (
 )
 from lagsplat.diagnose.report import DiagnoseConfig, diagnose_artifacts, held_out_check, render_markdown
 from lagsplat.diagnose.terms import CoulombFriction
-from lagsplat.diagnose.where import REGIONS, WhereConfig, localise, split_code
+from lagsplat.diagnose.where import REGIONS, WhereConfig, localise, split_code, time_localisation
 from lagsplat.dynamics.integrators import rollout
 from lagsplat.io.clip import HELD_OUT, TRAIN, Clip
 from lagsplat.synth.effects import simulate_effect
@@ -126,6 +126,22 @@ def test_where_localises_an_unknown_push_in_time_state_and_image() -> None:
     assert not im.moving[0]  # the rod's end at the pivot does not move
     assert im.share.sum() + im.background_share == pytest.approx(1.0, abs=1e-6)
     json.dumps(where.summary())
+
+
+def test_where_flags_nothing_for_an_exact_model_started_mid_swing() -> None:
+    # the training segment starts at a zero crossing (top speed): a rollout started from the smoothed
+    # first frame would begin with about half the speed and be flagged though the model is exact
+    from lagsplat.diagnose import LinearOscillator
+
+    w, zeta = 2 * math.pi * 0.8, 0.01
+    t = np.arange(450) * DT
+    q = (np.exp(-zeta * w * t) * np.sin(w * t))[:, None] + 1e-4 * np.random.default_rng(0).standard_normal((450, 1))
+    I = np.eye(1)
+    chart = Chart(mean=np.zeros(1), W=I, W_inv=I, q=q, t=t, split=(t >= 10.0).astype(np.int8), G_bar=I, A=I,
+                  ae_mse=np.full(450, 1e-3), ae_floor_train=1e-3, ae_floor_held_out=1e-3, height=8, width=8)  # fmt: skip
+    exact = LinearOscillator(np.array([[w * w]]), np.array([[2 * zeta * w]]), np.zeros(1))
+    tl = time_localisation(exact, chart)
+    assert not tl.flag_roll.any() and not tl.windows
 
 
 def test_where_rejects_unknown_split_and_short_charts() -> None:

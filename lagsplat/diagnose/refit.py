@@ -45,9 +45,10 @@ diagnosis (training frames) nor the refit (training frames, selection on
 training rollouts) saw, with the code of :func:`lagsplat.evaluate.evaluate`
 (``eps_q``, ``eps_freq``, ``eps_I``, ``eps_AE``), plus the envelope decay of
 :func:`envelope_decay`: a free rollout from the start of the longest held-out
-segment over its whole length (from its ``ceil(4 sigma)``-th frame: the smoothing's
-edge replication halves the velocity read at a mid-swing first frame, and a
-friction model started with too little energy stops early); the amplitude of each half cycle (half the
+segment over its whole length, started past the smoothing's edge
+(:func:`lagsplat.metrics.smoothing_edge`: read at a mid-swing first frame the
+velocity is about halved, and a friction model started with too little energy
+stops early); the amplitude of each half cycle (half the
 difference of consecutive extrema of the most visible coordinate, offset-free)
 is fitted by a linear and an exponential envelope, the form that fits the
 encoded trajectory best is used for both, and the decay is the fraction of
@@ -629,10 +630,7 @@ def envelope_decay(chart: Any, model: nn.Module, sigma: float = 1.0) -> dict[str
         return out
     ho = max(held, key=len)
     dt = float(np.median(np.diff(chart.t)))
-    # The smoothing replicates the segment's first frame backwards, which flattens the
-    # trajectory there and halves the velocity read at a mid-swing start: skip the
-    # frames its kernel (scipy's 4 sigma) reaches past the edge.
-    skip = int(math.ceil(4.0 * sigma))
+    skip = metrics.smoothing_edge(sigma)  # its edge replication would halve a mid-swing velocity
     q_s = metrics.gaussian_smooth(chart.q[ho], sigma)[skip:]
     ho = ho[skip:]
     n = len(q_s)
