@@ -8,7 +8,8 @@ the error in excess of that floor is the simulation's):
 * **time** (:func:`time_localisation`): free multi-step rollouts (velocity
   Verlet from the encoded state, :func:`lagsplat.dynamics.integrators.rollout`,
   initial state as in :mod:`lagsplat.evaluate`) started every
-  ``start_every_periods`` natural periods and run ``horizon_periods``; their
+  ``start_every_periods`` natural periods from past the smoothing's edge
+  (:func:`lagsplat.metrics.smoothing_edge`) and run ``horizon_periods``; their
   deviation ``dq = q_sim - q_enc`` is read in the visibility metric,
   ``e_roll = dq^T G_bar dq``, which is the image MSE the deviation causes to
   first order (``G_bar = E[J^T J]`` per pixel and channel, paper Eq. 6), and
