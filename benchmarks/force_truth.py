@@ -46,6 +46,7 @@ from __future__ import annotations
 import argparse
 import math
 from pathlib import Path
+from typing import NamedTuple
 
 import lagsplat  # noqa: F401  (sets the OpenMP wait policy before torch)
 import numpy as np
@@ -64,6 +65,23 @@ def true_angle(F: np.ndarray, r: float) -> float:
     """Static angle (rad) under force ``F`` (force units, ``I w0^2 = 1``) at radius ``r`` (units of the rod)."""
     g = lambda th: math.sin(th) - r * (F[0] * math.cos(th) - F[1] * math.sin(th))  # noqa: E731
     return brentq(g, -math.pi / 2 + 1e-9, math.pi / 2 - 1e-9)
+
+
+class Row(NamedTuple):
+    """One force of the table: its setup, truth, and each read-out's displacement (px) and errors (deg, %)."""
+
+    k: int
+    r: float
+    F: np.ndarray
+    th_deg: float
+    d_true: np.ndarray
+    dp: np.ndarray
+    dir_p: float
+    mag_p: float
+    dc: np.ndarray
+    dir_c: float
+    mag_c: float
+    floor: float
 
 
 def arc_displacement(theta: float, r: float, L_px: float) -> np.ndarray:
@@ -188,7 +206,7 @@ def force_truth(d: Path, args: argparse.Namespace) -> tuple[int, int, int, int, 
         dp = disp_point(equilibrium(kappa_point, f_lat), sel)
         dc = disp_chart(equilibrium(kappa_chart, f_lat), r)
         floor = score(d_true, arc_displacement(constant_j_angle(F, r, kappa_exact), r, L_px))[1]
-        rows.append((k, r, F, math.degrees(th), d_true, dp, *score(d_true, dp), dc, *score(d_true, dc), floor))
+        rows.append(Row(k, r, F, math.degrees(th), d_true, dp, *score(d_true, dp), dc, *score(d_true, dc), floor))
 
     print(
         f"pendulum model: {d} ({W}x{H} px, rod {L_px:.1f} px), brush {args.brush} sigma {args.sigma} px; "
@@ -209,21 +227,21 @@ def force_truth(d: Path, args: argparse.Namespace) -> tuple[int, int, int, int, 
         )
     test = rows[1:]
     # forces Eq. 9 itself carries: its floor leaves at least half the magnitude tolerance to the model
-    carried = [r for r in test if abs(r[11]) < 0.5 * args.max_pct]
+    carried = [r for r in test if abs(r.floor) < 0.5 * args.max_pct]
 
-    def n_ok(sub: list, ia: int = 9, im: int = 10) -> int:
-        """Forces of ``sub`` within both tolerances (columns ``ia`` direction, ``im`` magnitude; default: chart read-out)."""
-        return sum(abs(r[ia]) <= args.max_deg and abs(r[im]) <= args.max_pct for r in sub)
+    def n_ok(sub: list[Row], ia: str = "dir_c", im: str = "mag_c") -> int:
+        """Forces of ``sub`` within both tolerances (fields ``ia`` direction, ``im`` magnitude; default: chart read-out)."""
+        return sum(abs(getattr(r, ia)) <= args.max_deg and abs(getattr(r, im)) <= args.max_pct for r in sub)
 
     print()
-    for name, ia, im in (("application point", 6, 7), ("chart read-out", 9, 10)):
+    for name, ia, im in (("application point", "dir_p", "mag_p"), ("chart read-out", "dir_c", "mag_c")):
         for label, sub in (("", test), (f" [the {len(carried)} Eq. 9 carries: floor below {0.5 * args.max_pct:g} %]", carried)):
             print(
-                f"{name}{label}: over {len(sub)} forces after calibration, max |direction error| {max(abs(r[ia]) for r in sub):.2f} deg, "
-                f"max |magnitude error| {max(abs(r[im]) for r in sub):.1f} %, median |magnitude error| {np.median([abs(r[im]) for r in sub]):.1f} %; "
+                f"{name}{label}: over {len(sub)} forces after calibration, max |direction error| {max(abs(getattr(r, ia)) for r in sub):.2f} deg, "
+                f"max |magnitude error| {max(abs(getattr(r, im)) for r in sub):.1f} %, median |magnitude error| {np.median([abs(getattr(r, im)) for r in sub]):.1f} %; "
                 f"{n_ok(sub, ia, im)} of {len(sub)} within {args.max_deg:g} deg and {args.max_pct:g} %"
             )
-    return n_ok(test), len(test), n_ok(carried), len(carried), max(abs(r[10]) for r in test)
+    return n_ok(test), len(test), n_ok(carried), len(carried), max(abs(r.mag_c) for r in test)
 
 
 if __name__ == "__main__":
