@@ -166,6 +166,14 @@ def test_fitted_coefficients_match_the_truth() -> None:
     p = _run("cart", "end_stop", 0).truth["effect_params"]
     it = diag.effects[0].interpretation
     assert it["side"] == -p["side"] and it["stiffness_ratio"] > 5  # a stiff stop, on the mirrored side (the chart map flips the sign)
+    # placed where the truth is, in chart units (_chart's map), and with the samples past it counted on the
+    # de-blurred state: the smoothed one pulls the turning points in (the stop sat 0.08 too shallow, "0 % in contact")
+    run = _run("cart", "end_stop", 0)
+    tr = run.split == TRAIN
+    z = -1.7 * run.latent[tr] + 0.3
+    assert it["s_stop"] == pytest.approx((-1.7 * p["x_stop"] + 0.3 - z.mean()) / z.std(), abs=0.03)
+    in_contact = float(np.mean(p["side"] * (run.latent[tr] - p["x_stop"]) > 0))
+    assert 0.5 * in_contact < it["fraction_in_contact"] < 1.5 * in_contact
 
     for seed, kind in ((0, "hardening"), (1, "softening")):
         diag, _ = _diagnosed("cart", "cubic_stiffness", seed)

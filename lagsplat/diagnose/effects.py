@@ -284,7 +284,7 @@ class _Drag(Effect):
 
 class _EndStop(Effect):
     def grid(self, res, e, r0):
-        s = res.q @ e
+        s = res.q_state @ e
         out = []
         for side, qs in ((1.0, (0.5, 0.6, 0.7, 0.8, 0.85, 0.9, 0.93, 0.96, 0.98)), (-1.0, (0.5, 0.4, 0.3, 0.2, 0.15, 0.1, 0.07, 0.04, 0.02))):
             for a in np.quantile(s, qs):
@@ -292,9 +292,9 @@ class _EndStop(Effect):
         return out
 
     def refine(self, res, e, best):
-        s = res.q @ e
-        step = 0.03 * float(np.ptp(s))
-        return [{"side": best["side"], "s_stop": float(best["s_stop"] + k * step)} for k in (-1.0, -0.66, -0.33, 0.33, 0.66, 1.0)]
+        s = res.q_state @ e
+        step = 0.01 * float(np.ptp(s))
+        return [{"side": best["side"], "s_stop": float(best["s_stop"] + k * step)} for k in (-4, -3, -2, -1, 1, 2, 3, 4)]
 
     def feature(self, res, e, params):
         side, a = params["side"], params["s_stop"]
@@ -309,7 +309,7 @@ class _EndStop(Effect):
 
     def interpret(self, coef, se, params, res, e, scale):
         k = float(coef[0])
-        s = res.q @ e
+        s = res.q_state @ e
         frac = float(np.mean(params["side"] * (s - params["s_stop"]) > 0))
         return {
             "k_stop": k, "k_stop_se": float(se[0]), "s_stop": params["s_stop"], "side": params["side"],

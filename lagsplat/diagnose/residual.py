@@ -205,6 +205,16 @@ class Residual:
         return len(self.states)
 
     @property
+    def q_state(self) -> np.ndarray:
+        """float64 ``[n,d]`` the de-blurred position at the residual samples: where the features are evaluated.
+
+        :attr:`q` is smoothed and so pulls the turning points in (by about
+        ``sigma^2 dt^2 |qddot| / 2``); a position-dependent effect (an end stop)
+        is placed and read on this state, like its feature.
+        """
+        return np.concatenate([st.q[st.keep] for st in self.states], 0)
+
+    @property
     def n_eff(self) -> float:
         """Effective number of independent samples ``n / spacing``."""
         return self.n / self.spacing
