@@ -166,14 +166,16 @@ def test_fitted_coefficients_match_the_truth() -> None:
     p = _run("cart", "end_stop", 0).truth["effect_params"]
     it = diag.effects[0].interpretation
     assert it["side"] == -p["side"] and it["stiffness_ratio"] > 5  # a stiff stop, on the mirrored side (the chart map flips the sign)
-    # placed where the truth is, in chart units (_chart's map), and with the samples past it counted on the
-    # de-blurred state: the smoothed one pulls the turning points in (the stop sat 0.08 too shallow, "0 % in contact")
+    # placed where the truth is, in chart units (_chart's map), as stiff, and with the samples past it counted,
+    # all on the chart's own positions: the smoothed ones pull the turning points in (the stop sat 0.08 too
+    # shallow, "0 % in contact", and the de-blurred ones still miss most of the bounce (stiffness 2.3x)
     run = _run("cart", "end_stop", 0)
     tr = run.split == TRAIN
     z = -1.7 * run.latent[tr] + 0.3
-    assert it["s_stop"] == pytest.approx((-1.7 * p["x_stop"] + 0.3 - z.mean()) / z.std(), abs=0.03)
+    assert it["s_stop"] == pytest.approx((-1.7 * p["x_stop"] + 0.3 - z.mean()) / z.std(), abs=0.05)
     in_contact = float(np.mean(p["side"] * (run.latent[tr] - p["x_stop"]) > 0))
-    assert 0.5 * in_contact < it["fraction_in_contact"] < 1.5 * in_contact
+    assert 0.7 * in_contact < it["fraction_in_contact"] < 1.3 * in_contact
+    assert it["stiffness_ratio"] == pytest.approx(p["k_ratio"], rel=0.25)
 
     for seed, kind in ((0, "hardening"), (1, "softening")):
         diag, _ = _diagnosed("cart", "cubic_stiffness", seed)

@@ -119,6 +119,9 @@ class SegmentState:
         u_at: ``(t [k]) -> [k,n_u]``: the actuation of the whole segment at any
             time, linearly interpolated (end values outside), for delayed inputs.
         keep: ``slice`` of the padded samples that appear in the residual.
+        q_raw: float64 ``[m,d]`` the chart's position itself, unsmoothed (padded by odd
+            reflection): what a sharp position-dependent feature reads (an end stop,
+            whose bounce the de-blurring cannot restore).
     """
 
     index: int
@@ -129,6 +132,7 @@ class SegmentState:
     u: np.ndarray
     u_at: Callable[[np.ndarray], np.ndarray]
     keep: slice
+    q_raw: np.ndarray
 
 
 @dataclass
@@ -205,14 +209,14 @@ class Residual:
         return len(self.states)
 
     @property
-    def q_state(self) -> np.ndarray:
-        """float64 ``[n,d]`` the de-blurred position at the residual samples: where the features are evaluated.
+    def q_raw(self) -> np.ndarray:
+        """float64 ``[n,d]`` the chart's unsmoothed position at the residual samples.
 
-        :attr:`q` is smoothed and so pulls the turning points in (by about
-        ``sigma^2 dt^2 |qddot| / 2``); a position-dependent effect (an end stop)
-        is placed and read on this state, like its feature.
+        :attr:`q` is smoothed and pulls the turning points in (by about
+        ``sigma^2 dt^2 |qddot| / 2``, more at a sharp bounce); an end stop is
+        placed, counted and evaluated on this instead (:attr:`SegmentState.q_raw`).
         """
-        return np.concatenate([st.q[st.keep] for st in self.states], 0)
+        return np.concatenate([st.q_raw[st.keep] for st in self.states], 0)
 
     @property
     def n_eff(self) -> float:
@@ -473,7 +477,7 @@ def residual_force(
             tq = np.asarray(tq, np.float64)
             return np.stack([np.interp(tq, _t, _u[:, j]) for j in range(_u.shape[1])], -1) if _u.shape[1] else np.zeros((len(tq), 0))
 
-        states.append(SegmentState(len(states), ep, tp, q_t, qd_t, up, u_at, keep))
+        states.append(SegmentState(len(states), ep, tp, q_t, qd_t, up, u_at, keep, qp))
         cols["t"].append(tp[keep])
         cols["q"].append(q_s[keep])
         cols["qd"].append(qd_s[keep])
