@@ -14,6 +14,14 @@ difference, reference notes §9):
   frames; from each window start the model runs free for the window length.
 * ``eps_q``: latent NRMSE in ``G_bar`` (trace ``d``) over two natural periods of
   the encoded video, from ``n_windows`` seeded starts drawn with replacement.
+
+No rollout starts within :func:`lagsplat.metrics.smoothing_edge` frames of the
+segment's first frame (4 at ``sigma = 1``; fewer only if the segment is too
+short for it): the smoothing replicates that frame backwards, so a velocity
+read there is biased low (about half at a mid-swing start). A linear model's
+frequency does not care, but one whose frequency depends on the amplitude (an
+end stop) then runs at the wrong one. The reference protocol never starts
+there either: it skips the recording's first 8 s (notes §9.1, §9.2).
 * ``eps_I``: image MSE of the decoded rollouts against the real frames on the
   same windows and steps; ``eps_AE`` the autoencoder floor on held-out frames;
   the table reports ``eps_I / eps_AE``.
@@ -107,11 +115,13 @@ def evaluate(clip: Clip, ae: AutoEncoder, chart: Chart, model: Lagrangian, cfg: 
             f"({(H + 3) * dt:.2f} s at {f_enc:.3f} Hz); lower split.train_fraction or use a longer clip"
         )
     q_std = metrics.g_rms_spread(q_s, G)
+    edge = metrics.smoothing_edge(cfg.sigma)  # first rollout start (module docstring)
 
     # ---- frequency
-    w = int(min(n, max(16, round(cfg.freq_window_periods * period))))
+    lo = min(edge, n - 16)
+    w = int(min(n - lo, max(16, round(cfg.freq_window_periods * period))))
     rows = []
-    for a in range(0, n - w + 1, w):
+    for a in range(lo, n - w + 1, w):
         seg = q_s[a : a + w]
         if metrics.g_rms_spread(seg, G) < cfg.min_amplitude * q_std:
             continue
@@ -133,7 +143,7 @@ def evaluate(clip: Clip, ae: AutoEncoder, chart: Chart, model: Lagrangian, cfg: 
     eps_freq = float(np.mean(np.abs(f_sim_w - f_enc_w) / f_enc_w))
 
     # ---- latent NRMSE and image error over two periods
-    starts = metrics.window_starts(0, n - H - 2, cfg.n_windows, cfg.seed)
+    starts = metrics.window_starts(min(edge, n - H - 3), n - H - 2, cfg.n_windows, cfg.seed)
     q0, v0 = initial_state(q_s, starts, dt)
     u_w = np.stack([u_ho[s : s + H] for s in starts])
     pred, _ = rollout(model, q0, v0, dt, H, u=actuation_schedule(u_w, dt))

@@ -38,7 +38,7 @@ from lagsplat.diagnose.refit import (
     save_refit,
 )
 from lagsplat.diagnose.report import DiagnoseConfig, diagnose_artifacts, held_out_check, render_markdown
-from lagsplat.diagnose.terms import CoulombFriction
+from lagsplat.diagnose.terms import CoulombFriction, EndStop
 from lagsplat.diagnose.where import REGIONS, WhereConfig, localise, split_code, time_localisation
 from lagsplat.dynamics.integrators import rollout
 from lagsplat.io.clip import HELD_OUT, TRAIN, Clip
@@ -333,6 +333,29 @@ def test_envelope_decay_of_dry_friction_started_mid_swing() -> None:
     env = envelope_decay(chart, exact)
     assert env["form"] == "linear" and env["reliable"]
     assert env["error"] < 0.05, env
+
+
+def test_held_out_frequency_of_an_end_stop_started_mid_swing() -> None:
+    # An end stop's frequency depends on the amplitude: started from the held-out segment's first
+    # frame, a zero crossing, the smoothed trajectory's halved velocity never reached the stop and
+    # the exact model ran at the free frequency (eps_freq 0.195, f_sim 0.80 Hz against 1.00 Hz).
+    from scipy.integrate import solve_ivp
+
+    from lagsplat.diagnose import LinearOscillator
+
+    w, a = 2 * math.pi * 0.8, -0.6
+    k = 20 * w * w
+    t = np.arange(700) * DT
+    sol = solve_ivp(lambda _, y: [y[1], -w * w * y[0] + k * max(a - y[0], 0.0)], (0, t[-1]), [1.0, 0.0], t_eval=t, rtol=1e-10, atol=1e-12, max_step=DT / 8)
+    q = sol.y[0][:, None]
+    start = 300 + int(np.argmin(np.abs(q[300:330, 0])))  # a zero crossing: top speed
+    I = np.eye(1)
+    chart = Chart(mean=np.zeros(1), W=I, W_inv=I, q=q, t=t, split=(np.arange(700) >= start).astype(np.int8), G_bar=I, A=I,
+                  ae_mse=np.zeros(700), ae_floor_train=0.0, ae_floor_held_out=0.0, height=8, width=8)  # fmt: skip
+    exact = RefitModel(LinearOscillator(np.array([[w * w]]), np.zeros((1, 1)), np.zeros(1)), [EndStop(np.ones(1), k, a, -1.0)])
+    gap = held_out_gap(chart, exact)
+    assert gap["eps_freq"] < 0.02, gap
+    assert gap["f_enc_hz"] > 1.2 * 0.8  # the stop is hit: faster than the free spring
 
 
 # ------------------------------------------------------------------ report and CLI

@@ -28,7 +28,8 @@ def rollout_figure(
     """One free rollout across the train / held-out boundary, latent and images.
 
     The model starts from the encoded state (position and velocity) one
-    natural period before the first held-out frame and is never re-anchored.
+    natural period before the first held-out frame (past the smoothing's edge
+    when that is a recording's first frame) and is never re-anchored.
     Top: each latent coordinate, ordered by decreasing visibility (share of
     ``trace G_bar`` in the label), encoded vs predicted, held-out shaded.
     Bottom: at three held-out times, the real frame, the render at the encoded
@@ -60,8 +61,14 @@ def rollout_figure(
     s0 = max(int(ho[0]) - period, 0)
     if chart.episode[s0] != chart.episode[ho[0]]:  # a held-out recording: start at its first frame
         s0 = int(ho[0])
+    # smooth from `edge` frames earlier where the recording has them, else start `edge` frames in:
+    # the smoothing's replicated edge would bias the initial velocity (lagsplat.metrics.smoothing_edge)
+    edge = metrics.smoothing_edge(sigma)
+    first = int(np.flatnonzero(chart.episode == chart.episode[s0])[0])
+    lead = max(s0 - edge, first)
+    s0 = min(max(s0, lead + edge), int(ho[-1]) - 2)
     idx = np.arange(s0, int(ho[-1]) + 1)
-    q_s = metrics.gaussian_smooth(chart.q[idx], sigma)
+    q_s = metrics.gaussian_smooth(chart.q[lead : int(ho[-1]) + 1], sigma)[s0 - lead :]
     q0, v0 = initial_state(q_s, np.array([0]), dt)
     pred, _ = rollout(model, q0, v0, dt, len(idx), u=actuation_schedule(chart.u[idx][None], dt))
     pred = pred[0].numpy()
