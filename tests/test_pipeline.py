@@ -96,7 +96,9 @@ def test_snakemake_dry_run_of_the_inertia_ablation():
 
 
 def test_snakemake_dry_run_plans_downloads_when_clips_are_absent(tmp_path):
-    r = run(["snakemake", "-n", "results/tables/physical.tex", "--config", f"raw_dir={tmp_path}"])
+    # an empty results folder too: with a trained results/oscillating_cart here, nothing would need the clip
+    out = tmp_path / "results"
+    r = run(["snakemake", "-n", f"{out}/tables/physical.tex", "--config", f"raw_dir={tmp_path}", f"results_dir={out}"])
     assert r.returncode == 0, r.stdout + r.stderr
     assert "rule download:" in r.stdout
     assert f"{tmp_path}/oscillating_cart.webm" in r.stdout and f"{tmp_path}/red_apple_pendulum.mov" in r.stdout
