@@ -14,6 +14,9 @@ difference, reference notes §9):
   frames; from each window start the model runs free for the window length.
 * ``eps_q``: latent NRMSE in ``G_bar`` (trace ``d``) over two natural periods of
   the encoded video, from ``n_windows`` seeded starts drawn with replacement.
+* ``eps_I``: image MSE of the decoded rollouts against the real frames on the
+  same windows and steps; ``eps_AE`` the autoencoder floor on held-out frames;
+  the table reports ``eps_I / eps_AE``.
 
 No rollout starts within :func:`lagsplat.metrics.smoothing_edge` frames of the
 segment's first frame (4 at ``sigma = 1``; fewer only if the segment is too
@@ -22,9 +25,6 @@ read there is biased low (about half at a mid-swing start). A linear model's
 frequency does not care, but one whose frequency depends on the amplitude (an
 end stop) then runs at the wrong one. The reference protocol never starts
 there either: it skips the recording's first 8 s (notes §9.1, §9.2).
-* ``eps_I``: image MSE of the decoded rollouts against the real frames on the
-  same windows and steps; ``eps_AE`` the autoencoder floor on held-out frames;
-  the table reports ``eps_I / eps_AE``.
 """
 
 from __future__ import annotations

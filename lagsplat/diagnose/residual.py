@@ -26,7 +26,9 @@ sharp effect (a Coulomb switch, an impact) is compared with its own smoothed
 image. De-blurring is the first-order inverse of the heat kernel,
 ``q ~ G*q - (sigma dt)^2 / 2 G*q''`` (likewise for ``qdot``), which removes the
 amplitude loss ``exp(-(w sigma dt)^2 / 2)`` to first order before a nonlinear
-feature is evaluated. For the model, what de-blurring and re-smoothing leave
+feature is evaluated (an end stop's bounce is too sharp for a first-order
+inverse: it reads the chart's own positions, :attr:`SegmentState.q_raw`,
+whose noise is small beside the penetration). For the model, what de-blurring and re-smoothing leave
 of the state is removed through the model's local linearisation, which makes
 the comparison exact for a linear model whatever the spectrum of the motion
 and of the input (:func:`_smoothed_model_acceleration`). Kernels are truncated at 6 sigma (at 4 sigma the
