@@ -115,10 +115,9 @@ def evaluate(clip: Clip, ae: AutoEncoder, chart: Chart, model: Lagrangian, cfg: 
             f"({(H + 3) * dt:.2f} s at {f_enc:.3f} Hz); lower split.train_fraction or use a longer clip"
         )
     q_std = metrics.g_rms_spread(q_s, G)
-    edge = metrics.smoothing_edge(cfg.sigma)  # first rollout start (module docstring)
 
     # ---- frequency
-    lo = min(edge, n - 16)
+    lo = metrics.rollout_start(cfg.sigma, n, 16)  # past the smoothing's edge (module docstring)
     w = int(min(n - lo, max(16, round(cfg.freq_window_periods * period))))
     rows = []
     for a in range(lo, n - w + 1, w):
@@ -143,7 +142,7 @@ def evaluate(clip: Clip, ae: AutoEncoder, chart: Chart, model: Lagrangian, cfg: 
     eps_freq = float(np.mean(np.abs(f_sim_w - f_enc_w) / f_enc_w))
 
     # ---- latent NRMSE and image error over two periods
-    starts = metrics.window_starts(min(edge, n - H - 3), n - H - 2, cfg.n_windows, cfg.seed)
+    starts = metrics.window_starts(metrics.rollout_start(cfg.sigma, n, H + 3), n - H - 2, cfg.n_windows, cfg.seed)
     q0, v0 = initial_state(q_s, starts, dt)
     u_w = np.stack([u_ho[s : s + H] for s in starts])
     pred, _ = rollout(model, q0, v0, dt, H, u=actuation_schedule(u_w, dt))

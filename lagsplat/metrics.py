@@ -41,6 +41,7 @@ __all__ = [
     "central_difference_velocity",
     "gaussian_smooth",
     "smoothing_edge",
+    "rollout_start",
 ]
 
 
@@ -548,3 +549,12 @@ def smoothing_edge(sigma_frames: float) -> int:
     ``sigma = 1``. Rollouts that must start from the true state start past them.
     """
     return int(math.ceil(4.0 * max(float(sigma_frames), 0.0)))
+
+
+def rollout_start(sigma_frames: float, n: int, room: int) -> int:
+    """First rollout start in a :func:`gaussian_smooth`'ed segment of ``n`` frames.
+
+    :func:`smoothing_edge` frames in, or earlier when the segment is too short to
+    leave ``room`` frames after it (never below 0).
+    """
+    return min(smoothing_edge(sigma_frames), max(int(n) - int(room), 0))

@@ -82,6 +82,13 @@ def _pushed_pendulum(size: int = 32):
     return ae, chart, model, clip
 
 
+def _line_chart(q: np.ndarray, t: np.ndarray, split: np.ndarray, floor: float = 0.0) -> Chart:
+    """A 1-D chart of ``q [n,1]`` in its own units (identity whitening and metric), AE floor ``floor`` everywhere."""
+    I = np.eye(1)
+    return Chart(mean=np.zeros(1), W=I, W_inv=I, q=q, t=t, split=split.astype(np.int8), G_bar=I, A=I, ae_mse=np.full(len(t), floor),
+                 ae_floor_train=floor, ae_floor_held_out=floor, height=8, width=8)  # fmt: skip
+
+
 def _visibility(ae, chart) -> np.ndarray:
     """``G_bar`` of the synthetic decoder at the chart's states (finite differences; d = 1)."""
     q = torch.as_tensor(chart.q[::10], dtype=torch.float32)
@@ -136,9 +143,7 @@ def test_where_flags_nothing_for_an_exact_model_started_mid_swing() -> None:
     w, zeta = 2 * math.pi * 0.8, 0.01
     t = np.arange(450) * DT
     q = (np.exp(-zeta * w * t) * np.sin(w * t))[:, None] + 1e-4 * np.random.default_rng(0).standard_normal((450, 1))
-    I = np.eye(1)
-    chart = Chart(mean=np.zeros(1), W=I, W_inv=I, q=q, t=t, split=(t >= 10.0).astype(np.int8), G_bar=I, A=I,
-                  ae_mse=np.full(450, 1e-3), ae_floor_train=1e-3, ae_floor_held_out=1e-3, height=8, width=8)  # fmt: skip
+    chart = _line_chart(q, t, t >= 10.0, floor=1e-3)
     exact = LinearOscillator(np.array([[w * w]]), np.array([[2 * zeta * w]]), np.zeros(1))
     tl = time_localisation(exact, chart)
     assert not tl.flag_roll.any() and not tl.windows
@@ -298,10 +303,7 @@ def test_envelope_decay_reads_the_decay_of_a_linear_oscillator() -> None:
     w, zeta = 2 * math.pi * 0.8, 0.03
     t = np.arange(600) * DT
     q = (np.exp(-zeta * w * t) * np.cos(w * t))[:, None]
-    split = (t >= 10.0).astype(np.int8)
-    I = np.eye(1)
-    chart = Chart(mean=np.zeros(1), W=I, W_inv=I, q=q, t=t, split=split, G_bar=I, A=I, ae_mse=np.zeros(600), ae_floor_train=0.0,
-                  ae_floor_held_out=0.0, height=8, width=8)  # fmt: skip
+    chart = _line_chart(q, t, t >= 10.0)
     exact = LinearOscillator(np.array([[w * w]]), np.array([[2 * zeta * w]]), np.zeros(1))
     env = envelope_decay(chart, exact)
     D = 1 - math.exp(-zeta * w * (t[-1] - 10.0))
@@ -325,10 +327,7 @@ def test_envelope_decay_of_dry_friction_started_mid_swing() -> None:
     q = sol.y[0][:, None]
     start = int(round((10.0 + 0.25 / 0.8) / DT))  # a quarter period after a turning point of the undamped clock
     start += int(np.argmin(np.abs(q[start - 5 : start + 6, 0]))) - 5  # the nearest zero crossing
-    split = (np.arange(700) >= start).astype(np.int8)
-    I = np.eye(1)
-    chart = Chart(mean=np.zeros(1), W=I, W_inv=I, q=q, t=t, split=split, G_bar=I, A=I, ae_mse=np.zeros(700), ae_floor_train=0.0,
-                  ae_floor_held_out=0.0, height=8, width=8)  # fmt: skip
+    chart = _line_chart(q, t, np.arange(700) >= start)
     exact = AugmentedLagrangian(LinearOscillator(np.array([[w * w]]), np.zeros((1, 1)), np.zeros(1)), [CoulombFriction(np.ones(1), mu, v_s)])
     env = envelope_decay(chart, exact)
     assert env["form"] == "linear" and env["reliable"]
@@ -349,9 +348,7 @@ def test_held_out_frequency_of_an_end_stop_started_mid_swing() -> None:
     sol = solve_ivp(lambda _, y: [y[1], -w * w * y[0] + k * max(a - y[0], 0.0)], (0, t[-1]), [1.0, 0.0], t_eval=t, rtol=1e-10, atol=1e-12, max_step=DT / 8)
     q = sol.y[0][:, None]
     start = 300 + int(np.argmin(np.abs(q[300:330, 0])))  # a zero crossing: top speed
-    I = np.eye(1)
-    chart = Chart(mean=np.zeros(1), W=I, W_inv=I, q=q, t=t, split=(np.arange(700) >= start).astype(np.int8), G_bar=I, A=I,
-                  ae_mse=np.zeros(700), ae_floor_train=0.0, ae_floor_held_out=0.0, height=8, width=8)  # fmt: skip
+    chart = _line_chart(q, t, np.arange(700) >= start)
     exact = RefitModel(LinearOscillator(np.array([[w * w]]), np.zeros((1, 1)), np.zeros(1)), [EndStop(np.ones(1), k, a, -1.0)])
     gap = held_out_gap(chart, exact)
     assert gap["eps_freq"] < 0.02, gap

@@ -194,7 +194,7 @@ def plot_gap(chart: Any, runs: Mapping[str, tuple[Any, Any]], path: str | Path, 
     q_s = metrics.gaussian_smooth(chart.q[ho], sigma)
     fig, ax = plt.subplots(1, 1, figsize=(10, 3.6))
     ax.plot(chart.t[ho], q_s @ top, color="k", lw=1.6, label="encoded (held out)")
-    a = min(metrics.smoothing_edge(sigma), len(ho) - 3)  # past the smoothing's edge, as the metrics start
+    a = metrics.rollout_start(sigma, len(ho), 3)  # past the smoothing's edge, as the metrics start
     for i, (label, (model, ch)) in enumerate(runs.items()):
         q0, v0 = initial_state(q_s, np.array([a]), dt)
         u = ch.u[ho[a:]]

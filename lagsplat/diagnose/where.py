@@ -279,7 +279,7 @@ def time_localisation(model: Any, chart: Any, res: Any | None = None, cfg: Where
         q_s = metrics.gaussian_smooth(chart.q[seg], cfg.sigma)
         n = len(q_s)
         h = min(H, n - 2)
-        first = min(metrics.smoothing_edge(cfg.sigma), max(n - h - 2, 0))  # past the smoothing's edge (biased velocity)
+        first = metrics.rollout_start(cfg.sigma, n, h + 2)  # past the smoothing's edge (biased velocity)
         starts = np.arange(first, n - h - 2 + 1, step) if n - h - 2 >= 0 else np.zeros(0, int)
         acc = np.zeros(n)
         cnt = np.zeros(n)
