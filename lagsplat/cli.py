@@ -171,7 +171,10 @@ def stage_chart(cfg: DictConfig) -> None:
     from lagsplat.train.stage1 import load_stage1
 
     d = _sysdir(cfg)
-    chart = build_chart(load_stage1(d / "stage1.pt"), load_clip(d / "clip.npz"), int(cfg.chart.n_metric_samples), float(cfg.chart.rho), int(cfg.seed))
+    chart = build_chart(
+        load_stage1(d / "stage1.pt"), load_clip(d / "clip.npz"), int(cfg.chart.n_metric_samples), float(cfg.chart.rho), int(cfg.seed),
+        refine_iters=int(cfg.chart.get("refine_iters", 0)),
+    )
     save_chart(d / "chart.npz", chart)
     _save_cfg(cfg, "chart")
 
