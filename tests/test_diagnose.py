@@ -420,3 +420,23 @@ def test_harmonics_of_the_recorded_motion_are_not_sought_as_modes_or_forces() ->
     assert _allowed(res, 1.15) and _allowed(res, 1.85)  # 1.5x and 2.45x the motion: where the suite's hidden modes lie
     res.meta["model_freqs_hz"], res.f_dominant_hz = [0.8], 0.8  # model and motion at 0.8 Hz: 1.465 Hz is 1.83x, sought again
     assert _allowed(res, 1.465)
+
+
+def test_a_periodic_force_too_small_to_move_the_object_is_not_a_finding() -> None:
+    """The periodic force's size rule: the motion it drives off resonance, over the recorded motion (both rms)."""
+    run = _run("cart", "periodic_force", 0)
+    p = run.truth["effect_params"]
+    r = p["f_hz"] / run.truth["f0_hz"]
+    s = run.latent[run.split == TRAIN]
+    # force per unit mass p["amplitude"] = kappa w0^2 A (lagsplat.synth.effects): driven amplitude kappa A / |1 - r^2|
+    expected = p["kappa"] * run.truth["amplitude"] / abs(1 - r * r) / math.sqrt(2) / s.std()
+    diag, res = _diagnosed("cart", "periodic_force", 0)
+    assert diag.winner == "periodic_force"
+    fit = diag.effects[0]
+    assert fit.practical
+    assert fit.interpretation["driven_over_motion"] == pytest.approx(expected, rel=0.3)
+    # the same residual, with the size rule set above it: still significant, no longer a finding
+    strict = select_effect(res, min_periodic_response=2 * expected, model_freqs_hz=res.meta.get("model_freqs_hz"))
+    assert strict.winner != "periodic_force"
+    rejected = next(f for f in strict.ranking if f.effect == "periodic_force")
+    assert not rejected.practical and "below" in rejected.interpretation["below_practical_size"]

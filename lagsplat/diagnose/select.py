@@ -485,6 +485,7 @@ def select_effect(
     min_cv_gain: float = 0.02,
     min_cubic_shift: float = 0.03,
     min_stop_stiffness_ratio: float = 2.0,
+    min_periodic_response: float = 0.01,
     max_effects: int = 1,
     n_folds: int = 5,
     block_s: float | None = None,
@@ -514,7 +515,10 @@ def select_effect(
       (zero-crossing periods, which no monotone chart changes) must have the
       sign of ``k3`` and at least half the practical size, since a chart that
       stretches large excursions makes an isochronous oscillation look
-      anharmonic in ``q`` but leaves its period alone.
+      anharmonic in ``q`` but leaves its period alone. A periodic force must
+      drive a motion of at least ``min_periodic_response`` (1 %) of the recorded
+      one: coherent over the whole clip, a far smaller one is still
+      significant, but changes nothing the video shows.
 
     Args:
         res: the residual (:func:`~lagsplat.diagnose.residual.residual_force`), normally
@@ -525,6 +529,9 @@ def select_effect(
             :data:`~lagsplat.diagnose.effects.EFFECTS`).
         min_delta_bic, min_r2, min_cv_gain: the statistical significance rule.
         min_cubic_shift, min_stop_stiffness_ratio: physical size of in-class effects.
+        min_periodic_response: physical size of a periodic force: the rms motion it drives
+            off resonance (``amplitude / (k |1 - (f / f_motion)^2|) / sqrt 2``) over the rms of
+            the recorded motion along its direction.
         max_effects: how many effects greedy forward selection may accept.
         n_folds: folds of the blocked cross-validation.
         block_s: cross-validation block length, s (default two dominant periods).
@@ -547,7 +554,8 @@ def select_effect(
         wide.meta["model_freqs_hz"] = [float(f) for f in model_freqs_hz]
     effs = [get_effect(c) for c in candidates] if candidates is not None else list(EFFECTS)
     effs = [e for e in effs if e.applicable(res)]
-    thresholds = {"min_cubic_shift": min_cubic_shift, "min_stop_stiffness_ratio": min_stop_stiffness_ratio}
+    thresholds = {"min_cubic_shift": min_cubic_shift, "min_stop_stiffness_ratio": min_stop_stiffness_ratio,
+                  "min_periodic_response": min_periodic_response}  # fmt: skip
     # the chart-invariant signatures, read before the fits: a cubic stiffness must also show in the timing
     ev = signatures(res, model_freqs_hz=model_freqs_hz)
     res.meta["frequency_signature"] = ev["frequency"]
