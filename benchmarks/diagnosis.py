@@ -19,20 +19,25 @@ of ``results/<system>/``), so an interrupted run resumes where it stopped;
 ``--force`` recomputes everything, ``--rediagnose`` only the diagnosis.
 ``--budget`` trades fidelity for time:
 
-========== ========= ========= ============ ============== ================
-budget     size (px) Gaussians Stage-1 steps Stage-2 epochs refit epochs
-========== ========= ========= ============ ============== ================
-cheap      32 x 32   256       800 (*)      200 (**)       60
-standard   64 x 64   512       1500         100            40
-full       64 x 64   1024      3000         100            40
-========== ========= ========= ============ ============== ================
+========== ========= ========= ============ ============== ============== ================
+budget     size (px) Gaussians Stage-1 steps chart refine   Stage-2 epochs refit epochs
+========== ========= ========= ============ ============== ============== ================
+cheap      32 x 32   256       800 (*)      8 (***)        200 (**)       60
+standard   64 x 64   512       1500         8 (***)        100            40
+full       64 x 64   1024      3000         0              100            40
+========== ========= ========= ============ ============== ============== ================
 
 (``full`` is the settings of ``conf/config.yaml``; (*) with ``sigma_xy = 0.05``: at
 32 px the configured 0.03 leaves 256 Gaussians too small to cover the frame
 and Stage 1 fails within 800 steps; (**) on these 32 px charts Stage 2 is
 still converging at 60 epochs, and what it has not fitted hides the effect:
 on ``pendulum-quadratic_drag-0`` the model's held-out frequency is 1.9 % off
-after 60 epochs (selected epoch 49), 0.30 % after 200 (about 30 s on one core).) Prints one row per clip,
+after 60 epochs (selected epoch 49), 0.30 % after 200 (about 30 s on one core);
+(***) ``chart.refine_iters`` (:func:`lagsplat.chart.refine_latents`, about 15 s
+per clip at 32 px): an encoder trained for 800 steps reads the turning points
+short (up to 0.3 in whitened units on ``cart-coulomb-0``), which Stage 2 fits as
+physics and no candidate term explains; ``--refine-iters 0`` gives the
+encoder's chart.) Prints one row per clip,
 the confusion matrix (rows: truth, columns: verdict), the top-1 accuracy
 (controls count as correct when the verdict is "none"), the number of
 controls flagged, and the median held-out gap reduction (``1 - after /
@@ -43,7 +48,7 @@ under ``<clip>/d2/``) is scored instead (no control then).
 
     python benchmarks/diagnosis.py [--budget cheap] [--only pendulum-coulomb-0,cart-none-0]
                                    [--n-per-effect 2] [--results results/diagnosis_bench] [--json out.json]
-                                   [--list] [--force] [--rediagnose] [--dof-refit]
+                                   [--list] [--force] [--rediagnose] [--dof-refit] [--refine-iters N]
 
 Scores, not tests: nothing is asserted.
 """
@@ -78,10 +83,10 @@ from lagsplat.train.stage2 import Stage2Config, load_stage2, save_stage2, train_
 #: Budget name -> settings (see the module docstring).
 BUDGETS = {
     "cheap": {"size": 32, "stage1": {"n_gaussians": 256, "steps": 800, "sigma_xy": 0.05, "recycle_warmup": 250, "recycle_every": 125}, "n_metric_samples": 16,
-              "stage2": {"epochs": 200}, "refit_epochs": 60, "n_image_frames": 16},
-    "standard": {"size": 64, "stage1": {"n_gaussians": 512, "steps": 1500}, "n_metric_samples": 32, "stage2": {"epochs": 100},
+              "refine_iters": 8, "stage2": {"epochs": 200}, "refit_epochs": 60, "n_image_frames": 16},
+    "standard": {"size": 64, "stage1": {"n_gaussians": 512, "steps": 1500}, "n_metric_samples": 32, "refine_iters": 8, "stage2": {"epochs": 100},
                  "refit_epochs": 40, "n_image_frames": 32},
-    "full": {"size": 64, "stage1": {}, "n_metric_samples": 64, "stage2": {"epochs": 100}, "refit_epochs": 40, "n_image_frames": 48},
+    "full": {"size": 64, "stage1": {}, "n_metric_samples": 64, "refine_iters": 0, "stage2": {"epochs": 100}, "refit_epochs": 40, "n_image_frames": 48},
 }  # fmt: skip
 
 #: Keys of ``clip.meta`` the pipeline may see (everything else, label and truth included, is withheld).
@@ -136,7 +141,7 @@ def run_clip(entry: dict, budget: str, root: Path, seed: int, force: bool, dof_r
         save_stage1(d / "stage1.pt", ae, asdict(s1), hist, 1)
 
     def do_chart() -> None:
-        save_chart(d / "chart.npz", build_chart(load_stage1(d / "stage1.pt"), load_clip(d / "clip.npz"), b["n_metric_samples"], 0.01, seed))
+        save_chart(d / "chart.npz", build_chart(load_stage1(d / "stage1.pt"), load_clip(d / "clip.npz"), b["n_metric_samples"], 0.01, seed, b["refine_iters"]))
 
     def do_stage2() -> None:
         model, hist = train_stage2(load_chart(d / "chart.npz"), s2, seed=seed, progress=False)
@@ -177,7 +182,7 @@ def refit_missing_dof(d: Path, s1: Stage1Config, s2: Stage2Config, b: dict, seed
     clip = load_clip(d / "clip.npz")
     ae, hist = train_stage1(clip, s1, 2, seed=seed, progress=False)
     save_stage1(d2 / "stage1.pt", ae, asdict(s1), hist, 2)
-    chart = build_chart(ae, clip, b["n_metric_samples"], 0.01, seed)
+    chart = build_chart(ae, clip, b["n_metric_samples"], 0.01, seed, b["refine_iters"])
     save_chart(d2 / "chart.npz", chart)
     model, h2 = train_stage2(chart, s2, seed=seed, progress=False)
     save_stage2(d2 / "stage2.pt", model, s2, h2)
@@ -248,8 +253,15 @@ def main() -> None:
     ap.add_argument("--list", action="store_true", help="list the suite and exit")
     ap.add_argument("--dof-refit", action="store_true", help="when the verdict is missing_dof, rerun Stage 1 / chart / Stage 2 with d = 2 and score its gap")
     ap.add_argument("--json", default="", help="write the per-clip rows and the summary here")
+    ap.add_argument("--refine-iters", type=int, default=None,
+                    help="chart refinement iterations (lagsplat.chart.refine_latents; default: the budget's); "
+                         "another value than the budget's caches under <results>/<budget>-refine<N>")  # fmt: skip
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
+    if args.refine_iters is not None and args.refine_iters != BUDGETS[args.budget]["refine_iters"]:
+        key = f"{args.budget}-refine{args.refine_iters}"
+        BUDGETS[key] = {**BUDGETS[args.budget], "refine_iters": args.refine_iters}
+        args.budget = key
 
     suite = blind_suite(args.n_per_effect)
     if args.only:
