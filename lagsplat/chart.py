@@ -309,16 +309,12 @@ def build_chart(
     Returns:
         The :class:`Chart`.
     """
-    z = model.encode_frames(clip.images).numpy().astype(np.float64)
-    shift = 0.0
-    if int(refine_iters) > 0:
-        z_enc = z
-        z, _ = refine_latents(model, clip.images, z_enc, int(refine_iters))
+    z_enc = model.encode_frames(clip.images).numpy().astype(np.float64)
+    z = refine_latents(model, clip.images, z_enc, int(refine_iters))[0] if int(refine_iters) > 0 else z_enc
     tr = clip.train_idx
     mean, W, W_inv = fit_whitening(z[tr])
     q = (z - mean) @ W
-    if int(refine_iters) > 0:
-        shift = float(np.sqrt((((z - z_enc) @ W) ** 2).sum(1).mean()))
+    shift = float(np.sqrt((((z - z_enc) @ W) ** 2).sum(1).mean()))  # whitened units; 0 unrefined
     rng = np.random.default_rng(seed)
     pick = rng.choice(tr, size=min(n_metric_samples, len(tr)), replace=False)
     G_bar, svals = visibility_metric(model, mean, W_inv, q[np.sort(pick)])
