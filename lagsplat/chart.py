@@ -276,7 +276,7 @@ def refine_latents(
             JtJ = J.transpose(1, 2) @ J
             g = (J.transpose(1, 2) @ r.flatten(1)[..., None])[..., 0]
             damp = lam[:, None, None] * torch.diagonal(JtJ, dim1=1, dim2=2).mean(-1)[:, None, None] * eye
-            step = torch.maximum(torch.minimum(-torch.linalg.solve(JtJ + damp + 1e-12 * eye, g), max_step * scale), -max_step * scale)
+            step = torch.clamp(-torch.linalg.solve(JtJ + damp + 1e-12 * eye, g), -max_step * scale, max_step * scale)
             r_new = model.decode(zb + step) - x
             err_new = (r_new**2).mean(dim=(1, 2, 3))
             ok = err_new < err

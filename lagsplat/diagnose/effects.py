@@ -232,7 +232,8 @@ class Effect:
             res: the residual.
             e: ``[d]`` direction.
             scale: ``{"k": linear stiffness along e, "c": linear damping along e,
-                "s_rms", "sdot_rms", "s_bar", "t_bar"}`` of the fitted model and data.
+                "s_rms", "s_raw_rms" (the chart's unsmoothed positions), "sdot_rms", "s_bar",
+                "t_bar"}`` of the fitted model and data.
         """
         return {}
 
@@ -429,8 +430,8 @@ class _Periodic(Effect):
             "amplitude_over_restoring": _ratio(amp, scale["k"] * scale["s_rms"]),
             # linear response of the fitted spring off resonance (the model's own band is excluded):
             # amplitude / (k |1 - r^2|), as an rms, over the rms of the recorded (unsmoothed) motion along e
-            "driven_over_motion": _ratio(amp, scale["k"] * abs(1.0 - r * r) * math.sqrt(2.0) * float(np.std(res.q_raw @ e))),
-            "text": f"an unlogged periodic force at {params['f_hz']:.3g} Hz ({_ratio(params['f_hz'], res.f_dominant_hz):.2f}x the "
+            "driven_over_motion": _ratio(amp, scale["k"] * abs(1.0 - r * r) * math.sqrt(2.0) * scale["s_raw_rms"]),
+            "text": f"an unlogged periodic force at {params['f_hz']:.3g} Hz ({r:.2f}x the "
             f"oscillation), amplitude {amp:.3g} +- {amp_se:.2g}, phase-locked over the clip",
         }  # fmt: skip
 

@@ -419,7 +419,8 @@ def _scales(res: Residual, e: np.ndarray) -> dict[str, float]:
     f = res.f_model @ e
     coef = np.linalg.lstsq(X, f, rcond=None)[0]
     return {
-        "k": float(-coef[0]), "c": float(-coef[1]), "s_rms": float(np.std(s)), "sdot_rms": float(np.sqrt(np.mean(v**2))),
+        "k": float(-coef[0]), "c": float(-coef[1]), "s_rms": float(np.std(s)), "s_raw_rms": float(np.std(res.q_raw @ e)),
+        "sdot_rms": float(np.sqrt(np.mean(v**2))),
         "s_bar": float(s.mean()), "t_bar": float(np.mean(res.t)),
     }  # fmt: skip
 
