@@ -9,7 +9,7 @@ import torch
 from lagsplat.chart import chart_continuity, fit_whitening, loss_metric, visibility_metric
 from lagsplat.models.decoder import ConditionedGaussians
 from lagsplat.models.encoder import CpAEEncoder
-from lagsplat.train.stage1 import AutoEncoder
+from lagsplat.train.stage1 import AutoEncoder, frames_to_tensor
 
 
 def test_whitening_gives_identity_covariance_and_inverts():
@@ -115,7 +115,7 @@ def test_refine_latents_undoes_a_saturating_encoder():
     z_ref, mse = refine_latents(ae, clip.images, z_enc, iters=8)
     assert np.abs(z_ref - z_true).max() < 0.03
     with torch.no_grad():
-        x = torch.as_tensor(clip.images).permute(0, 3, 1, 2).float() / 255
+        x = frames_to_tensor(clip.images)
         mse_enc = ((ae.decode(torch.as_tensor(z_enc, dtype=torch.float32)) - x) ** 2).mean(dim=(1, 2, 3)).numpy()
     assert np.all(mse <= mse_enc + 1e-12)  # a step is taken only where it lowers the error
     assert mse.mean() < 0.1 * mse_enc.mean()
