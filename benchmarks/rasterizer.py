@@ -1,9 +1,12 @@
-"""Throughput of the CPU rasteriser backends (frames per second).
+"""Throughput of the rasteriser backends (frames per second).
 
 Backends: ``cpu`` (numba tile kernels, :func:`lagsplat.render.rasterize.rasterize_cpu`),
-``torch`` (pure-torch tile culling, :func:`~lagsplat.render.rasterize.rasterize_tiles`)
-and ``dense`` (the ``O(B K H W)`` reference, skipped where it would need more than
-``--dense-limit-gb`` of memory).
+``torch`` (pure-torch tile culling, :func:`~lagsplat.render.rasterize.rasterize_tiles`),
+``dense`` (the ``O(B K H W)`` reference, skipped where it would need more than
+``--dense-limit-gb`` of memory) and, with ``--device cuda``, ``gsplat`` (gsplat's
+CUDA kernels, :func:`~lagsplat.render.rasterize.rasterize_gsplat`). On CUDA the
+table also gives each backend's largest pixel difference from ``torch`` (the
+exact rule) on the same scene.
 
 Scenes are decoder-like: ``K`` Gaussians spread uniformly over the image (means
 per frame, ``[B,K,2]``), shared covariances ``[K,2,2]`` with a standard deviation
@@ -14,6 +17,7 @@ of 1.5/64 of the image width (1.5 px at 64^2, 3 px at 128^2), random anisotropy
 Usage::
 
     python benchmarks/rasterizer.py [--repeats N] [--batch B] [--threads T]
+    python benchmarks/rasterizer.py --device cuda --backends torch gsplat --batch 64
 
 Each configuration gets one warm-up call (this also triggers numba's
 compilation, or loads its cache) and then ``--repeats`` timed calls; the table
@@ -35,10 +39,10 @@ import torch  # noqa: E402
 import pandas as pd
 
 
-from lagsplat.render.rasterize import rasterize_cpu, rasterize_dense, rasterize_tiles
+from lagsplat.render.rasterize import rasterize_cpu, rasterize_dense, rasterize_gsplat, rasterize_tiles
 from _common import env_header, print_table, time_call  # this script's folder
 
-BACKENDS = {"cpu": rasterize_cpu, "torch": rasterize_tiles, "dense": rasterize_dense}
+BACKENDS = {"cpu": rasterize_cpu, "torch": rasterize_tiles, "dense": rasterize_dense, "gsplat": rasterize_gsplat}
 
 
 def make_scene(batch: int, k: int, size: int, seed: int = 0):
@@ -62,14 +66,18 @@ def dense_bytes(batch: int, k: int, size: int) -> float:
     return batch * k * size * size * 4.0 * 6.0
 
 
-def bench_one(backend: str, batch: int, k: int, size: int, repeats: int) -> tuple[float, float]:
+def bench_one(backend: str, batch: int, k: int, size: int, repeats: int, device: str = "cpu") -> tuple[float, float, float]:
+    """Frames/s forward, frames/s forward+backward, and max |image - torch backend's image|."""
     raster = BACKENDS[backend]
-    means, covs, opac, colors = make_scene(batch, k, size)
-    upstream = torch.randn(batch, 3, size, size, generator=torch.Generator().manual_seed(1))
+    scene = make_scene(batch, k, size)
+    means, covs, opac, colors = (t.to(device) for t in scene)
+    upstream = torch.randn(batch, 3, size, size, generator=torch.Generator().manual_seed(1)).to(device)
+    sync = torch.cuda.synchronize if device == "cuda" else (lambda: None)
 
     def forward():
         with torch.no_grad():
             raster(means, covs, opac, colors, size, size)
+        sync()
 
     leaves = [t.clone().requires_grad_(True) for t in (means, covs, opac, colors)]
 
@@ -78,10 +86,13 @@ def bench_one(backend: str, batch: int, k: int, size: int, repeats: int) -> tupl
             t.grad = None
         img = raster(*leaves, size, size)
         (img * upstream).sum().backward()
+        sync()
 
     t_fwd = time_call(forward, repeats)
     t_fb = time_call(forward_backward, repeats)
-    return batch / t_fwd, batch / t_fb
+    with torch.no_grad():
+        diff = (raster(means, covs, opac, colors, size, size) - rasterize_tiles(means, covs, opac, colors, size, size)).abs().max()
+    return batch / t_fwd, batch / t_fb, float(diff)
 
 
 def main(argv: list[str] | None = None) -> pd.DataFrame:
@@ -91,7 +102,8 @@ def main(argv: list[str] | None = None) -> pd.DataFrame:
     ap.add_argument("--threads", type=int, default=None, help="torch and numba threads (default: library defaults)")
     ap.add_argument("--sizes", type=int, nargs="+", default=[64, 128], help="image edge lengths in pixels")
     ap.add_argument("--gaussians", type=int, nargs="+", default=[1000, 4000], help="numbers of Gaussians")
-    ap.add_argument("--backends", nargs="+", default=list(BACKENDS), choices=list(BACKENDS))
+    ap.add_argument("--backends", nargs="+", default=["cpu", "torch", "dense"], choices=list(BACKENDS))
+    ap.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="where the scenes live (gsplat needs cuda, cpu needs cpu)")
     ap.add_argument("--dense-limit-gb", type=float, default=4.0, help="skip dense above this estimated memory")
     args = ap.parse_args(argv)
 
@@ -107,6 +119,8 @@ def main(argv: list[str] | None = None) -> pd.DataFrame:
     except ImportError:
         pass
     print(env_header(f"numba threads: {numba_threads}"))
+    if args.device == "cuda":
+        print(f"device: {torch.cuda.get_device_name()}")
     print(f"batch {args.batch}, median of {args.repeats} timed calls after one warm-up; numbers are frames/s\n")
 
     rows = []
@@ -117,8 +131,9 @@ def main(argv: list[str] | None = None) -> pd.DataFrame:
                 if backend == "dense" and dense_bytes(args.batch, k, size) > args.dense_limit_gb * 2**30:
                     row["forward fps"] = row["fwd+bwd fps"] = "skipped (memory)"
                 else:
-                    fwd, fb = bench_one(backend, args.batch, k, size, args.repeats)
+                    fwd, fb, diff = bench_one(backend, args.batch, k, size, args.repeats, args.device)
                     row["forward fps"], row["fwd+bwd fps"] = f"{fwd:.1f}", f"{fb:.1f}"
+                    row["max |diff| vs torch"] = f"{diff:.1e}"
                 rows.append(row)
                 print(f"  done: {row}", flush=True)
     return print_table(rows)
