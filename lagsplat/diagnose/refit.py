@@ -55,6 +55,25 @@ encoded trajectory best is used for both, and the decay is the fraction of
 amplitude lost over the segment, ``D = 1 - A(t_end) / A(t_0)``; the error is
 ``|D_sim - D_enc| / max(|D_enc|, 0.05)``. The image gap is the excess over
 the AE floor, ``(eps_I - eps_AE) / eps_AE``.
+
+Chart-noise floor
+-----------------
+The encoded trajectory is a measurement: part of ``eps_q`` and ``eps_freq`` is
+its noise, which no model removes (the latent counterpart of the AE floor that
+the image error is taken over, paper §4.1). :func:`noise_floor` measures it by
+Monte Carlo: the model's own free motion over the held-out segment (from the
+recording's state past the smoothing edge, with the recording's actuation),
+plus white noise at the chart's level (:func:`lagsplat.diagnose.residual.chart_noise`,
+fourth differences of the held-out encodings), scored by the same
+:func:`lagsplat.evaluate.evaluate` protocol. That is what a model with no gap
+at all would score on a chart this noisy. ``eps_q_over_floor = eps_q -
+eps_q_floor`` (likewise ``eps_freq``) is the part of the gap the chart's noise
+does not explain; where it is not positive, nothing above the noise is left to
+shrink and its reduction is undefined. The floor depends on the model (a model
+with a stop turns the same noise into larger errors than a linear one), so
+gaps that are compared are taken over one floor, the lowest of theirs
+(:func:`common_noise_floor`), as the benchmark's images are over the lower
+AE floor.
 """
 
 from __future__ import annotations
@@ -100,6 +119,8 @@ __all__ = [
     "energy_check",
     "envelope_decay",
     "held_out_gap",
+    "noise_floor",
+    "common_noise_floor",
     "gap_reduction",
     "save_refit",
     "load_refit",
@@ -107,7 +128,7 @@ __all__ = [
 ]
 
 #: The gap numbers compared before / after (name -> lower is better).
-GAP_METRICS = ("eps_q", "eps_freq", "envelope_decay_error", "image_excess")
+GAP_METRICS = ("eps_q", "eps_freq", "envelope_decay_error", "image_excess", "eps_q_over_floor", "eps_freq_over_floor")
 
 
 @dataclass
@@ -675,7 +696,80 @@ class _NullDecoder:
         return torch.zeros(z.shape[0], 3, 1, 1)
 
 
-def held_out_gap(chart: Any, model: nn.Module, clip: Any | None = None, ae: Any | None = None, eval_cfg: Any | None = None, source: str = "<clip>") -> dict[str, Any]:
+def _evaluate_latent(chart: Any, model: nn.Module, cfg: Any, source: str) -> dict:
+    """:func:`lagsplat.evaluate.evaluate` without frames (the image entries are meaningless)."""
+    from lagsplat.evaluate import evaluate
+
+    ch = copy.copy(chart)
+    ch.ae_mse = np.ones(len(chart.t))
+    clip_ = SimpleNamespace(images=np.zeros((len(chart.t), 1, 1, 3), np.uint8), meta={})
+    return evaluate(clip_, _NullDecoder(), ch, model, cfg, source)
+
+
+@torch.no_grad()
+def noise_floor(chart: Any, model: nn.Module, eval_cfg: Any | None = None, n_draws: int = 8, seed: int = 0, source: str = "<clip>") -> dict[str, Any]:
+    """``eps_q`` and ``eps_freq`` that a model with no gap would score on this chart (module docstring, "Chart-noise floor").
+
+    Args:
+        chart: the chart the model reads (:func:`model_chart` for a refit model).
+        model: the model whose free motion stands in for the recording.
+        eval_cfg: :class:`lagsplat.evaluate.EvalConfig` (default settings if ``None``).
+        n_draws: Monte-Carlo draws of the noise.
+        seed: seed of the noise draws.
+        source: file name for error messages.
+
+    Returns:
+        ``{"eps_q", "eps_freq", "eps_q_sd", "eps_freq_sd", "noise" [d], "n_draws"}``: means and
+        standard deviations over the draws, and the noise level per coordinate (whitened
+        units); the means are ``None`` when the model's motion is not finite.
+
+    Raises:
+        lagsplat.io.clip.ClipError: if the chart has no held-out segment long enough (as :func:`lagsplat.evaluate.evaluate`).
+        ValueError: if ``n_draws < 1``.
+    """
+    from lagsplat.diagnose.residual import chart_noise
+    from lagsplat.evaluate import EvalConfig
+    from lagsplat.io.clip import ClipError
+
+    if int(n_draws) < 1:
+        raise ValueError(f"noise_floor: n_draws must be >= 1, got {n_draws!r}")
+    cfg = eval_cfg or EvalConfig()
+    held = chart.segments(HELD_OUT)
+    if not held:
+        raise ClipError(f"{source}: the clip has no held-out frames to evaluate on")
+    ho = max(held, key=len)
+    n, e = len(ho), metrics.smoothing_edge(cfg.sigma)
+    if n < e + 5:
+        raise ClipError(f"{source}: held-out segment has {n} frames, too short for a noise floor")
+    dt = float(np.median(np.diff(chart.t)))
+    noise = chart_noise([chart.q[s] for s in held])
+    u = chart.u[ho]
+    u = np.concatenate([u[e:], np.repeat(u[-1:], e, 0)]) if u.shape[1] else u  # the actuation the motion from frame e saw
+    q0, v0 = initial_state(metrics.gaussian_smooth(chart.q[ho], cfg.sigma), np.array([e]), dt)
+    clean, _ = rollout(model, q0, v0, dt, n, u=actuation_schedule(u[None] if u.shape[1] else None, dt))
+    clean = clean[0].double().numpy()
+    out: dict[str, Any] = {"eps_q": None, "eps_freq": None, "eps_q_sd": None, "eps_freq_sd": None, "noise": noise.tolist(), "n_draws": int(n_draws)}
+    if not np.isfinite(clean).all():
+        return out
+    rng = np.random.default_rng(seed)
+    ch = copy.copy(chart)
+    ch.u = chart.u.copy()
+    ch.u[ho] = u
+    draws = []
+    for _ in range(int(n_draws)):
+        ch.q = chart.q.copy()
+        ch.q[ho] = clean + rng.standard_normal(clean.shape) * noise
+        m = _evaluate_latent(ch, model, cfg, source)
+        draws.append((m["eps_q"]["value"], m["eps_freq"]["value"]))
+    a = np.array(draws)
+    out.update(eps_q=float(a[:, 0].mean()), eps_freq=float(a[:, 1].mean()), eps_q_sd=float(a[:, 0].std()), eps_freq_sd=float(a[:, 1].std()))
+    return out
+
+
+def held_out_gap(
+    chart: Any, model: nn.Module, clip: Any | None = None, ae: Any | None = None, eval_cfg: Any | None = None, source: str = "<clip>",
+    floor_draws: int = 8,
+) -> dict[str, Any]:  # fmt: skip
     """The gap of a model on the held-out frames (module docstring).
 
     Args:
@@ -684,10 +778,13 @@ def held_out_gap(chart: Any, model: nn.Module, clip: Any | None = None, ae: Any 
         clip, ae: the clip and autoencoder for the image error; both ``None``: latent numbers only.
         eval_cfg: :class:`lagsplat.evaluate.EvalConfig` (default settings if ``None``).
         source: file name for error messages.
+        floor_draws: Monte-Carlo draws of :func:`noise_floor` (0: no floor, the
+            ``*_over_floor`` entries are ``None``).
 
     Returns:
         ``{"eps_q", "eps_freq", "eps_I", "eps_AE", "image_excess", "envelope_decay_error",
-        "envelope": {...}, "f_sim_hz", "f_enc_hz", "n_diverged"}`` (image entries ``None`` without frames).
+        "envelope": {...}, "f_sim_hz", "f_enc_hz", "n_diverged", "floor": {...},
+        "eps_q_over_floor", "eps_freq_over_floor"}`` (image entries ``None`` without frames).
 
     Raises:
         lagsplat.io.clip.ClipError: if the held-out segment is too short (see :func:`lagsplat.evaluate.evaluate`).
@@ -696,23 +793,42 @@ def held_out_gap(chart: Any, model: nn.Module, clip: Any | None = None, ae: Any 
 
     cfg = eval_cfg or EvalConfig()
     latent_only = clip is None or ae is None
-    if latent_only:
-        ch = copy.copy(chart)
-        ch.ae_mse = np.ones(len(chart.t))
-        clip_ = SimpleNamespace(images=np.zeros((len(chart.t), 1, 1, 3), np.uint8), meta={})
-        m = evaluate(clip_, _NullDecoder(), ch, model, cfg, source)
-    else:
-        m = evaluate(clip, ae, chart, model, cfg, source)
+    m = _evaluate_latent(chart, model, cfg, source) if latent_only else evaluate(clip, ae, chart, model, cfg, source)
     env = envelope_decay(chart, model, cfg.sigma)
     v = {k: e["value"] for k, e in m.items()}
     eps_I = None if latent_only else v["eps_I"]
     eps_AE = None if latent_only else v["eps_AE"]
+    floor = noise_floor(chart, model, cfg, floor_draws, source=source) if floor_draws > 0 else None
+    over = {k: None if floor is None or floor[k] is None else v[k] - floor[k] for k in ("eps_q", "eps_freq")}
     return {
         "eps_q": v["eps_q"], "eps_freq": v["eps_freq"], "eps_I": eps_I, "eps_AE": eps_AE,
         "image_excess": None if latent_only else (eps_I - eps_AE) / max(eps_AE, 1e-300),
         "envelope_decay_error": env["error"], "envelope": env, "f_sim_hz": v["f_sim_hz"], "f_enc_hz": v["f_enc_hz"],
         "n_diverged": v["n_diverged"], "horizon": m["eps_q"]["horizon"],
+        "floor": floor, "eps_q_over_floor": over["eps_q"], "eps_freq_over_floor": over["eps_freq"],
     }  # fmt: skip
+
+
+def common_noise_floor(*gaps: Mapping[str, Any] | None) -> list[dict[str, Any] | None]:
+    """The gaps of :func:`held_out_gap` with ``eps_q_over_floor`` and ``eps_freq_over_floor`` over one floor.
+
+    The floor of each metric is the lowest :func:`noise_floor` among the gaps
+    (module docstring); it is recorded as ``floor_common``. Gaps given as ``None``
+    stay ``None``; a metric whose floor is missing in every gap keeps ``None``.
+
+    Returns:
+        New dicts, in the order given.
+    """
+    common = {}
+    for k in ("eps_q", "eps_freq"):
+        vals = [g["floor"][k] for g in gaps if g is not None and g.get("floor") and g["floor"].get(k) is not None]
+        common[k] = min(vals) if vals else None
+    return [
+        None if g is None else dict(g, floor_common=common, **{
+            f"{k}_over_floor": None if common[k] is None or g.get(k) is None else g[k] - common[k] for k in common
+        })  # fmt: skip
+        for g in gaps
+    ]
 
 
 def gap_reduction(before: Mapping[str, Any], after: Mapping[str, Any]) -> dict[str, float | None]:

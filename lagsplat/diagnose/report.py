@@ -43,6 +43,7 @@ from lagsplat.diagnose.refit import (
     RefitConfig,
     add_control,
     choose_by_refit,
+    common_noise_floor,
     energy_check,
     gap_reduction,
     held_out_gap,
@@ -61,6 +62,8 @@ _GAP_LABELS = {
     "eps_freq": "eps_freq (free-oscillation frequency error)",
     "envelope_decay_error": "envelope-decay error",
     "image_excess": "image error over the AE floor, (eps_I - eps_AE) / eps_AE",
+    "eps_q_over_floor": "eps_q over the chart-noise floor, eps_q - eps_q_floor (what a model with no gap scores on this chart; lowest of the models compared)",
+    "eps_freq_over_floor": "eps_freq over the chart-noise floor, eps_freq - eps_freq_floor (likewise)",
 }
 
 
@@ -300,11 +303,11 @@ def diagnose_artifacts(
             refit_rec.update(reason="no Stage-2 remedy for the effect(s) found", spec=sp.to_dict())
         else:
             after = held_out_gap(r.chart, r.model, clip, ae, eval_cfg, source)
-            gap["after"] = after
-            gap["reduction"] = gap_reduction(before, after)
+            ctrl = None if r.control is None else held_out_gap(chart, r.control, clip, ae, eval_cfg, source)
+            before, after, ctrl = common_noise_floor(before, after, ctrl)  # compared over one chart-noise floor
+            gap.update(before=before, after=after, reduction=gap_reduction(before, after))
             runs[f"refit with {', '.join(r.spec.effects)} (after)"] = (r.model, r.chart)
-            if r.control is not None:
-                ctrl = held_out_gap(chart, r.control, clip, ae, eval_cfg, source)
+            if ctrl is not None:
                 gap["control"] = ctrl
                 gap["reduction_vs_control"] = gap_reduction(ctrl, after)
                 runs["same fine-tune without the term (control)"] = (r.control, chart)
@@ -584,6 +587,11 @@ def render_markdown(rep: Mapping[str, Any]) -> str:
     if env_b.get("form"):
         L.append(f"\nEnvelope: {env_b['form']} fit; the encoded held-out video loses {_pct(env_b['decay_encoded'])[1:]} of its amplitude over the segment"
                  + ("" if env_b.get("reliable") else " (too little decay for a reliable relative error)") + ".")  # fmt: skip
+    fl = gap["before"].get("floor") or {}
+    if fl.get("eps_q") is not None:
+        L.append(f"\nChart-noise floor (lagsplat.diagnose.refit.noise_floor: the identified model's own motion plus the chart's noise, "
+                 f"{fl['n_draws']} draws): eps_q {_f(fl['eps_q'], '.4g')} ± {_f(fl['eps_q_sd'], '.2g')}, eps_freq {_f(fl['eps_freq'], '.3g')}; "
+                 "what no model can remove from this chart.")  # fmt: skip
     if "before_matches_metrics_json" in gap:
         L.append(f"\nThe 'before' eps_q {'matches' if gap['before_matches_metrics_json'] else 'differs from'} metrics.json ({_f(gap['metrics_json_eps_q'], '.4g')}).")
     rf = rep["refit"]
