@@ -144,11 +144,13 @@ class RefitConfig:
         control: also fine-tune without the term (same settings and seed).
         seed: RNG seed of the refit.
         floor_scale: energy-gauge factor ``g`` applied to the fitted model before the
-            fine-tune (``s_M, s_V += log g``, term coefficients ``x g``): the dynamics is
-            unchanged except that the fixed dissipation floor ``c0`` weighs ``g`` times
-            less (paper App. C fixes it at a damping ratio ``stage2.zeta_floor`` of the
-            training frequency, which can exceed the true damping once a dry friction
-            or drag carries the decay). ``1``: no change. Applied to the control too.
+            fine-tune (``s_M, s_V += log g``, term coefficients ``x g``), so that the fixed
+            dissipation floor ``c0`` weighs ``g`` times less (paper App. C fixes it at a
+            damping ratio ``stage2.zeta_floor`` of the training frequency, which can exceed
+            the true damping once a dry friction or drag carries the decay). The damping
+            the floor gives up moves into the learned dissipation (:func:`_gauged`), so the
+            fine-tune starts from the fitted dynamics. ``1``: no change. Applied to the
+            control too.
         choose: when several candidates with a Stage-2 remedy pass the significance
             rule, confirm the Delta-BIC winner by its refit's *training*-rollout error
             and fall back to the best rival whose refit beats the identified model
@@ -430,6 +432,35 @@ def _gauge(cfg: RefitConfig) -> float:
     return float(cfg.floor_scale) if cfg.init == "fitted" else 1.0
 
 
+@torch.no_grad()
+def _gauged(base: nn.Module, gauge: float) -> None:
+    """Apply the energy gauge ``g`` to a fitted Lagrangian in place, keeping its dynamics at the chart origin.
+
+    ``s_M, s_V += log g`` scales ``M`` and ``V`` by ``g``; the dynamics is unchanged if
+    ``C = e^{s_M} L_C L_C^T + c0 I`` is scaled by ``g`` too, but the floor ``c0`` is fixed,
+    so the learned part takes over what the floor gives up:
+    ``L_C L_C^T <- L_C L_C^T(0) + (g - 1) c0 / e^{s_M'} I``, made constant (the last layer
+    of :class:`~lagsplat.models.lagrangian.CholeskyField` set to that Cholesky factor,
+    weights zero). Exact where the fitted field is constant; in practice it has
+    collapsed (``L_C L_C^T`` ~ 1e-29 on the blind suite's end-stop clips, as the floor
+    already over-damps), and there its gradient vanishes (softplus far below zero),
+    so without this the fine-tune starts ``g`` times less damped and cannot raise the
+    damping again: those refits ran 5-8 % fast with swings too large.
+    """
+    base.s_M.add_(math.log(gauge))
+    base.s_V.add_(math.log(gauge))
+    field = base.dissipation
+    extra = (gauge - 1.0) * base.c0 / float(torch.exp(base.s_M))
+    target = field(torch.zeros(1, base.d))[0].double() + extra * torch.eye(base.d, dtype=torch.float64)
+    L = torch.linalg.cholesky(target)
+    raw = L[field.ii, field.jj]
+    diag = field.ii == field.jj
+    raw[diag] = raw[diag] + torch.log(-torch.expm1(-raw[diag]))  # inverse softplus
+    last = field.net[-1]
+    last.weight.zero_()
+    last.bias.copy_(raw.to(last.bias.dtype))
+
+
 def _augmenter(model: nn.Module, cfg: RefitConfig, gauge: float, terms: Sequence[EffectTerm], time_channel: bool):
     """The ``augment`` hook of :func:`~lagsplat.train.stage2.train_stage2` for a refit (fitted start, gauge, terms)."""
     fitted_state = copy.deepcopy(model.state_dict())
@@ -438,9 +469,7 @@ def _augmenter(model: nn.Module, cfg: RefitConfig, gauge: float, terms: Sequence
         if cfg.init == "fitted":
             base.load_state_dict(fitted_state)
             if gauge != 1.0:
-                with torch.no_grad():
-                    base.s_M.add_(math.log(gauge))
-                    base.s_V.add_(math.log(gauge))
+                _gauged(base, gauge)
         if not terms and not time_channel:
             return base
         return RefitModel(base, [copy.deepcopy(t) for t in terms], time_channel=time_channel)
