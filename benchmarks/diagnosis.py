@@ -16,7 +16,8 @@ residual.
 
 Artifacts are cached per clip under ``--results/<budget>/<clip>/`` (the layout
 of ``results/<system>/``), so an interrupted run resumes where it stopped;
-``--force`` recomputes everything, ``--rediagnose`` only the diagnosis.
+``--force`` recomputes everything, ``--rediagnose`` only the diagnosis (and
+the held-out gap of the ``d = 2`` remedy).
 ``--budget`` trades fidelity for time:
 
 ========== ========= ========= ============ ============== ============== ================

@@ -103,7 +103,7 @@ from lagsplat.diagnose.terms import (
 )
 from lagsplat.dynamics.integrators import actuation_schedule, initial_state, rollout
 from lagsplat.io.atomic import save_torch
-from lagsplat.io.clip import HELD_OUT, TRAIN
+from lagsplat.io.clip import HELD_OUT, TRAIN, ClipError
 
 __all__ = [
     "RefitConfig",
@@ -758,7 +758,6 @@ def noise_floor(chart: Any, model: nn.Module, eval_cfg: Any | None = None, n_dra
     """
     from lagsplat.diagnose.residual import chart_noise
     from lagsplat.evaluate import EvalConfig
-    from lagsplat.io.clip import ClipError
 
     if int(n_draws) < 1:
         raise ValueError(f"noise_floor: n_draws must be >= 1, got {n_draws!r}")
