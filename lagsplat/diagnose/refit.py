@@ -811,8 +811,9 @@ def held_out_gap(
 
     Returns:
         ``{"eps_q", "eps_freq", "eps_I", "eps_AE", "image_excess", "envelope_decay_error",
-        "envelope": {...}, "f_sim_hz", "f_enc_hz", "n_diverged", "floor": {...},
-        "eps_q_over_floor", "eps_freq_over_floor"}`` (image entries ``None`` without frames).
+        "envelope": {...}, "f_sim_hz", "f_enc_hz", "n_diverged", "floor": {...}, "floor_common",
+        "eps_q_over_floor", "eps_freq_over_floor"}`` (image entries ``None`` without frames; the
+        over-floor entries over this model's own floor, :func:`common_noise_floor` to compare gaps).
 
     Raises:
         lagsplat.io.clip.ClipError: if the held-out segment is too short (see :func:`lagsplat.evaluate.evaluate`).
@@ -827,14 +828,13 @@ def held_out_gap(
     eps_I = None if latent_only else v["eps_I"]
     eps_AE = None if latent_only else v["eps_AE"]
     floor = noise_floor(chart, model, cfg, floor_draws, source=source) if floor_draws > 0 else None
-    over = {k: None if floor is None or floor[k] is None else v[k] - floor[k] for k in ("eps_q", "eps_freq")}
-    return {
+    gap = {
         "eps_q": v["eps_q"], "eps_freq": v["eps_freq"], "eps_I": eps_I, "eps_AE": eps_AE,
         "image_excess": None if latent_only else (eps_I - eps_AE) / max(eps_AE, 1e-300),
         "envelope_decay_error": env["error"], "envelope": env, "f_sim_hz": v["f_sim_hz"], "f_enc_hz": v["f_enc_hz"],
-        "n_diverged": v["n_diverged"], "horizon": m["eps_q"]["horizon"],
-        "floor": floor, "eps_q_over_floor": over["eps_q"], "eps_freq_over_floor": over["eps_freq"],
+        "n_diverged": v["n_diverged"], "horizon": m["eps_q"]["horizon"], "floor": floor,
     }  # fmt: skip
+    return common_noise_floor(gap)[0]  # over its own floor until compared with another gap
 
 
 def common_noise_floor(*gaps: Mapping[str, Any] | None) -> list[dict[str, Any] | None]:

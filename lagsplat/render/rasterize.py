@@ -406,7 +406,7 @@ def rasterize_gsplat(
     * a pixel stops compositing once its transmittance would fall below 1e-4.
 
     On scenes with every opacity below 0.35 it renders the same image as
-    :func:`rasterize_dense` to float32 rounding. First-order gradients flow to
+    :func:`rasterize_dense` to 1e-4 (the transmittance stop). First-order gradients flow to
     ``means``, ``covs``, ``opacities`` and ``colors`` (no forward-mode AD:
     :func:`lagsplat.chart.visibility_metric` uses :func:`rasterize_tiles`).
 
