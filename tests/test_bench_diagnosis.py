@@ -41,3 +41,35 @@ def test_a_latent_only_gap_has_no_image_excess(bench) -> None:
     b, a = bench.over_common_floor(_gap(None, 1e-3), _gap(2e-3, 1e-3))
     assert b["image_excess"] is None and a["image_excess"] is None
     assert gap_reduction(b, a)["image_excess"] is None
+
+
+def _row(system, truth, before, after, refit=True):
+    """A row of ``score`` for ``eps_freq`` only (the other metrics absent)."""
+    from lagsplat.diagnose.refit import GAP_METRICS
+
+    b = {k: None for k in GAP_METRICS} | {"eps_freq": before}
+    a = {k: None for k in GAP_METRICS} | {"eps_freq": after}
+    red = gap_reduction(b, a) if after is not None else {k: None for k in GAP_METRICS}
+    return {"system": system, "truth": truth, "refit": refit, "before": b, "after": a} | {f"red_{k}": v for k, v in red.items()}
+
+
+def test_only_gaps_above_the_same_systems_controls_count_towards_the_median(bench) -> None:
+    rows = [
+        _row("pendulum", "none", 0.002, None, refit=False),
+        _row("pendulum", "none", 0.001, None, refit=False),
+        _row("cart", "none", 0.004, None, refit=False),
+        _row("pendulum", "drift", 0.06, 0.006),  # measurable (> 0.002): +90 %
+        _row("pendulum", "end_stop", 0.03, 0.02),  # measurable: +33 %
+        _row("pendulum", "coulomb", 0.0005, 0.002),  # at the no-effect level (-300 %); refit stays at it
+        _row("pendulum", "quadratic_drag", 0.001, 0.003),  # at the level; refit goes above it
+        _row("cart", "end_stop", 0.003, 0.0001),  # below the cart's level 0.004 (the pendulum's would have let it in)
+        _row("cart", "drift", 0.05, 0.01),  # measurable: +80 %
+        _row("two_carts", "drift", 0.05, 0.0),  # no control of its system: left out
+        _row("pendulum", "periodic_force", 0.05, None),  # not refit: no reduction, left out
+    ]
+    m = bench.measurable_gap_medians(rows)["eps_freq"]
+    assert m["levels"] == {"pendulum": 0.002, "cart": 0.004}
+    assert (m["n"], m["n_refit"], m["n_kept"]) == (3, 6, 2)
+    assert m["median"] == pytest.approx(0.8)
+    empty = bench.measurable_gap_medians([_row("cart", "none", 0.004, None, refit=False)])["eps_freq"]
+    assert empty["median"] is None and empty["n"] == 0
