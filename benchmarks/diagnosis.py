@@ -271,8 +271,9 @@ def measurable_gap_medians(rows: list[dict]) -> dict[str, dict]:
     ``before``, ``after``, ``red_<metric>``). Returns, per metric of
     ``GAP_METRICS``: ``median`` (``None`` without a measurable clip), ``n``
     measurable, ``n_refit`` effect clips with a reduction, ``n_kept`` of the
-    ``n_refit - n`` others whose refit stays at or below the level, and
-    ``levels`` (system -> no-effect level; systems without controls are left
+    ``n_refit - n`` others whose refit stays at or below the level,
+    ``median_vs_control`` (the measurable clips' ``red_ctrl_<metric>``: the
+    refit against the same fine-tune without the term), and ``levels`` (system -> no-effect level; systems without controls are left
     out, and so are their clips).
     """
     out: dict[str, dict] = {}
@@ -286,8 +287,9 @@ def measurable_gap_medians(rows: list[dict]) -> dict[str, dict]:
         meas = [r for r in scored if r["before"].get(k) is not None and r["before"][k] > levels[r["system"]]]
         rest = [r for r in scored if r not in meas]
         kept = [r for r in rest if r["after"].get(k) is not None and r["after"][k] <= levels[r["system"]]]
+        vs_ctrl = [r[f"red_ctrl_{k}"] for r in meas if r.get(f"red_ctrl_{k}") is not None]
         out[k] = {"median": float(np.median([r[f"red_{k}"] for r in meas])) if meas else None, "n": len(meas), "n_refit": len(scored),
-                  "n_kept": len(kept), "levels": levels}  # fmt: skip
+                  "n_kept": len(kept), "median_vs_control": float(np.median(vs_ctrl)) if vs_ctrl else None, "levels": levels}  # fmt: skip
     return out
 
 
@@ -353,11 +355,12 @@ def main() -> None:
         print(f"median held-out gap reduction, {k}: {'n/a' if med[k] is None else f'{100 * med[k]:+.0f} %'}"
               f" (vs the same refit without the term: {'n/a' if med_c[k] is None else f'{100 * med_c[k]:+.0f} %'})")  # fmt: skip
     meas = measurable_gap_medians(rows)
+    pct = lambda v: "n/a" if v is None else f"{100 * v:+.0f} %"  # noqa: E731
     print("over the clips whose gap stands out of the no-effect level (the largest of the same system's controls; measurable_gap_medians):")
     for k, m in meas.items():
-        med_k = "n/a" if m["median"] is None else f"{100 * m['median']:+.0f} %"
-        print(f"  {k}: {med_k} over {m['n']} of {m['n_refit']} clips; "
-              f"of the other {m['n_refit'] - m['n']}, {m['n_kept']} stay at or below the level after the refit")  # fmt: skip
+        print(f"  {k}: {pct(m['median'])} over {m['n']} of {m['n_refit']} clips; "
+              f"of the other {m['n_refit'] - m['n']}, {m['n_kept']} stay at or below the level after the refit; "
+              f"vs the refit without the term {pct(m['median_vs_control'])}")  # fmt: skip
     print(f"median wall time per stage (s, as cached): {per_stage}")
     if args.json:
         write_json(args.json, {"args": vars(args), "accuracy": acc, "controls_flagged": flagged, "median_reduction": med,

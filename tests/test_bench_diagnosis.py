@@ -67,7 +67,11 @@ def test_only_gaps_above_the_same_systems_controls_count_towards_the_median(benc
         _row("two_carts", "drift", 0.05, 0.0),  # no control of its system: left out
         _row("pendulum", "periodic_force", 0.05, None),  # not refit: no reduction, left out
     ]
+    for r, vs in zip(rows[3:6], (0.5, -0.2, 0.9)):  # against the fine-tune without the term; the third is not measurable
+        r["red_ctrl_eps_freq"] = vs
+    rows[8]["red_ctrl_eps_freq"] = 0.1
     m = bench.measurable_gap_medians(rows)["eps_freq"]
+    assert m["median_vs_control"] == pytest.approx(0.1)  # median of 0.5, -0.2, 0.1
     assert m["levels"] == {"pendulum": 0.002, "cart": 0.004}
     assert (m["n"], m["n_refit"], m["n_kept"]) == (3, 6, 2)
     assert m["median"] == pytest.approx(0.8)
