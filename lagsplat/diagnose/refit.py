@@ -160,7 +160,7 @@ class RefitConfig:
 
     enabled: bool = True
     init: str = "fitted"
-    epochs: int | None = 40
+    epochs: int | None = 100
     lr: float | None = None
     control: bool = True
     seed: int = 0
