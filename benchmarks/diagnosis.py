@@ -278,8 +278,9 @@ def measurable_gap_medians(rows: list[dict]) -> dict[str, dict]:
     measurable, ``n_refit`` effect clips with a reduction, ``n_kept`` of the
     ``n_refit - n`` others whose refit stays at or below the level,
     ``median_vs_control`` (the measurable clips' ``red_ctrl_<metric>``: the
-    refit against the same fine-tune without the term), and ``levels`` (system -> no-effect level; systems without controls are left
-    out, and so are their clips).
+    refit against the same fine-tune without the term), and ``levels``
+    (system -> no-effect level; systems without controls are left out, and so
+    are their clips).
     """
     out: dict[str, dict] = {}
     for k in GAP_METRICS:
@@ -359,11 +360,10 @@ def main() -> None:
     print(f"reliable upstream (chart continuous, decoder shows motion; lagsplat.diagnose.report.reliability): {len(rel)}/{len(table)}"
           + (f"; top-1 accuracy on those {float(rel['ok'].mean()):.3f}" if len(rel) else ""))  # fmt: skip
     print(f"effect clips refit: {len(effects)}/{int((table['truth'] != 'none').sum())}")
-    for k in GAP_METRICS:
-        print(f"median held-out gap reduction, {k}: {'n/a' if med[k] is None else f'{100 * med[k]:+.0f} %'}"
-              f" (vs the same refit without the term: {'n/a' if med_c[k] is None else f'{100 * med_c[k]:+.0f} %'})")  # fmt: skip
-    meas = measurable_gap_medians(rows)
     pct = lambda v: "n/a" if v is None else f"{100 * v:+.0f} %"  # noqa: E731
+    for k in GAP_METRICS:
+        print(f"median held-out gap reduction, {k}: {pct(med[k])} (vs the same refit without the term: {pct(med_c[k])})")
+    meas = measurable_gap_medians(rows)
     print("over the clips whose gap stands out of the no-effect level (the largest of the same system's controls; measurable_gap_medians):")
     for k, m in meas.items():
         print(f"  {k}: {pct(m['median'])} over {m['n']} of {m['n_refit']} clips; "

@@ -65,7 +65,7 @@ def test_only_gaps_above_the_same_systems_controls_count_towards_the_median(benc
         _row("cart", "end_stop", 0.003, 0.0001),  # below the cart's level 0.004 (the pendulum's would have let it in)
         _row("cart", "drift", 0.05, 0.01),  # measurable: +80 %
         _row("two_carts", "drift", 0.05, 0.0),  # no control of its system: left out
-        _row("pendulum", "periodic_force", 0.05, None),  # not refit: no reduction, left out
+        _row("pendulum", "periodic_force", 0.05, None),  # no after (refit failed): no reduction, left out
     ]
     for r, vs in zip(rows[3:6], (0.5, -0.2, 0.9)):  # against the fine-tune without the term; the third is not measurable
         r["red_ctrl_eps_freq"] = vs
