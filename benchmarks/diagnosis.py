@@ -315,7 +315,7 @@ def main() -> None:
     ap.add_argument("--refine-iters", type=int, default=None,
                     help="chart refinement iterations (lagsplat.chart.refine_latents; default: the budget's); "
                          "another value than the budget's caches under <results>/<budget>-refine<N>")  # fmt: skip
-    ap.add_argument("--refit-epochs", type=int, default=None, help="epochs of the refit's fine-tune (default: the budget's)")
+    ap.add_argument("--refit-epochs", type=int, default=None, help="epochs of the refit's fine-tune (default: the budget's; a cached diagnosis is redone only with --rediagnose)")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     if args.refine_iters is not None and args.refine_iters != BUDGETS[args.budget]["refine_iters"]:
