@@ -290,8 +290,9 @@ def measurable_gap_medians(rows: list[dict]) -> dict[str, dict]:
             if r["truth"] == "none" and v is not None:
                 levels[r["system"]] = max(levels.get(r["system"], -np.inf), float(v))
         scored = [r for r in rows if r["truth"] != "none" and r["refit"] and r[f"red_{k}"] is not None and r["system"] in levels]
-        meas = [r for r in scored if r["before"].get(k) is not None and r["before"][k] > levels[r["system"]]]
-        rest = [r for r in scored if r not in meas]
+        above = [r["before"].get(k) is not None and r["before"][k] > levels[r["system"]] for r in scored]
+        meas = [r for r, a in zip(scored, above) if a]
+        rest = [r for r, a in zip(scored, above) if not a]
         kept = [r for r in rest if r["after"].get(k) is not None and r["after"][k] <= levels[r["system"]]]
         vs_ctrl = [r[f"red_ctrl_{k}"] for r in meas if r.get(f"red_ctrl_{k}") is not None]
         out[k] = {"median": float(np.median([r[f"red_{k}"] for r in meas])) if meas else None, "n": len(meas), "n_refit": len(scored),
