@@ -16,7 +16,7 @@ from lagsplat.io.clip import Clip
 from lagsplat.models.decoder import ConditionedGaussians
 from lagsplat.models.encoder import CpAEEncoder, nonlocal_filter_penalty
 from lagsplat.train.config import dataclass_from_mapping
-from lagsplat.train.losses import kinematic_penalty, reconstruction_loss, static_motion_penalty
+from lagsplat.train.losses import kinematic_penalty, reconstruction_loss, rigidity_penalty, static_motion_penalty
 
 __all__ = ["Stage1Config", "AutoEncoder", "train_stage1", "save_stage1", "load_stage1", "frames_to_tensor"]
 
@@ -30,9 +30,11 @@ class Stage1Config:
     whose opacity falls below ``alpha_dead``. Optional priors on the
     decoder's kinematics, all off by default (the paper's loss):
     ``w_kinematic`` (:func:`~lagsplat.train.losses.kinematic_penalty`),
-    ``j_decay`` (:func:`decay_state_coupling`) and ``w_static`` with
+    ``j_decay`` (:func:`decay_state_coupling`), ``w_static`` with
     ``static_margin`` (px; :func:`~lagsplat.train.losses.static_motion_penalty`
-    on :func:`static_pixels` of the training frames).
+    on :func:`static_pixels` of the training frames) and ``w_rigid`` with
+    ``rigid_length`` (px; :func:`~lagsplat.train.losses.rigidity_penalty` at
+    the batch's mean state).
     """
 
     n_gaussians: int = 1024
@@ -48,6 +50,8 @@ class Stage1Config:
     j_decay: float = 0.0
     w_static: float = 0.0
     static_margin: float = 1.0
+    w_rigid: float = 0.0
+    rigid_length: float = 1.5
     ssim_window: int = 7
     aniso_max_ratio: float = 5.0
     sigma_xy: float = 0.05
@@ -180,6 +184,10 @@ def train_stage1(clip: Clip, cfg: Stage1Config, d: int, seed: int = 0, progress:
             loss = loss + cfg.w_kinematic * kinematic_penalty(dec, z.detach().std(0))
         if static is not None:
             loss = loss + cfg.w_static * static_motion_penalty(motion, static)
+        if cfg.w_rigid > 0:
+            zd = z.detach()
+            z_std = zd.std(0) if len(idx) > 1 else torch.ones(d)
+            loss = loss + cfg.w_rigid * rigidity_penalty(dec, zd.mean(0), z_std, H, W, cfg.rigid_length)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         nn.utils.clip_grad_norm_(enc.parameters(), cfg.grad_clip)
