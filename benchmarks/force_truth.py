@@ -130,6 +130,11 @@ def main() -> None:
         "a click 4.5 px above the pivot puts 8 %% of the force on the static pivot disc and the background above the arm, "
         "and one on the rod's axis samples its anti-aliased edges)",
     )
+    ap.add_argument(
+        "--min-transmittance", type=float, default=0.0,
+        help="visible brush: a primitive counts only where at least this share of the light reaches it, the surface the "
+        "click meets (lagsplat.force; default 0: every composited primitive)",
+    )
     ap.add_argument("--max-deg", type=float, default=5.0, help="direction tolerance counted in the summary (issue 5)")
     ap.add_argument("--max-pct", type=float, default=10.0, help="magnitude tolerance counted in the summary (issue 5)")
     args = ap.parse_args()
@@ -146,7 +151,7 @@ def force_truth(d: Path, args: argparse.Namespace) -> tuple[int, int, int, int, 
     chart = load_chart(d / "chart.npz")
     clip = load_clip(d / "clip.npz")
     model, _ = load_stage2(d / "stage2.pt")
-    tr = ForceTransport.from_autoencoder(ae, chart, brush=args.brush)
+    tr = ForceTransport.from_autoencoder(ae, chart, brush=args.brush, min_transmittance=args.min_transmittance)
     theta_of_q, fit_rms_deg = chart_readout(chart, clip)
     H, W = ae.height, ae.width
     L_px = ROD_LENGTH * H
@@ -209,8 +214,9 @@ def force_truth(d: Path, args: argparse.Namespace) -> tuple[int, int, int, int, 
         rows.append(Row(k, r, F, math.degrees(th), d_true, dp, *score(d_true, dp), dc, *score(d_true, dc), floor))
 
     print(
-        f"pendulum model: {d} ({W}x{H} px, rod {L_px:.1f} px), brush {args.brush} sigma {args.sigma} px; "
-        f"kappa {kappa_point:.4g} (application point), {kappa_chart:.4g} (chart read-out); "
+        f"pendulum model: {d} ({W}x{H} px, rod {L_px:.1f} px), brush {args.brush} sigma {args.sigma} px"
+        + (f" min transmittance {tr.min_transmittance:g}; " if args.brush == "visible" else "; ")
+        + f"kappa {kappa_point:.4g} (application point), {kappa_chart:.4g} (chart read-out); "
         f"chart read-out theta(q): cubic on {int((clip.split == TRAIN).sum())} training frames, rms {fit_rms_deg:.3f} deg"
     )
     print(

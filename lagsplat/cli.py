@@ -278,7 +278,7 @@ def stage_forces(cfg: DictConfig) -> None:
     ae, chart = load_stage1(d / "stage1.pt"), load_chart(d / "chart.npz")
     model, _ = load_stage2(out / "stage2.pt")
     model.eval()
-    tr = ForceTransport.from_autoencoder(ae, chart)
+    tr = ForceTransport.from_autoencoder(ae, chart, min_transmittance=fc.min_transmittance)
     with torch.no_grad():
         z = model.q_rest.detach()[None] @ torch.as_tensor(chart.W_inv, dtype=torch.float32) + torch.as_tensor(chart.mean, dtype=torch.float32)
         rest = (ae.decode(z)[0].clamp(0, 1).permute(1, 2, 0).numpy() * 255 + 0.5).astype(np.uint8)
@@ -299,6 +299,7 @@ def stage_forces(cfg: DictConfig) -> None:
     plot_force_checks(res, rest, out / "figures" / "forces.png", title=title, lever=lever)
     pub = public_result(res)
     pub["brush"] = tr.brush
+    pub["min_transmittance"] = tr.min_transmittance
     # the same checks through the other brush (lagsplat.force.BRUSHES), for comparison
     pub["other_brushes"] = {}
     for name in (b for b in BRUSHES if b != tr.brush):

@@ -51,6 +51,8 @@ class ForceCheckConfig:
 
     Attributes:
         sigma: brush radius, pixels.
+        min_transmittance: the visible brush's front-surface threshold ``tau``
+            (:mod:`lagsplat.force`; 0: every composited primitive).
         grid: spacing of the probe points, pixels.
         moving_frac: a pixel moves if its temporal std is at least this share of the largest.
         static_factor: a pixel is static if its temporal std is at most this multiple of the noise floor (10th percentile).
@@ -60,6 +62,7 @@ class ForceCheckConfig:
     """
 
     sigma: float = 1.5
+    min_transmittance: float = 0.0
     grid: int = 2
     moving_frac: float = 0.25
     static_factor: float = 1.5

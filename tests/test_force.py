@@ -190,3 +190,28 @@ def test_visible_brush_selects_a_thin_rod_in_front_of_an_opaque_background():
     np.testing.assert_allclose(vis.pullback(sel, torch.tensor([[1.0, 0.0]])).numpy()[0, 0], float(j_vis[0]), rtol=1e-5)
     with pytest.raises(ValueError, match="unknown brush"):
         ForceTransport(*args, brush="nearest")
+
+
+def test_visible_brush_touches_the_front_surface_not_what_shows_through_it():
+    """A moving disc whose centre lets 20 % of the light through, over a static background primitive.
+
+    Compositing gives the background primitive about a fifth of the colour at
+    the disc's centre, so the brush that counts every composited primitive
+    (``min_transmittance`` 0, the default) reports about 0.8 of the disc's
+    motion; the front surface (``min_transmittance`` 0.5) is the disc alone.
+    """
+    c = torch.tensor([[32.0, 32.0], [32.0, 32.0]])  # index order is depth: the disc composites first
+    J = torch.tensor([[[3.0], [0.0]], [[0.0], [0.0]]])
+    cov = torch.stack([torch.eye(2) * 2.0**2, torch.eye(2) * 6.0**2])
+    alpha = torch.tensor([0.8, 0.99])
+    args = (c, J, alpha, torch.zeros(2, 1), torch.full((2, 1, 1), 100.0), torch.eye(1), torch.zeros(1), cov)
+    q0, centre = torch.zeros(1, 1), torch.tensor([[32.0, 32.0]])
+    front = ForceTransport(*args, min_transmittance=0.5).brush_jacobian(q0, centre, 0.5)[0, 0, 0]
+    every = ForceTransport(*args).brush_jacobian(q0, centre, 0.5)[0, 0, 0]
+    assert float(front) == pytest.approx(3.0, rel=1e-6)
+    assert 0.7 * 3.0 < float(every) < 0.85 * 3.0
+    # past the disc's edge the background is the front surface: it does not move
+    edge = ForceTransport(*args, min_transmittance=0.5).brush_jacobian(q0, torch.tensor([[42.0, 32.0]]), 0.5)
+    assert float(edge.abs().max()) < 1e-6
+    with pytest.raises(ValueError, match="min_transmittance"):
+        ForceTransport(*args, min_transmittance=1.5)
