@@ -8,7 +8,7 @@ import torch
 from pytorch_msssim import ssim
 from torch import Tensor
 
-from lagsplat.models.decoder import ConditionedGaussians, latent_gate
+from lagsplat.models.decoder import ConditionedGaussians
 
 __all__ = ["anisotropy_penalty", "kinematic_penalty", "reconstruction_loss", "rigidity_penalty", "static_motion_penalty"]
 
@@ -180,12 +180,12 @@ def rigidity_penalty(
     if not (length_px > 0 and color_sigma > 0):
         raise ValueError(f"rigidity length_px and color_sigma must be positive, got {length_px}, {color_sigma}")
     g = decoder.geometry()
-    scale = g.J.new_tensor([float(width), float(height)])
-    M = g.J * scale[None, :, None] * z_std.reshape(1, 1, -1).clamp_min(1e-3)  # [K,2,d] px per latent std
+    J_px, _ = decoder.pixel_geometry(height, width, g)
+    M = J_px * z_std.reshape(1, 1, -1).clamp_min(1e-3)  # [K,2,d] px per latent std
     with torch.no_grad():
-        zr = z_ref.reshape(1, -1)
-        x = (g.mu_s + torch.einsum("kij,kj->ki", g.J, zr - g.mu_q)) * scale  # [K,2] px
-        opac = g.alpha * latent_gate(zr, g.mu_q, g.L_qq)[0]
+        means, gate, _ = decoder.condition(z_ref.reshape(1, -1), g)
+        x = means[0] * g.J.new_tensor([float(width), float(height)])  # [K,2] px
+        opac = g.alpha * gate[0]
         kk = min(k, len(x) - 1)
         if kk < 1:
             return M.new_zeros(())
