@@ -36,6 +36,11 @@ also shows Eq. 9's own floor (:func:`constant_j_angle`), and the summary is
 printed over all forces and over those Eq. 9 carries (floor below half the
 magnitude tolerance: all but the vertical pull).
 
+With several trained folders (other seeds), a last table gives per force the
+number of models within tolerance and the spread of its magnitude error: a
+force that fails on every training (a bias of the read-out) shows apart from
+one that fails on some (the decoder's Jacobians varying between trainings).
+
     python benchmarks/force_truth.py [--results results/pendulum_force [more trained folders ...]] [--sigma 0.5]
 
 Prints a table; no assertion (scores, not tests).
@@ -141,12 +146,31 @@ def main() -> None:
     summaries = [(d, force_truth(Path(d), args)) for d in args.results]
     if len(summaries) > 1:
         print("\nchart read-out, forces within tolerance (all | those Eq. 9 carries), largest magnitude error:")
-        for d, (n_ok, n, n_ok_c, n_c, worst) in summaries:
+        for d, (n_ok, n, n_ok_c, n_c, worst, _) in summaries:
             print(f"  {d}: {n_ok} of {n} | {n_ok_c} of {n_c}, {worst:.1f} %")
+        per_force(args, [rows for _, (*_, rows) in summaries])
 
 
-def force_truth(d: Path, args: argparse.Namespace) -> tuple[int, int, int, int, float]:
-    """Print the table and summary of one trained model; return the chart read-out's pass counts and worst error."""
+def within(r: Row, args: argparse.Namespace, ia: str = "dir_c", im: str = "mag_c") -> bool:
+    """Whether a force's read-out (fields ``ia`` direction, ``im`` magnitude; default: chart) is within both tolerances."""
+    return abs(getattr(r, ia)) <= args.max_deg and abs(getattr(r, im)) <= args.max_pct
+
+
+def per_force(args: argparse.Namespace, runs: list[list[Row]]) -> None:
+    """Per force, over the trained models: how many are within tolerance, and the spread of the magnitude error (chart)."""
+    print(f"\nper force over the {len(runs)} models (chart read-out): within {args.max_deg:g} deg and {args.max_pct:g} %, magnitude error (%)")
+    print("| # | radius | force (Fx, Fy) | Eq. 9 floor (%) | models within | min | median | max | max abs dir err (deg) |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for rows in zip(*runs):
+        r0, mags = rows[0], np.array([r.mag_c for r in rows])
+        print(
+            f"| {r0.k} | {r0.r:.2f} | ({r0.F[0]:+.3f}, {r0.F[1]:+.3f}) | {r0.floor:+.1f} | {sum(within(r, args) for r in rows)} of {len(rows)} | "
+            f"{mags.min():+.1f} | {np.median(mags):+.1f} | {mags.max():+.1f} | {max(abs(r.dir_c) for r in rows):.2f} |"
+        )
+
+
+def force_truth(d: Path, args: argparse.Namespace) -> tuple[int, int, int, int, float, list[Row]]:
+    """Print the table and summary of one trained model; return the chart read-out's pass counts, worst error and rows."""
     ae = load_stage1(d / "stage1.pt")
     chart = load_chart(d / "chart.npz")
     clip = load_clip(d / "clip.npz")
@@ -236,8 +260,8 @@ def force_truth(d: Path, args: argparse.Namespace) -> tuple[int, int, int, int, 
     carried = [r for r in test if abs(r.floor) < 0.5 * args.max_pct]
 
     def n_ok(sub: list[Row], ia: str = "dir_c", im: str = "mag_c") -> int:
-        """Forces of ``sub`` within both tolerances (fields ``ia`` direction, ``im`` magnitude; default: chart read-out)."""
-        return sum(abs(getattr(r, ia)) <= args.max_deg and abs(getattr(r, im)) <= args.max_pct for r in sub)
+        """Forces of ``sub`` within both tolerances (:func:`within`)."""
+        return sum(within(r, args, ia, im) for r in sub)
 
     print()
     for name, ia, im in (("application point", "dir_p", "mag_p"), ("chart read-out", "dir_c", "mag_c")):
@@ -247,7 +271,7 @@ def force_truth(d: Path, args: argparse.Namespace) -> tuple[int, int, int, int, 
                 f"max |magnitude error| {max(abs(getattr(r, im)) for r in sub):.1f} %, median |magnitude error| {np.median([abs(getattr(r, im)) for r in sub]):.1f} %; "
                 f"{n_ok(sub, ia, im)} of {len(sub)} within {args.max_deg:g} deg and {args.max_pct:g} %"
             )
-    return n_ok(test), len(test), n_ok(carried), len(carried), max(abs(r.mag_c) for r in test)
+    return n_ok(test), len(test), n_ok(carried), len(carried), max(abs(r.mag_c) for r in test), rows
 
 
 if __name__ == "__main__":
