@@ -146,14 +146,29 @@ def main() -> None:
     summaries = [(d, force_truth(Path(d), args)) for d in args.results]
     if len(summaries) > 1:
         print("\nchart read-out, forces within tolerance (all | those Eq. 9 carries), largest magnitude error:")
-        for d, (n_ok, n, n_ok_c, n_c, worst, _) in summaries:
-            print(f"  {d}: {n_ok} of {n} | {n_ok_c} of {n_c}, {worst:.1f} %")
-        per_force(args, [rows for _, (*_, rows) in summaries])
+        for d, rows in summaries:
+            test = rows[1:]
+            carried = carried_forces(test, args)
+            print(
+                f"  {d}: {n_within(test, args)} of {len(test)} | {n_within(carried, args)} of {len(carried)}, "
+                f"{max(abs(r.mag_c) for r in test):.1f} %"
+            )
+        per_force(args, [rows for _, rows in summaries])
 
 
 def within(r: Row, args: argparse.Namespace, ia: str = "dir_c", im: str = "mag_c") -> bool:
     """Whether a force's read-out (fields ``ia`` direction, ``im`` magnitude; default: chart) is within both tolerances."""
     return abs(getattr(r, ia)) <= args.max_deg and abs(getattr(r, im)) <= args.max_pct
+
+
+def n_within(sub: list[Row], args: argparse.Namespace, ia: str = "dir_c", im: str = "mag_c") -> int:
+    """Forces of ``sub`` within both tolerances (:func:`within`)."""
+    return sum(within(r, args, ia, im) for r in sub)
+
+
+def carried_forces(test: list[Row], args: argparse.Namespace) -> list[Row]:
+    """The forces Eq. 9 itself carries: its floor leaves at least half the magnitude tolerance to the model."""
+    return [r for r in test if abs(r.floor) < 0.5 * args.max_pct]
 
 
 def per_force(args: argparse.Namespace, runs: list[list[Row]]) -> None:
@@ -169,8 +184,8 @@ def per_force(args: argparse.Namespace, runs: list[list[Row]]) -> None:
         )
 
 
-def force_truth(d: Path, args: argparse.Namespace) -> tuple[int, int, int, int, float, list[Row]]:
-    """Print the table and summary of one trained model; return the chart read-out's pass counts, worst error and rows."""
+def force_truth(d: Path, args: argparse.Namespace) -> list[Row]:
+    """Print the table and summary of one trained model; return its rows (the first is the calibration)."""
     ae = load_stage1(d / "stage1.pt")
     chart = load_chart(d / "chart.npz")
     clip = load_clip(d / "clip.npz")
@@ -256,12 +271,7 @@ def force_truth(d: Path, args: argparse.Namespace) -> tuple[int, int, int, int, 
             f"({dp[0]:+.2f}, {dp[1]:+.2f}) | {ang_p:+.2f} | {mag_p:+.1f} | ({dc[0]:+.2f}, {dc[1]:+.2f}) | {ang_c:+.2f} | {mag_c:+.1f} |"
         )
     test = rows[1:]
-    # forces Eq. 9 itself carries: its floor leaves at least half the magnitude tolerance to the model
-    carried = [r for r in test if abs(r.floor) < 0.5 * args.max_pct]
-
-    def n_ok(sub: list[Row], ia: str = "dir_c", im: str = "mag_c") -> int:
-        """Forces of ``sub`` within both tolerances (:func:`within`)."""
-        return sum(within(r, args, ia, im) for r in sub)
+    carried = carried_forces(test, args)
 
     print()
     for name, ia, im in (("application point", "dir_p", "mag_p"), ("chart read-out", "dir_c", "mag_c")):
@@ -269,9 +279,9 @@ def force_truth(d: Path, args: argparse.Namespace) -> tuple[int, int, int, int, 
             print(
                 f"{name}{label}: over {len(sub)} forces after calibration, max |direction error| {max(abs(getattr(r, ia)) for r in sub):.2f} deg, "
                 f"max |magnitude error| {max(abs(getattr(r, im)) for r in sub):.1f} %, median |magnitude error| {np.median([abs(getattr(r, im)) for r in sub]):.1f} %; "
-                f"{n_ok(sub, ia, im)} of {len(sub)} within {args.max_deg:g} deg and {args.max_pct:g} %"
+                f"{n_within(sub, args, ia, im)} of {len(sub)} within {args.max_deg:g} deg and {args.max_pct:g} %"
             )
-    return n_ok(test), len(test), n_ok(carried), len(carried), max(abs(r.mag_c) for r in test), rows
+    return rows
 
 
 if __name__ == "__main__":
