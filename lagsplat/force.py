@@ -256,6 +256,27 @@ class ForceTransport:
         """Where the selected material is at state ``q``: ``sum_i w_i mu_i(q) [B,2]`` px."""
         return torch.einsum("bk,bki->bi", sel.weights, self.means(q))
 
+    def observed_motion(self, sel: Selection, q: Tensor) -> Tensor:
+        """How far the selected material moves over the states ``q [T,d]``: rms displacement ``[B]`` px.
+
+        ``sqrt(mean_t |J_bar (q_t - mean_t q)|^2)`` with ``J_bar = sum_i w_i J_i``
+        the selection's Jacobian (paper Eq. 9: :meth:`application_point` is affine
+        in ``q``). Given the encoded *training* states it says how much motion
+        of this material the video showed the decoder. Its ``J_i`` are learned
+        from that motion alone, so where it is below about a pixel the video
+        barely constrains them and a force there is extrapolated (README
+        "Forces": the checkered pendulum's counter-arm, 0.4-0.6 px, reads its
+        lever arm 11-38 % short).
+
+        Raises:
+            ValueError: if ``q`` is not ``[T,d]`` with ``T >= 1``.
+        """
+        if q.ndim != 2 or q.shape[1] != self.d or len(q) == 0:
+            raise ValueError(f"need training states q [T,{self.d}] with T >= 1, got {tuple(q.shape)}")
+        Jb = torch.einsum("bk,kid->bid", sel.weights, self.J)  # [B,2,d]
+        dq = q - q.mean(0, keepdim=True)
+        return torch.einsum("bid,td->bti", Jb, dq).pow(2).sum(-1).mean(-1).sqrt()
+
     def pullback(self, sel: Selection | list[Selection], f: Tensor | list[Tensor], kappa: float | Tensor = 1.0) -> Tensor:
         """Generalized force ``kappa sum_i w_i J_i^T f`` ``[B,d]`` (paper Eq. 9).
 

@@ -215,3 +215,17 @@ def test_visible_brush_touches_the_front_surface_not_what_shows_through_it():
     assert float(edge.abs().max()) < 1e-6
     with pytest.raises(ValueError, match="min_transmittance"):
         ForceTransport(*args, min_transmittance=1.5)
+
+
+def test_observed_motion_is_the_rms_swing_of_the_selected_material():
+    # the seesaw swinging by q(t) = 0.1 sin(t): the material at radius a moves by a q(t) px, rms a * 0.1 / sqrt(2)
+    tr = _seesaw()
+    q = 0.1 * torch.sin(torch.linspace(0, 2 * math.pi, 401)[:-1])[:, None]
+    sel = tr.select(torch.zeros(2, 1), torch.tensor([[48.0, 32.0], [36.0, 32.0]]), 0.5)
+    arm = tr.application_point(torch.zeros(2, 1), sel)[:, 0] - 32.0  # the selected radius, ~16 and ~4 px
+    np.testing.assert_allclose(tr.observed_motion(sel, q).numpy(), (arm.abs() * 0.1 / math.sqrt(2)).numpy(), rtol=1e-4)
+    still = tr.select(torch.zeros(1, 1), torch.tensor([[4.0, 4.0]]), 0.5)  # a background primitive
+    assert float(tr.observed_motion(still, q)[0]) == 0.0
+    assert float(tr.observed_motion(sel, q + 3.0)[0]) == pytest.approx(float(tr.observed_motion(sel, q)[0]), rel=1e-5)
+    with pytest.raises(ValueError, match="training states"):
+        tr.observed_motion(sel, q[:, 0])

@@ -89,6 +89,20 @@ def test_drag_on_the_object_moves_it_and_release_returns_to_rest(system):
     assert s.state()["diverged"] == 0
 
 
+def test_the_grab_reports_how_far_the_held_material_moved_in_training(system):
+    s = _session(system)
+    x, y = s.most_mobile_point()
+    assert s.press(x, y)
+    on = s.state()["grab"]["seen_px"]
+    train = np.asarray(s.chart.split) == 0
+    sel = s.transport.select(s.q_rest, torch.tensor([[x, y]]), s.sigma)
+    want = float(s.transport.observed_motion(sel, torch.as_tensor(np.asarray(s.chart.q, np.float32)[train]))[0])
+    assert on == pytest.approx(want, rel=1e-5) and on > 1.0
+    s.release()
+    if s.press(*_background_point(s)):  # the brush may reach nothing there
+        assert s.state()["grab"]["seen_px"] < on / 50
+
+
 def test_a_drag_on_the_static_background_moves_less_than_a_fiftieth(system):
     s = _session(system)
     s.set_params(damping=4.0, inertia=0.25)

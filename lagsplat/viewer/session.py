@@ -42,6 +42,7 @@ from torch import Tensor
 
 from lagsplat.dynamics.integrators import initial_state, verlet_step
 from lagsplat.force import EditedDynamics, ForceTransport, Selection
+from lagsplat.io.clip import TRAIN
 
 __all__ = ["PARAM_RANGE", "Session", "load_session"]
 
@@ -171,6 +172,8 @@ class Session:
             raise ValueError(f"time step must be positive (seconds), got {self.dt}")
         self.transport = ForceTransport.from_autoencoder(ae, chart)
         self.d = self.transport.d
+        train = np.asarray(chart.split) == TRAIN
+        self._q_train = torch.as_tensor(np.asarray(chart.q, np.float32)[train if train.any() else slice(None)])
         self._W_inv = torch.as_tensor(chart.W_inv, dtype=torch.float32)
         self._geom = None  # the frozen decoder's geometry, built at the first render
         self._mean = torch.as_tensor(chart.mean, dtype=torch.float32)
@@ -195,6 +198,7 @@ class Session:
         self._lock = threading.RLock()
         self._sel: Selection | None = None
         self._target: Tensor | None = None
+        self._seen = 0.0
         self.initial = initial
         self.diverged = 0
         self.steps = 0
@@ -298,6 +302,7 @@ class Session:
                 self._sel, self._target = None, None
             else:
                 self._sel, self._target = sel, pt
+                self._seen = float(self.transport.observed_motion(sel, self._q_train)[0])
             self._substeps = self._count_substeps()
             return self._sel is not None
 
@@ -394,8 +399,11 @@ class Session:
 
         Keys: ``t`` (s), ``step``, ``q``, ``qdot``, ``q_rest`` (lists of ``d``
         floats), ``dist_rest`` (``|q - q_rest|``), ``grab`` (``None`` or
-        ``{"point": [x, y], "pointer": [x, y], "force": [fx, fy]}``: the held
-        material's application point, the pointer, the pixel force, all px),
+        ``{"point": [x, y], "pointer": [x, y], "force": [fx, fy], "seen_px": s}``:
+        the held material's application point, the pointer, the pixel force,
+        all px, and how far that material moved in the training clip, rms px
+        (:meth:`~lagsplat.force.ForceTransport.observed_motion`: below about a
+        pixel the video barely constrains its Jacobians)),
         ``params``, ``force_scale_default``, ``substeps``, ``compiled`` (the
         compiled dynamics are in use), ``size``
         (``[W, H]`` training px), ``render_size``, ``dt``, ``diverged``,
@@ -407,7 +415,7 @@ class Session:
             if self._sel is not None:
                 p = self.transport.application_point(q, self._sel)[0]
                 f = self.params["force_scale"] * (self._target[0] - p)
-                grab = {"point": p.tolist(), "pointer": self._target[0].tolist(), "force": f.tolist()}
+                grab = {"point": p.tolist(), "pointer": self._target[0].tolist(), "force": f.tolist(), "seen_px": self._seen}
             return {
                 "t": self.t,
                 "step": self.steps,
