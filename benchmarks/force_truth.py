@@ -31,17 +31,27 @@ calibrated on the first force:
   the loaded equilibrium state with the true one; its direction error is
   the sign and half the angle error.
 
-The brush is a point (``--sigma 0.5`` px), as the truth's force is. Each row
-also shows Eq. 9's own floor (:func:`constant_j_angle`), and the summary is
-printed over all forces and over those Eq. 9 carries (floor below half the
-magnitude tolerance: all but the vertical pull).
+The brush and its front-surface threshold are the ones the pipeline used
+(``sigma_px`` and ``min_transmittance`` of the folder's ``forces.json``,
+i.e. ``forces.sigma`` and ``forces.min_transmittance`` of the system's
+config), unless ``--sigma`` / ``--min-transmittance`` are given. Each row
+also shows Eq. 9's own floor (:func:`constant_j_angle`) and how far the
+brushed material moved in the training clip, rms px, as the model sees it
+(:meth:`~lagsplat.force.ForceTransport.observed_motion` on the encoded
+training states) and in truth. A force is scored only where the model saw
+its material move by at least ``--min-motion`` px (default 1): the decoder
+learns ``J_i`` from the video's motion, so below a pixel the force is
+extrapolated. Forces below it are printed and summarised apart (the
+counter-arm, 4.5 px above the pivot). The summary is printed over the scored
+forces and over those Eq. 9 carries (floor below half the magnitude
+tolerance: all but the vertical pull).
 
 With several trained folders (other seeds), a last table gives per force the
 number of models within tolerance and the spread of its magnitude error: a
 force that fails on every training (a bias of the read-out) shows apart from
 one that fails on some (the decoder's Jacobians varying between trainings).
 
-    python benchmarks/force_truth.py [--results results/pendulum_force [more trained folders ...]] [--sigma 0.5]
+    python benchmarks/force_truth.py [--results results/pendulum_force [more trained folders ...]] [--sigma 1.5] [--min-transmittance 0.5]
 
 Prints a table; no assertion (scores, not tests).
 """
@@ -49,6 +59,7 @@ Prints a table; no assertion (scores, not tests).
 from __future__ import annotations
 
 import argparse
+import json
 import math
 from pathlib import Path
 from typing import NamedTuple
@@ -61,6 +72,7 @@ from scipy.optimize import brentq
 from lagsplat.chart import load_chart
 from lagsplat.io.clip import TRAIN, load_clip
 from lagsplat.force import ForceTransport, calibrate_kappa
+from lagsplat.force_checks import ForceCheckConfig
 from lagsplat.synth.pendulum import PIVOT_Y, ROD_LENGTH
 from lagsplat.train.stage1 import load_stage1
 from lagsplat.train.stage2 import load_stage2
@@ -87,11 +99,19 @@ class Row(NamedTuple):
     dir_c: float
     mag_c: float
     floor: float
+    seen: float
+    seen_true: float
 
 
 def arc_displacement(theta: float, r: float, L_px: float) -> np.ndarray:
     """Displacement (px, image axes) of the rod point at radius ``r`` (units of the rod ``L_px``) swung from rest to ``theta`` (rad)."""
     return r * L_px * np.array([math.sin(theta), math.cos(theta) - 1.0])
+
+
+def true_motion(theta: np.ndarray, r: float, L_px: float) -> float:
+    """Rms displacement (px) about its mean of the rod point at radius ``r`` over the angles ``theta [T]`` (rad)."""
+    p = r * L_px * np.stack([np.sin(theta), np.cos(theta)], 1)
+    return float(np.sqrt(((p - p.mean(0)) ** 2).sum(1).mean()))
 
 
 def constant_j_angle(F: np.ndarray, r: float, kappa: float) -> float:
@@ -130,30 +150,60 @@ def main() -> None:
     )
     ap.add_argument("--brush", default="visible", choices=["visible", "paper"], help="brush weighting (lagsplat.force)")
     ap.add_argument(
-        "--sigma", type=float, default=0.5,
-        help="brush radius, pixels (default 0.5: a point force, the truth's; the visible brush reaches 2 sigma, so at 1.5 px "
-        "a click 4.5 px above the pivot puts 8 %% of the force on the static pivot disc and the background above the arm, "
-        "and one on the rod's axis samples its anti-aliased edges)",
+        "--sigma", type=float, default=None,
+        help="brush radius, pixels (default: the folder's forces.json, i.e. the system's forces.sigma; the visible brush "
+        "reaches 2 sigma, so at 1.5 px a click 4.5 px above the pivot also touches the static pivot disc)",
     )
     ap.add_argument(
-        "--min-transmittance", type=float, default=0.0,
+        "--min-transmittance", type=float, default=None,
         help="visible brush: a primitive counts only where at least this share of the light reaches it, the surface the "
-        "click meets (lagsplat.force; default 0: every composited primitive)",
+        "click meets (lagsplat.force; default: the folder's forces.json, i.e. the system's forces.min_transmittance)",
+    )
+    ap.add_argument(
+        "--min-motion", type=float, default=1.0,
+        help="score a force only where the model saw the brushed material move by at least this much (rms px) in "
+        "the training clip (ForceTransport.observed_motion); the others are printed apart",
     )
     ap.add_argument("--max-deg", type=float, default=5.0, help="direction tolerance counted in the summary (issue 5)")
     ap.add_argument("--max-pct", type=float, default=10.0, help="magnitude tolerance counted in the summary (issue 5)")
     args = ap.parse_args()
     summaries = [(d, force_truth(Path(d), args)) for d in args.results]
     if len(summaries) > 1:
-        print("\nchart read-out, forces within tolerance (all | those Eq. 9 carries), largest magnitude error:")
+        print(
+            f"\nchart read-out, scored forces (seen moving >= {args.min_motion:g} px) within tolerance (all | those Eq. 9 carries), "
+            "largest magnitude error; forces not scored:"
+        )
         for d, rows in summaries:
-            test = rows[1:]
+            test, unseen = scored(rows[1:], args)
             carried = carried_forces(test, args)
             print(
                 f"  {d}: {n_within(test, args)} of {len(test)} | {n_within(carried, args)} of {len(carried)}, "
-                f"{max(abs(r.mag_c) for r in test):.1f} %"
+                f"{max(abs(r.mag_c) for r in test):.1f} %; " + (", ".join(f"#{r.k} {r.mag_c:+.1f} %" for r in unseen) or "none")
             )
         per_force(args, [rows for _, rows in summaries])
+
+
+def brush_settings(d: Path, args: argparse.Namespace) -> tuple[float, float, str]:
+    """Brush radius (px), front-surface threshold and where they come from.
+
+    The command line's, else the folder's ``forces.json`` (what the force
+    checks of ``python -m lagsplat forces`` used), else the defaults of
+    :class:`~lagsplat.force_checks.ForceCheckConfig`.
+    """
+    cfg = ForceCheckConfig()
+    sigma, tau, source = cfg.sigma, cfg.min_transmittance, "defaults"
+    if (d / "forces.json").exists():
+        with open(d / "forces.json") as fh:
+            used = json.load(fh)
+        sigma, tau, source = float(used.get("sigma_px", sigma)), float(used.get("min_transmittance", tau)), "forces.json"
+    if args.sigma is not None or args.min_transmittance is not None:
+        source = "command line" if source == "defaults" else f"command line, else {source}"
+    return (sigma if args.sigma is None else args.sigma), (tau if args.min_transmittance is None else args.min_transmittance), source
+
+
+def scored(test: list[Row], args: argparse.Namespace) -> tuple[list[Row], list[Row]]:
+    """The forces on material the model saw move by at least ``--min-motion`` px in training, and the others."""
+    return [r for r in test if r.seen >= args.min_motion], [r for r in test if r.seen < args.min_motion]
 
 
 def within(r: Row, args: argparse.Namespace, ia: str = "dir_c", im: str = "mag_c") -> bool:
@@ -174,12 +224,16 @@ def carried_forces(test: list[Row], args: argparse.Namespace) -> list[Row]:
 def per_force(args: argparse.Namespace, runs: list[list[Row]]) -> None:
     """Per force, over the trained models: how many are within tolerance, and the spread of the magnitude error (chart)."""
     print(f"\nper force over the {len(runs)} models (chart read-out): within {args.max_deg:g} deg and {args.max_pct:g} %, magnitude error (%)")
-    print("| # | radius | force (Fx, Fy) | Eq. 9 floor (%) | models within | min | median | max | max abs dir err (deg) |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print(
+        "| # | radius | force (Fx, Fy) | Eq. 9 floor (%) | seen moving, rms px (model: min-max) | scored on | models within "
+        "| min | median | max | max abs dir err (deg) |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for rows in zip(*runs):
-        r0, mags = rows[0], np.array([r.mag_c for r in rows])
+        r0, mags, seen = rows[0], np.array([r.mag_c for r in rows]), np.array([r.seen for r in rows])
         print(
-            f"| {r0.k} | {r0.r:.2f} | ({r0.F[0]:+.3f}, {r0.F[1]:+.3f}) | {r0.floor:+.1f} | {sum(within(r, args) for r in rows)} of {len(rows)} | "
+            f"| {r0.k} | {r0.r:.2f} | ({r0.F[0]:+.3f}, {r0.F[1]:+.3f}) | {r0.floor:+.1f} | {seen.min():.2f}-{seen.max():.2f} | "
+            f"{int((seen >= args.min_motion).sum())} | {sum(within(r, args) for r in rows)} of {len(rows)} | "
             f"{mags.min():+.1f} | {np.median(mags):+.1f} | {mags.max():+.1f} | {max(abs(r.dir_c) for r in rows):.2f} |"
         )
 
@@ -190,13 +244,17 @@ def force_truth(d: Path, args: argparse.Namespace) -> list[Row]:
     chart = load_chart(d / "chart.npz")
     clip = load_clip(d / "clip.npz")
     model, _ = load_stage2(d / "stage2.pt")
-    tr = ForceTransport.from_autoencoder(ae, chart, brush=args.brush, min_transmittance=args.min_transmittance)
+    sigma, tau, source = brush_settings(d, args)
+    tr = ForceTransport.from_autoencoder(ae, chart, brush=args.brush, min_transmittance=tau)
     theta_of_q, fit_rms_deg = chart_readout(chart, clip)
     H, W = ae.height, ae.width
     L_px = ROD_LENGTH * H
     pivot = np.array([W / 2.0, PIVOT_Y * H])
     q0 = model.q_rest.detach()[None]
     th0 = float(theta_of_q(float(q0[0, 0])))
+    train = clip.split == TRAIN
+    q_train = torch.as_tensor(np.asarray(chart.q)[train], dtype=torch.float32)
+    theta_train = np.asarray(clip.meta["theta"], float)[train]
 
     # (radius as a fraction of the rod, force); the first row calibrates kappa.
     # Negative radii lie on the counter-arm above the pivot (pendulum_force).
@@ -228,16 +286,18 @@ def force_truth(d: Path, args: argparse.Namespace) -> list[Row]:
     for r, F in cases:
         F = np.asarray(F, float)
         x = torch.as_tensor((pivot + [0.0, r * L_px])[None], dtype=torch.float32)
-        sel = tr.select(q0, x, args.sigma)
+        sel = tr.select(q0, x, sigma)
         th = true_angle(F, r)
         d_true = arc_displacement(th, r, L_px)
-        setups.append((r, F, sel, th, d_true, tr.pullback(sel, torch.as_tensor(F[None], dtype=torch.float32))))
+        seen = float(tr.observed_motion(sel, q_train)[0])
+        seen_true = true_motion(theta_train, r, L_px)
+        setups.append((r, F, sel, th, d_true, tr.pullback(sel, torch.as_tensor(F[None], dtype=torch.float32)), seen, seen_true))
 
     def equilibrium(kappa: float, f_lat: torch.Tensor) -> torch.Tensor:
         return model.loaded_equilibrium(kappa * f_lat, q0=q0)
 
     # kappa of each read-out from the first force
-    r0, F0, sel0, th_cal, d0, _ = setups[0]
+    r0, F0, sel0, th_cal, d0 = setups[0][:5]
     calib = (model, tr, sel0, torch.as_tensor(F0[None], dtype=torch.float32), float(np.linalg.norm(d0)))
     kappa_point = calibrate_kappa(*calib, q_rest=q0)
     kappa_chart = calibrate_kappa(*calib, q_rest=q0, readout=lambda q_eq: float(np.linalg.norm(disp_chart(q_eq, r0))))
@@ -246,31 +306,33 @@ def force_truth(d: Path, args: argparse.Namespace) -> list[Row]:
     kappa_exact = math.sin(th_cal) / (r0 * F0[0])
 
     rows = []
-    for k, (r, F, sel, th, d_true, f_lat) in enumerate(setups):
+    for k, (r, F, sel, th, d_true, f_lat, seen, seen_true) in enumerate(setups):
         dp = disp_point(equilibrium(kappa_point, f_lat), sel)
         dc = disp_chart(equilibrium(kappa_chart, f_lat), r)
         floor = score(d_true, arc_displacement(constant_j_angle(F, r, kappa_exact), r, L_px))[1]
-        rows.append(Row(k, r, F, math.degrees(th), d_true, dp, *score(d_true, dp), dc, *score(d_true, dc), floor))
+        rows.append(Row(k, r, F, math.degrees(th), d_true, dp, *score(d_true, dp), dc, *score(d_true, dc), floor, seen, seen_true))
 
     print(
-        f"pendulum model: {d} ({W}x{H} px, rod {L_px:.1f} px), brush {args.brush} sigma {args.sigma} px"
-        + (f" min transmittance {tr.min_transmittance:g}; " if args.brush == "visible" else "; ")
+        f"pendulum model: {d} ({W}x{H} px, rod {L_px:.1f} px), brush {args.brush} sigma {sigma:g} px"
+        + (f" min transmittance {tr.min_transmittance:g}" if args.brush == "visible" else "")
+        + f" ({source}); "
         + f"kappa {kappa_point:.4g} (application point), {kappa_chart:.4g} (chart read-out); "
         f"chart read-out theta(q): cubic on {int((clip.split == TRAIN).sum())} training frames, rms {fit_rms_deg:.3f} deg"
     )
     print(
         "| # | radius | force (Fx, Fy) | true angle (deg) | true disp (px) | Eq. 9 floor: mag err (%) "
         "| application point disp (px) | dir err (deg) | mag err (%) "
-        "| chart read-out disp (px) | dir err (deg) | mag err (%) |"
+        "| chart read-out disp (px) | dir err (deg) | mag err (%) | seen moving in training, rms px: model | truth |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
-    for k, r, F, th, dt_, dp, ang_p, mag_p, dc, ang_c, mag_c, floor in rows:
-        tag = " (calibration)" if k == 0 else ""
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for k, r, F, th, dt_, dp, ang_p, mag_p, dc, ang_c, mag_c, floor, seen, seen_true in rows:
+        tag = " (calibration)" if k == 0 else ("" if seen >= args.min_motion else " (not scored)")
         print(
             f"| {k}{tag} | {r:.2f} | ({F[0]:+.3f}, {F[1]:+.3f}) | {th:+.2f} | ({dt_[0]:+.2f}, {dt_[1]:+.2f}) | {floor:+.1f} | "
-            f"({dp[0]:+.2f}, {dp[1]:+.2f}) | {ang_p:+.2f} | {mag_p:+.1f} | ({dc[0]:+.2f}, {dc[1]:+.2f}) | {ang_c:+.2f} | {mag_c:+.1f} |"
+            f"({dp[0]:+.2f}, {dp[1]:+.2f}) | {ang_p:+.2f} | {mag_p:+.1f} | ({dc[0]:+.2f}, {dc[1]:+.2f}) | {ang_c:+.2f} | {mag_c:+.1f} | "
+            f"{seen:.2f} | {seen_true:.2f} |"
         )
-    test = rows[1:]
+    test, unseen = scored(rows[1:], args)
     carried = carried_forces(test, args)
 
     print()
@@ -281,6 +343,11 @@ def force_truth(d: Path, args: argparse.Namespace) -> list[Row]:
                 f"max |magnitude error| {max(abs(getattr(r, im)) for r in sub):.1f} %, median |magnitude error| {np.median([abs(getattr(r, im)) for r in sub]):.1f} %; "
                 f"{n_within(sub, args, ia, im)} of {len(sub)} within {args.max_deg:g} deg and {args.max_pct:g} %"
             )
+    if unseen:
+        print(
+            f"not scored, material seen moving below {args.min_motion:g} px rms in training (chart read-out): "
+            + "; ".join(f"#{r.k} at r {r.r:+.2f}: {r.seen:.2f} px, dir {r.dir_c:+.2f} deg, mag {r.mag_c:+.1f} %" for r in unseen)
+        )
     return rows
 
 
