@@ -317,7 +317,7 @@ def force_truth(d: Path, args: argparse.Namespace) -> list[Row]:
         + (f" min transmittance {tr.min_transmittance:g}" if args.brush == "visible" else "")
         + f" ({source}); "
         + f"kappa {kappa_point:.4g} (application point), {kappa_chart:.4g} (chart read-out); "
-        f"chart read-out theta(q): cubic on {int((clip.split == TRAIN).sum())} training frames, rms {fit_rms_deg:.3f} deg"
+        f"chart read-out theta(q): cubic on {int(train.sum())} training frames, rms {fit_rms_deg:.3f} deg"
     )
     print(
         "| # | radius | force (Fx, Fy) | true angle (deg) | true disp (px) | Eq. 9 floor: mag err (%) "

@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 import torch
 
+from lagsplat.io.clip import TRAIN
 from lagsplat.viewer.browser import CHROMIUM, served_page
 from lagsplat.viewer.session import Session, load_session
 from lagsplat.viewer.synthetic import synthetic_pendulum
@@ -94,7 +95,7 @@ def test_the_grab_reports_how_far_the_held_material_moved_in_training(system):
     x, y = s.most_mobile_point()
     assert s.press(x, y)
     on = s.state()["grab"]["seen_px"]
-    train = np.asarray(s.chart.split) == 0
+    train = np.asarray(s.chart.split) == TRAIN
     sel = s.transport.select(s.q_rest, torch.tensor([[x, y]]), s.sigma)
     want = float(s.transport.observed_motion(sel, torch.as_tensor(np.asarray(s.chart.q, np.float32)[train]))[0])
     assert on == pytest.approx(want, rel=1e-5) and on > 1.0
