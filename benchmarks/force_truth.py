@@ -193,17 +193,21 @@ def brush_settings(d: Path, args: argparse.Namespace) -> tuple[float, float, str
     cfg = ForceCheckConfig()
     sigma, tau, source = cfg.sigma, cfg.min_transmittance, "defaults"
     if (d / "forces.json").exists():
-        with open(d / "forces.json") as fh:
-            used = json.load(fh)
+        used = json.loads((d / "forces.json").read_text())
         sigma, tau, source = float(used.get("sigma_px", sigma)), float(used.get("min_transmittance", tau)), "forces.json"
     if args.sigma is not None or args.min_transmittance is not None:
         source = "command line" if source == "defaults" else f"command line, else {source}"
     return (sigma if args.sigma is None else args.sigma), (tau if args.min_transmittance is None else args.min_transmittance), source
 
 
+def is_scored(r: Row, args: argparse.Namespace) -> bool:
+    """Whether the model saw the force's material move by at least ``--min-motion`` px in training."""
+    return r.seen >= args.min_motion
+
+
 def scored(test: list[Row], args: argparse.Namespace) -> tuple[list[Row], list[Row]]:
-    """The forces on material the model saw move by at least ``--min-motion`` px in training, and the others."""
-    return [r for r in test if r.seen >= args.min_motion], [r for r in test if r.seen < args.min_motion]
+    """The forces :func:`is_scored` keeps, and the others."""
+    return [r for r in test if is_scored(r, args)], [r for r in test if not is_scored(r, args)]
 
 
 def within(r: Row, args: argparse.Namespace, ia: str = "dir_c", im: str = "mag_c") -> bool:
@@ -233,7 +237,7 @@ def per_force(args: argparse.Namespace, runs: list[list[Row]]) -> None:
         r0, mags, seen = rows[0], np.array([r.mag_c for r in rows]), np.array([r.seen for r in rows])
         print(
             f"| {r0.k} | {r0.r:.2f} | ({r0.F[0]:+.3f}, {r0.F[1]:+.3f}) | {r0.floor:+.1f} | {seen.min():.2f}-{seen.max():.2f} | "
-            f"{int((seen >= args.min_motion).sum())} | {sum(within(r, args) for r in rows)} of {len(rows)} | "
+            f"{sum(is_scored(r, args) for r in rows)} | {sum(within(r, args) for r in rows)} of {len(rows)} | "
             f"{mags.min():+.1f} | {np.median(mags):+.1f} | {mags.max():+.1f} | {max(abs(r.dir_c) for r in rows):.2f} |"
         )
 
@@ -325,8 +329,9 @@ def force_truth(d: Path, args: argparse.Namespace) -> list[Row]:
         "| chart read-out disp (px) | dir err (deg) | mag err (%) | seen moving in training, rms px: model | truth |"
     )
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
-    for k, r, F, th, dt_, dp, ang_p, mag_p, dc, ang_c, mag_c, floor, seen, seen_true in rows:
-        tag = " (calibration)" if k == 0 else ("" if seen >= args.min_motion else " (not scored)")
+    for row in rows:
+        k, r, F, th, dt_, dp, ang_p, mag_p, dc, ang_c, mag_c, floor, seen, seen_true = row
+        tag = " (calibration)" if k == 0 else ("" if is_scored(row, args) else " (not scored)")
         print(
             f"| {k}{tag} | {r:.2f} | ({F[0]:+.3f}, {F[1]:+.3f}) | {th:+.2f} | ({dt_[0]:+.2f}, {dt_[1]:+.2f}) | {floor:+.1f} | "
             f"({dp[0]:+.2f}, {dp[1]:+.2f}) | {ang_p:+.2f} | {mag_p:+.1f} | ({dc[0]:+.2f}, {dc[1]:+.2f}) | {ang_c:+.2f} | {mag_c:+.1f} | "

@@ -172,8 +172,7 @@ class Session:
             raise ValueError(f"time step must be positive (seconds), got {self.dt}")
         self.transport = ForceTransport.from_autoencoder(ae, chart)
         self.d = self.transport.d
-        train = np.asarray(chart.split) == TRAIN
-        self._q_train = torch.as_tensor(np.asarray(chart.q, np.float32)[train if train.any() else slice(None)])
+        self._q_train = torch.as_tensor(np.asarray(chart.q, np.float32)[np.asarray(chart.split) == TRAIN])
         self._W_inv = torch.as_tensor(chart.W_inv, dtype=torch.float32)
         self._geom = None  # the frozen decoder's geometry, built at the first render
         self._mean = torch.as_tensor(chart.mean, dtype=torch.float32)
