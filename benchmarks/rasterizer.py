@@ -22,7 +22,9 @@ Usage::
 Each configuration gets one warm-up call (this also triggers numba's
 compilation, or loads its cache) and then ``--repeats`` timed calls; the table
 reports ``batch / median time``. "fwd+bwd" times the forward pass and the
-backward pass of ``sum(image * upstream)`` to all four inputs together.
+backward pass of ``sum(image * upstream)`` to all four inputs together;
+"fwd+bwd / fwd" is the ratio of the two frame rates in the same run (1/3 would
+mean a backward pass that costs two forward passes).
 """
 
 from __future__ import annotations
@@ -135,6 +137,7 @@ def main(argv: list[str] | None = None) -> pd.DataFrame:
                 else:
                     fwd, fb, diff = bench_one(backend, args.batch, k, size, args.repeats, args.device)
                     row["forward fps"], row["fwd+bwd fps"] = f"{fwd:.1f}", f"{fb:.1f}"
+                    row["fwd+bwd / fwd"] = f"{fb / fwd:.2f}"
                     row["max |diff| vs torch"] = f"{diff:.1e}"
                 rows.append(row)
                 print(f"  done: {row}", flush=True)

@@ -240,19 +240,23 @@ def rasterize_tiles(
     return img[:, :, :height, :width]
 
 
-def _cpu_render(means, conic, opac, colors, r2, bounds, background, height, width, tile) -> Tensor:
-    """Inference path of :func:`rasterize_cpu`: the same image, no autograd record (``render_kernel``)."""
+def _cpu_render(means, conic, opac, colors, r2, bounds, background, height, width) -> Tensor:
+    """Inference path of :func:`rasterize_cpu`: the same image, no autograd record."""
+    k = _prepare_kernel(means, conic, opac, colors, r2, bounds, background, height, width)
+    return torch.from_numpy(_cpu_forward(k, colors.shape[0], colors.shape[2], height, width))
+
+
+def _cpu_forward(k: dict, B: int, C: int, height: int, width: int) -> np.ndarray:
+    """Run ``forward_kernel`` on the binned inputs ``k`` of :func:`_prepare_kernel`; float32 ``[B,C,H,W]``."""
     from lagsplat.render import cpu_kernels as ck
 
-    k = _prepare_kernel(means, conic, opac, colors, r2, bounds, background, height, width, tile)
-    B, C = colors.shape[0], colors.shape[2]
     out = np.empty((B, C, height, width), np.float32)
     x0, x1, y0, y1 = k["bounds"]
-    _parallel(ck.render_kernel, k["pairs"], k["key_start"], *k["arrays"], x0, x1, y0, y1, height, width, tile, k["ntx"], k["n_tiles"], out)
-    return torch.from_numpy(out)
+    _parallel(ck.forward_kernel, k["pairs"], k["key_start"], *k["arrays"], x0, x1, y0, y1, height, width, k["ntx"], k["n_tiles"], out)
+    return out
 
 
-def _prepare_kernel(means, conic, opac, colors, r2, bounds, background, height, width, tile) -> dict:
+def _prepare_kernel(means, conic, opac, colors, r2, bounds, background, height, width) -> dict:
     """Bin the (tile, primitive) pairs and lay the inputs out as the compiled kernels take them.
 
     Returns ``pairs``, ``key_start``, ``ntx``, ``n_tiles``, ``bounds`` (x0, x1,
@@ -262,6 +266,7 @@ def _prepare_kernel(means, conic, opac, colors, r2, bounds, background, height, 
     from lagsplat.render import cpu_kernels as ck
 
     B, K, C = colors.shape
+    tile = ck.TILE
     ntx, nty = math.ceil(width / tile), math.ceil(height / tile)
     n_tiles = ntx * nty
     x0, x1, y0, y1, valid = (v.reshape(-1).numpy() for v in bounds)
@@ -277,40 +282,47 @@ def _prepare_kernel(means, conic, opac, colors, r2, bounds, background, height, 
 
 
 class _CpuRasterize(torch.autograd.Function):
-    """Autograd wrapper of the compiled kernels in :mod:`lagsplat.render.cpu_kernels`."""
+    """Autograd wrapper of the compiled kernels in :mod:`lagsplat.render.cpu_kernels`.
+
+    The forward pass stores only its image; the backward pass replays the
+    compositing (``backward_kernel``) and sums the per-pair gradients per
+    primitive (``sum_pairs``).
+    """
 
     @staticmethod
-    def forward(ctx, means, conic, opac, colors, r2, bounds, background, height, width, tile):
-        from lagsplat.render import cpu_kernels as ck
-
+    def forward(ctx, means, conic, opac, colors, r2, bounds, background, height, width):
         B, K, C = colors.shape
-        k = _prepare_kernel(means, conic, opac, colors, r2, bounds, background, height, width, tile)
-        pairs, key_start, ntx, n_tiles = k["pairs"], k["key_start"], k["ntx"], k["n_tiles"]
-        m, cn, op, rr, col, bg = k["arrays"]
-        out = np.empty((B, C, height, width), np.float32)
-        t_final = np.empty((B, height, width), np.float32)
-        t_store = np.empty((len(pairs), tile * tile), np.float32)
-        _parallel(ck.forward_kernel, pairs, key_start, m, cn, op, rr, col, bg, height, width, tile, ntx, n_tiles, out, t_final, t_store)
-        ctx.saved = (pairs, key_start, m, cn, op, rr, col, bg, t_final, t_store)
-        ctx.dims = (B, K, C, height, width, tile, ntx, n_tiles)
+        k = _prepare_kernel(means, conic, opac, colors, r2, bounds, background, height, width)
+        out = _cpu_forward(k, B, C, height, width)
+        ctx.saved = (k, out)
+        ctx.dims = (B, K, C, height, width)
         return torch.from_numpy(out)
 
     @staticmethod
     def backward(ctx, grad_out):
         from lagsplat.render import cpu_kernels as ck
 
-        pairs, key_start, m, cn, op, rr, col, bg, t_final, t_store = ctx.saved
-        B, K, C, height, width, tile, ntx, n_tiles = ctx.dims
-        g_pair = np.zeros((len(pairs), 6 + C), np.float32)
+        k, out = ctx.saved
+        B, K, C, height, width = ctx.dims
+        pairs = k["pairs"]
+        m, cn, op, rr, col, _ = k["arrays"]
+        _, _, y0, y1 = k["bounds"]
+        g_pair = np.empty((len(pairs), 6 + C), np.float32)
         go = np.ascontiguousarray(grad_out.detach().numpy(), dtype=np.float32)
-        _parallel(ck.backward_kernel, pairs, key_start, m, cn, op, rr, col, bg, height, width, tile, ntx, n_tiles, go, t_final, t_store, g_pair)
-        g = torch.zeros(B * K, 6 + C).index_add_(0, torch.from_numpy(pairs), torch.from_numpy(g_pair))
+        _parallel(
+            ck.backward_kernel, pairs, k["key_start"], m, cn, op, rr, col, y0, y1,
+            height, width, k["ntx"], k["n_tiles"], out, go, g_pair,
+        )
+        slots, prim_start = ck.group_by_primitive(pairs, B * K)
+        g_np = np.empty((B * K, 6 + C), np.float32)
+        _parallel(ck.sum_pairs, g_pair, slots, prim_start, g_np)
+        g = torch.from_numpy(g_np)
         return (
             g[:, 0:2].reshape(B, K, 2),
             g[:, 2:5].reshape(B, K, 3),
             g[:, 5].reshape(B, K),
             g[:, 6:].reshape(B, K, C),
-            None, None, None, None, None, None,
+            None, None, None, None, None,
         )
 
 
@@ -323,14 +335,20 @@ def rasterize_cpu(
     width: int,
     background: Tensor | None = None,
     eps2d: float = EPS2D,
-    tile: int = 8,
 ) -> Tensor:
     """Tile rasteriser with compiled (numba) CPU kernels; same image as :func:`rasterize_dense`.
 
     First-order gradients flow to ``means``, ``covs``, ``opacities`` and
     ``colors`` (no double backward and no forward-mode AD: use
-    :func:`rasterize_tiles` for those). CPU float32 tensors only.
-    Arguments and return value as :func:`rasterize_tiles`.
+    :func:`rasterize_tiles` for those). CPU float32 tensors only. The
+    kernels use fixed 16 x 16 pixel tiles (:data:`lagsplat.render.cpu_kernels.TILE`)
+    and a polynomial exponential within about one float32 ulp of ``exp``
+    (:func:`~lagsplat.render.cpu_kernels.exp_neg`). The backward pass costs
+    about 1.5-2 forward passes (``benchmarks/rasterizer.py``).
+    Arguments and return value as :func:`rasterize_tiles`, without ``tile``.
+
+    Raises:
+        ValueError: on CUDA tensors or inconsistent shapes.
     """
     if means.device.type != "cpu":
         raise ValueError("rasterize_cpu needs CPU tensors; use backend='torch' or 'gsplat' on a GPU")
@@ -339,9 +357,9 @@ def rasterize_cpu(
         bounds = _pixel_bounds(means, r2, sxx, syy, height, width)
     needs_grad = torch.is_grad_enabled() and any(t.requires_grad for t in (means, covs, opacities, colors))
     if not needs_grad:
-        return _cpu_render(means, conic, opacities, colors, r2, bounds, background, height, width, tile)
+        return _cpu_render(means, conic, opacities, colors, r2, bounds, background, height, width)
     return _CpuRasterize.apply(
-        means.float(), conic.float(), opacities.float(), colors.float(), r2, bounds, background, height, width, tile
+        means.float(), conic.float(), opacities.float(), colors.float(), r2, bounds, background, height, width
     )
 
 
@@ -475,7 +493,8 @@ def rasterize(
             ``"auto"`` (``"cpu"`` for CPU tensors when numba is importable,
             ``"gsplat"`` for CUDA tensors when gsplat is installed, else ``"torch"``).
         eps2d: covariance dilation in pixels^2.
-        tile: culling tile edge in pixels (torch backend).
+        tile: culling tile edge in pixels (torch backend; the compiled CPU
+            kernels use 16 x 16 tiles, gsplat its own).
 
     Returns:
         ``[B,C,H,W]`` image.
@@ -490,7 +509,7 @@ def rasterize(
         else:
             backend = "gsplat" if means.device.type == "cuda" and _gsplat_available() else "torch"
     if backend == "cpu":
-        return rasterize_cpu(means, covs, opacities, colors, height, width, background, eps2d, tile)
+        return rasterize_cpu(means, covs, opacities, colors, height, width, background, eps2d)
     if backend == "torch":
         return rasterize_tiles(means, covs, opacities, colors, height, width, background, eps2d, tile)
     if backend == "dense":
