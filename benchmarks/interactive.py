@@ -126,7 +126,7 @@ def _page_rates(session, seconds: float, drag: bool) -> dict:
 
 def main(argv: list[str] | None = None):
     args = _parse(argv)
-    import lagsplat  # noqa: F401, I001  (first: sets OMP_WAIT_POLICY=PASSIVE before torch starts its threads)
+    import lagsplat  # noqa: F401, I001  (first: sets GOMP_SPINCOUNT before torch starts its threads)
     import torch
 
     from lagsplat.viewer.server import encode_image

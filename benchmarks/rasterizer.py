@@ -35,7 +35,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout without installing
-import lagsplat  # noqa: E402,F401  (sets OMP_WAIT_POLICY=PASSIVE before torch starts its threads)
+import lagsplat  # noqa: E402,F401  (sets GOMP_SPINCOUNT before torch starts its threads)
 import torch  # noqa: E402
 
 import pandas as pd

@@ -66,7 +66,7 @@ def main(argv: list[str] | None = None):
         atexit.register(shutil.rmtree, cache_dir, ignore_errors=True)
         os.environ["NUMBA_CACHE_DIR"] = cache_dir
 
-    import lagsplat  # noqa: F401, I001  (first: sets OMP_WAIT_POLICY=PASSIVE before torch starts its threads)
+    import lagsplat  # noqa: F401, I001  (first: sets GOMP_SPINCOUNT before torch starts its threads)
     import torch
 
     from lagsplat.dynamics.integrators import rollout

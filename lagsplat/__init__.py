@@ -7,11 +7,15 @@ latent Lagrangian fitted to the encoded trajectory (see the paper, §3).
 
 import os as _os
 
-# Training alternates torch's OpenMP kernels with the numba rasterizer's worker
-# threads. OpenMP's default "active" wait makes idle torch threads spin on the
-# cores the numba workers need; passive waiting was measured 2-4x faster per
-# Stage-1 step on 2 cores (benchmarks/rasterizer.py). Must be set before torch
-# starts its thread pool, hence here; an explicit user setting wins.
-_os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+# Training alternates torch's OpenMP kernels with the numba rasteriser's own
+# OpenMP pool (two runtimes, two pools on the same cores). An idle OpenMP
+# thread spins before it sleeps: spinning for ever (OMP_WAIT_POLICY=ACTIVE)
+# starves the other pool, never spinning (PASSIVE) makes each of the hundreds
+# of small torch operations of a step wait for a sleeping thread to wake. A
+# short spin (about tens of microseconds) keeps both: on 2 cores a Stage-1 step
+# of the main job took 22 ms with it, 32 ms with PASSIVE and 26 ms with the
+# runtime's default (benchmarks/stage1.py). Must be set before torch starts its
+# thread pool, hence here; an explicit user setting wins.
+_os.environ.setdefault("GOMP_SPINCOUNT", "30000")
 
 __version__ = "0.1.0"

@@ -1,6 +1,6 @@
 """Shared test set-up.
 
-Importing lagsplat first sets ``OMP_WAIT_POLICY=PASSIVE`` before torch starts
+Importing lagsplat first sets ``GOMP_SPINCOUNT`` before torch starts
 its OpenMP pool (see lagsplat/__init__.py): torch's spinning threads otherwise
 starve the numba rasterizer's workers on a 2-core machine.
 """

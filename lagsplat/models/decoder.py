@@ -36,7 +36,7 @@ from torch import Tensor, nn
 
 from lagsplat.render.rasterize import Backend, rasterize
 
-__all__ = ["ConditionedGaussians", "DecoderGeometry", "inverse_softplus", "latent_gate"]
+__all__ = ["ConditionedGaussians", "DecoderGeometry", "inverse_softplus", "latent_gate", "tril_inverse"]
 
 _DIAG_FLOOR = 1e-4
 _GATE_CLAMP = 20.0  # Mahalanobis^2 clamp of the gate: w_z >= exp(-10)
@@ -47,20 +47,36 @@ def inverse_softplus(y: Tensor) -> Tensor:
     return y + torch.log(-torch.expm1(-y))
 
 
-def latent_gate(z: Tensor, mu_q: Tensor, L_qq: Tensor) -> Tensor:
+def tril_inverse(L: Tensor) -> Tensor:
+    """Inverse of lower-triangular matrices ``L [..., d, d]`` with non-zero diagonals.
+
+    ``1 / L`` for ``d = 1`` (the common chart; a generic batched triangular
+    solve costs far more there), a triangular solve against the identity
+    otherwise.
+    """
+    if L.shape[-1] == 1:
+        return 1.0 / L
+    eye = torch.eye(L.shape[-1], dtype=L.dtype, device=L.device).expand_as(L)
+    return torch.linalg.solve_triangular(L, eye, upper=False)
+
+
+def latent_gate(z: Tensor, mu_q: Tensor, L_qq: Tensor, L_qq_inv: Tensor | None = None) -> Tensor:
     """Latent gate ``exp(-1/2 (z - mu_q)^T Sigma_qq^-1 (z - mu_q))`` of every primitive (paper Eq. 4).
 
     Args:
         z: ``[B,d]`` raw latent states.
         mu_q: ``[K,d]`` latent means.
         L_qq: ``[K,d,d]`` lower-triangular Cholesky factors of ``Sigma_qq``.
+        L_qq_inv: their inverses, if already computed (:func:`tril_inverse`).
 
     Returns:
         ``[B,K]`` in ``[exp(-10), 1]``: the Mahalanobis distance is clamped at
         ``_GATE_CLAMP`` so that no gradient vanishes entirely.
     """
     diff = z[:, None, :] - mu_q[None]
-    y = torch.linalg.solve_triangular(L_qq[None].expand(z.shape[0], -1, -1, -1), diff.unsqueeze(-1), upper=False).squeeze(-1)
+    # y = L_qq^-1 (z - mu_q): one inverse per primitive, shared by the batch
+    L_inv = tril_inverse(L_qq) if L_qq_inv is None else L_qq_inv
+    y = torch.einsum("kij,bkj->bki", L_inv, diff)
     return torch.exp(-0.5 * (y * y).sum(-1).clamp(max=_GATE_CLAMP))
 
 
@@ -76,6 +92,7 @@ class DecoderGeometry:
         cov: ``[K,2,2]`` conditional (rendered) covariances (paper Eq. 3).
         alpha: ``[K]`` base opacities in (0, 1).
         colors: ``[K,3]`` RGB in (0, 1).
+        L_qq_inv: ``[K,d,d]`` inverse of ``L_qq`` (:func:`tril_inverse`).
     """
 
     mu_s: Tensor
@@ -85,6 +102,7 @@ class DecoderGeometry:
     cov: Tensor
     alpha: Tensor
     colors: Tensor
+    L_qq_inv: Tensor | None = None
 
 
 class ConditionedGaussians(nn.Module):
@@ -142,8 +160,8 @@ class ConditionedGaussians(nn.Module):
         d = self.d
         L = self.cholesky()
         L_qq, L_sq, L_ss = L[:, :d, :d], L[:, d:, :d], L[:, d:, d:]
-        # J = L_sq L_qq^{-1}  <=>  J L_qq = L_sq  <=>  L_qq^T J^T = L_sq^T
-        J = torch.linalg.solve_triangular(L_qq.transpose(-1, -2), L_sq.transpose(-1, -2), upper=True).transpose(-1, -2)
+        L_qq_inv = tril_inverse(L_qq)
+        J = L_sq @ L_qq_inv  # J = Sigma_sq Sigma_qq^-1 = L_sq L_qq^-1
         return DecoderGeometry(
             mu_s=1.2 * torch.sigmoid(self.mu_raw) - 0.1,
             mu_q=self.mu_q,
@@ -152,6 +170,7 @@ class ConditionedGaussians(nn.Module):
             cov=L_ss @ L_ss.transpose(-1, -2),
             alpha=torch.sigmoid(self.logit_alpha),
             colors=torch.sigmoid(self.logit_color),
+            L_qq_inv=L_qq_inv,
         )
 
     def condition(self, q: Tensor, geom: DecoderGeometry | None = None) -> tuple[Tensor, Tensor, DecoderGeometry]:
@@ -174,7 +193,7 @@ class ConditionedGaussians(nn.Module):
         g = self.geometry() if geom is None else geom
         diff = q[:, None, :] - g.mu_q[None]  # [B,K,d]
         means = g.mu_s[None] + torch.einsum("kij,bkj->bki", g.J, diff)
-        return means, latent_gate(q, g.mu_q, g.L_qq), g
+        return means, latent_gate(q, g.mu_q, g.L_qq, g.L_qq_inv), g
 
     def presence(self, q: Tensor) -> Tensor:
         """Normalised presence weights ``w_hat_i(q)`` (paper Eq. 7), ``[B,K]``, summing to 1."""
@@ -361,12 +380,15 @@ class ConditionedGaussians(nn.Module):
         n_dead = int(dead.sum())
         if n_dead == 0:
             return
+        # drawn on the CPU (the generator's device), written to the parameters' device
+        dev = self.mu_raw.device
+        frame, rendered, z_frame, z_std = (t.detach().cpu() for t in (frame, rendered, z_frame, z_std))
         _, H, W = frame.shape
         err = (rendered - frame).abs().mean(0).flatten()
         prob = err if float(err.sum()) > 1e-10 else torch.ones_like(err)
         idx = torch.multinomial(prob, n_dead, replacement=True, generator=generator)
-        self.mu_raw[dead] = self._raw_positions(idx, H, W)
-        self.mu_q[dead] = z_frame.expand(n_dead, -1)
-        self.L_raw[dead] = self._raw_diagonal(z_std.clamp_min(1e-3), sigma_xy, n_dead)
-        self.logit_color[dead] = torch.logit(frame[:, idx // W, idx % W].T.clamp(0.01, 0.99))
+        self.mu_raw[dead] = self._raw_positions(idx, H, W).to(dev)
+        self.mu_q[dead] = z_frame.expand(n_dead, -1).to(dev)
+        self.L_raw[dead] = self._raw_diagonal(z_std.clamp_min(1e-3), sigma_xy, n_dead).to(dev)
+        self.logit_color[dead] = torch.logit(frame[:, idx // W, idx % W].T.clamp(0.01, 0.99)).to(dev)
         self.logit_alpha[dead] = -3.0

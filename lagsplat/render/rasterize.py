@@ -44,6 +44,7 @@ from typing import Literal
 import numpy as np
 import torch
 from torch import Tensor
+from torch.profiler import record_function
 
 __all__ = [
     "rasterize",
@@ -292,30 +293,34 @@ class _CpuRasterize(torch.autograd.Function):
     @staticmethod
     def forward(ctx, means, conic, opac, colors, r2, bounds, background, height, width):
         B, K, C = colors.shape
-        k = _prepare_kernel(means, conic, opac, colors, r2, bounds, background, height, width)
-        out = _cpu_forward(k, B, C, height, width)
-        ctx.saved = (k, out)
+        with record_function("rasterize.cpu.forward"):
+            k = _prepare_kernel(means, conic, opac, colors, r2, bounds, background, height, width)
+            out = _cpu_forward(k, B, C, height, width)
+        img = torch.from_numpy(out)
+        ctx.kernel_inputs = k
+        ctx.save_for_backward(img)  # an in-place edit of the output then fails loudly in backward
         ctx.dims = (B, K, C, height, width)
-        return torch.from_numpy(out)
+        return img
 
     @staticmethod
     def backward(ctx, grad_out):
         from lagsplat.render import cpu_kernels as ck
 
-        k, out = ctx.saved
-        B, K, C, height, width = ctx.dims
-        pairs = k["pairs"]
-        m, cn, op, rr, col, _ = k["arrays"]
-        _, _, y0, y1 = k["bounds"]
-        g_pair = np.empty((len(pairs), 6 + C), np.float32)
-        go = np.ascontiguousarray(grad_out.detach().numpy(), dtype=np.float32)
-        _parallel(
-            ck.backward_kernel, pairs, k["key_start"], m, cn, op, rr, col, y0, y1,
-            height, width, k["ntx"], k["n_tiles"], out, go, g_pair,
-        )
-        slots, prim_start = ck.group_by_primitive(pairs, B * K)
-        g_np = np.empty((B * K, 6 + C), np.float32)
-        _parallel(ck.sum_pairs, g_pair, slots, prim_start, g_np)
+        with record_function("rasterize.cpu.backward"):
+            k, out = ctx.kernel_inputs, ctx.saved_tensors[0].numpy()
+            B, K, C, height, width = ctx.dims
+            pairs = k["pairs"]
+            m, cn, op, rr, col, _ = k["arrays"]
+            _, _, y0, y1 = k["bounds"]
+            g_pair = np.empty((len(pairs), 6 + C), np.float32)
+            go = np.ascontiguousarray(grad_out.detach().numpy(), dtype=np.float32)
+            _parallel(
+                ck.backward_kernel, pairs, k["key_start"], m, cn, op, rr, col, y0, y1,
+                height, width, k["ntx"], k["n_tiles"], out, go, g_pair,
+            )
+            slots, prim_start = ck.group_by_primitive(pairs, B * K)
+            g_np = np.empty((B * K, 6 + C), np.float32)
+            _parallel(ck.sum_pairs, g_pair, slots, prim_start, g_np)
         g = torch.from_numpy(g_np)
         return (
             g[:, 0:2].reshape(B, K, 2),

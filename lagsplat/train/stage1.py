@@ -9,14 +9,16 @@ from typing import Any, Mapping
 import numpy as np
 import torch
 from torch import Tensor, nn
-from tqdm.auto import tqdm
+from torch.profiler import record_function
 
 from lagsplat.io.atomic import save_torch
 from lagsplat.io.clip import Clip
 from lagsplat.models.decoder import ConditionedGaussians
 from lagsplat.models.encoder import CpAEEncoder, nonlocal_filter_penalty
 from lagsplat.train.config import dataclass_from_mapping
+from lagsplat.train.device import resolve_device
 from lagsplat.train.losses import kinematic_penalty, reconstruction_loss, rigidity_penalty, static_motion_penalty
+from lagsplat.train.progress import Progress
 
 __all__ = ["Stage1Config", "AutoEncoder", "train_stage1", "save_stage1", "load_stage1", "frames_to_tensor"]
 
@@ -117,7 +119,9 @@ def _reset_adam_rows(opt: torch.optim.Optimizer, params: list[nn.Parameter], mas
                 st[key][mask] = 0.0
 
 
-def train_stage1(clip: Clip, cfg: Stage1Config, d: int, seed: int = 0, progress: bool = True) -> tuple[AutoEncoder, dict]:
+def train_stage1(
+    clip: Clip, cfg: Stage1Config, d: int, seed: int = 0, progress: bool = True, device: str = "cpu"
+) -> tuple[AutoEncoder, dict]:
     """Fit encoder and decoder jointly on the clip's training frames.
 
     Args:
@@ -125,15 +129,27 @@ def train_stage1(clip: Clip, cfg: Stage1Config, d: int, seed: int = 0, progress:
         cfg: settings.
         d: latent dimension.
         seed: RNG seed (torch and the batch sampler).
-        progress: show a tqdm bar with the running loss.
+        progress: report progress (:class:`~lagsplat.train.progress.Progress`:
+            a tqdm bar on a terminal, a line every ~30 s otherwise).
+        device: ``"cpu"`` (the reference), ``"cuda"`` or ``"auto"``
+            (:func:`~lagsplat.train.device.resolve_device`). The model is
+            initialised on the CPU (the same random draws on every device),
+            trained on the device, and returned on the CPU.
+
+    Each step's phases are labelled for ``torch.profiler``
+    (``stage1.encode``, ``stage1.decode``, ``stage1.loss``,
+    ``stage1.backward``, ``stage1.optimizer``, ``stage1.recycle``;
+    ``benchmarks/stage1.py`` prints their shares).
 
     Returns:
         ``(model, history)``, history holding per-step loss terms (every 10 steps)
         and the recycling events.
 
     Raises:
-        ValueError: if the clip has fewer training frames than 2.
+        ValueError: if the clip has fewer training frames than 2, or on a
+            device that is not available.
     """
+    dev = resolve_device(device)
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
     torch.manual_seed(seed)
@@ -152,14 +168,16 @@ def train_stage1(clip: Clip, cfg: Stage1Config, d: int, seed: int = 0, progress:
     with torch.no_grad():
         z0 = torch.cat([enc(X[i : i + 256]) for i in range(0, N, 256)])
     dec.init_from_frame(X[0], z0, cfg.sigma_xy, cfg.sigma_q_floor, generator=gen)
-    model = AutoEncoder(enc, dec, H, W)
+    model = AutoEncoder(enc, dec, H, W).to(dev)
+    X = X.to(dev)
+    static = None if static is None else static.to(dev)
 
     dec_params = list(dec.parameters())
-    opt = torch.optim.Adam(
-        [{"params": enc.parameters(), "lr": cfg.lr_encoder}, {"params": dec_params, "lr": cfg.lr_decoder}]
+    opt = torch.optim.Adam(  # fused: one kernel for all parameters (the per-tensor loop costs more on the CPU)
+        [{"params": enc.parameters(), "lr": cfg.lr_encoder}, {"params": dec_params, "lr": cfg.lr_decoder}], fused=True
     )
     history: dict[str, list] = {"step": [], "loss": [], "l1": [], "ssim": [], "recycled": []}
-    bar = tqdm(range(cfg.steps), desc="stage1", disable=not progress, dynamic_ncols=True)
+    bar = Progress(cfg.steps, "stage1", enabled=progress)
     order = rng.permutation(N)
     pos = 0
     ema = None
@@ -169,32 +187,37 @@ def train_stage1(clip: Clip, cfg: Stage1Config, d: int, seed: int = 0, progress:
         idx = order[pos : pos + min(cfg.batch, N)]
         pos += len(idx)
         x = X[idx]
-        z = enc(x)
-        if static is not None:
-            zs = z.detach().std(0).clamp_min(1e-3) if len(idx) > 1 else torch.ones(d)
-            pred, motion = dec.render_motion(z, H, W, zs)
-        else:
-            pred = dec(z, H, W)
-        loss, parts = reconstruction_loss(
-            pred, x, dec, cfg.w_l1, cfg.w_ssim, cfg.w_aniso, cfg.ssim_window, cfg.aniso_max_ratio
-        )
-        if cfg.w_nonlocal > 0:
-            loss = loss + cfg.w_nonlocal * nonlocal_filter_penalty(enc.large_kernels())
-        if cfg.w_kinematic > 0:
-            loss = loss + cfg.w_kinematic * kinematic_penalty(dec, z.detach().std(0))
-        if static is not None:
-            loss = loss + cfg.w_static * static_motion_penalty(motion, static)
-        if cfg.w_rigid > 0:
-            zd = z.detach()
-            z_std = zd.std(0) if len(idx) > 1 else torch.ones(d)
-            loss = loss + cfg.w_rigid * rigidity_penalty(dec, zd.mean(0), z_std, H, W, cfg.rigid_length)
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        nn.utils.clip_grad_norm_(enc.parameters(), cfg.grad_clip)
-        nn.utils.clip_grad_norm_(dec_params, cfg.grad_clip)
-        opt.step()
-        if cfg.j_decay > 0:
-            decay_state_coupling(dec, cfg.lr_decoder * cfg.j_decay)
+        with record_function("stage1.encode"):
+            z = enc(x)
+        with record_function("stage1.decode"):
+            if static is not None:
+                zs = z.detach().std(0).clamp_min(1e-3) if len(idx) > 1 else torch.ones(d, device=dev)
+                pred, motion = dec.render_motion(z, H, W, zs)
+            else:
+                pred = dec(z, H, W)
+        with record_function("stage1.loss"):
+            loss, parts = reconstruction_loss(
+                pred, x, dec, cfg.w_l1, cfg.w_ssim, cfg.w_aniso, cfg.ssim_window, cfg.aniso_max_ratio
+            )
+            if cfg.w_nonlocal > 0:
+                loss = loss + cfg.w_nonlocal * nonlocal_filter_penalty(enc.large_kernels())
+            if cfg.w_kinematic > 0:
+                loss = loss + cfg.w_kinematic * kinematic_penalty(dec, z.detach().std(0))
+            if static is not None:
+                loss = loss + cfg.w_static * static_motion_penalty(motion, static)
+            if cfg.w_rigid > 0:
+                zd = z.detach()
+                z_std = zd.std(0) if len(idx) > 1 else torch.ones(d, device=dev)
+                loss = loss + cfg.w_rigid * rigidity_penalty(dec, zd.mean(0), z_std, H, W, cfg.rigid_length)
+        with record_function("stage1.backward"):
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+        with record_function("stage1.optimizer"):
+            nn.utils.clip_grad_norm_(enc.parameters(), cfg.grad_clip, foreach=True)
+            nn.utils.clip_grad_norm_(dec_params, cfg.grad_clip, foreach=True)
+            opt.step()
+            if cfg.j_decay > 0:
+                decay_state_coupling(dec, cfg.lr_decoder * cfg.j_decay)
         lv = float(loss.detach())
         ema = lv if ema is None else 0.95 * ema + 0.05 * lv
         if step % 10 == 0:
@@ -202,13 +225,13 @@ def train_stage1(clip: Clip, cfg: Stage1Config, d: int, seed: int = 0, progress:
             history["loss"].append(lv)
             history["l1"].append(parts["l1"])
             history["ssim"].append(parts["ssim"])
-            bar.set_postfix(loss=f"{ema:.4f}", l1=f"{parts['l1']:.4f}", ssim=f"{parts['ssim']:.3f}")
+            bar.update(loss=ema, l1=parts["l1"], ssim=parts["ssim"])
         # Recycling of dead primitives; never in the last period, so that every
         # recycled primitive is trained before the model is saved (fixes the
         # reference's prune-at-last-epoch, notes §12.2).
         at_period = (step + 1) % cfg.recycle_every == 0
         if step >= cfg.recycle_warmup and at_period and step + cfg.recycle_every < cfg.steps:
-            with torch.no_grad():
+            with torch.no_grad(), record_function("stage1.recycle"):
                 dead = torch.sigmoid(dec.logit_alpha) < cfg.alpha_dead
                 n_dead = int(dead.sum())
                 if n_dead:
@@ -219,8 +242,7 @@ def train_stage1(clip: Clip, cfg: Stage1Config, d: int, seed: int = 0, progress:
                     dec.recycle(dead, X[j], rendered, zj[0], zs, cfg.sigma_xy, generator=gen)
                     _reset_adam_rows(opt, dec_params, dead)
                 history["recycled"].append((step, n_dead))
-    bar.close()
-    return model.eval(), history
+    return model.cpu().eval(), history
 
 
 def static_pixels(frames: np.ndarray, margin: float = 1.0) -> Tensor | None:

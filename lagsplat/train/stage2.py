@@ -10,7 +10,6 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 import torch
-from tqdm.auto import tqdm
 
 from lagsplat import metrics
 from lagsplat.chart import Chart
@@ -18,6 +17,8 @@ from lagsplat.dynamics.integrators import actuation_schedule, initial_state, rol
 from lagsplat.io.atomic import save_torch
 from lagsplat.io.clip import TRAIN
 from lagsplat.train.config import dataclass_from_mapping
+from lagsplat.train.device import resolve_device
+from lagsplat.train.progress import Progress
 from lagsplat.models.lagrangian import DecoderInertia, Lagrangian
 
 __all__ = ["Stage2Config", "one_step_windows", "train_stage2", "save_stage2", "load_stage2"]
@@ -134,6 +135,7 @@ def train_stage2(
     inertia: DecoderInertia | None = None,
     augment: Callable[[Lagrangian], torch.nn.Module] | None = None,
     n_u_model: int | None = None,
+    device: str = "cpu",
 ) -> tuple[Lagrangian, dict]:
     """Fit the Lagrangian by one differentiable Verlet step per window (Eq. 8).
 
@@ -149,7 +151,8 @@ def train_stage2(
             actuation ``chart.u`` (if any) drives the model (paper Eq. 6).
         cfg: settings.
         seed: RNG seed.
-        progress: tqdm bar with the loss.
+        progress: report progress (:class:`~lagsplat.train.progress.Progress`:
+            a tqdm bar on a terminal, a line every ~30 s otherwise).
         inertia: the :class:`DecoderInertia` when ``cfg.mass == "decoder"``.
         augment: hook for the gap-diagnosis refit (issue 7, :mod:`lagsplat.diagnose.refit`):
             called once with the built Lagrangian after its rest state and energy
@@ -160,6 +163,11 @@ def train_stage2(
         n_u_model: actuation channels the Lagrangian itself reads (default
             ``chart.n_u``); the chart's channels beyond it are for ``augment``'s
             module (e.g. the clip time of a time-dependent term).
+        device: ``"cpu"`` (the reference), ``"cuda"`` or ``"auto"``
+            (:func:`~lagsplat.train.device.resolve_device`): the model is
+            built on the CPU, its one-step windows are trained on the device,
+            the selection rollouts run on a CPU copy, and the model is
+            returned on the CPU.
 
     Returns:
         ``(model, history)``; ``model`` is ``augment``'s module when given.
@@ -195,6 +203,10 @@ def train_stage2(
     if augment is not None:
         model = augment(model)
 
+    dev = resolve_device(device)
+    model = model.to(dev)
+    Q0, V0, Q1, V1, U0, U1, A = (t.to(dev) for t in (Q0, V0, Q1, V1, U0, U1, A))
+
     horizon = max(8, int(round(cfg.select_periods / (f_train * dt))))
     sel_seg, sel_u = longest, u_segs[i_long]
     q_std = metrics.g_rms_spread(sel_seg, G_eval)
@@ -207,13 +219,13 @@ def train_stage2(
     n = len(Q0)
     hist: dict[str, list] = {"epoch": [], "loss": [], "select_nrmse": []}
     best = (float("inf"), copy.deepcopy(model.state_dict()), -1)
-    bar = tqdm(range(cfg.epochs), desc="stage2", disable=not progress, dynamic_ncols=True)
+    bar = Progress(cfg.epochs, "stage2", enabled=progress, unit="epoch")
     for ep in bar:
         model.train()
         perm = rng.permutation(n)[: min(n, cfg.windows_per_epoch)]
         tot, cnt = 0.0, 0
         for i in range(0, len(perm), cfg.batch):
-            b = torch.as_tensor(perm[i : i + cfg.batch])
+            b = torch.as_tensor(perm[i : i + cfg.batch], device=dev)
             u_b = None if n_u == 0 else (lambda t, u0=U0[b], u1=U1[b]: u0 if t < 0.5 * h else u1)  # noqa: E731
             q1, v1 = verlet_step(model, Q0[b], V0[b], h, u=u_b)
             eq, ev = q1 - Q1[b], h * (v1 - V1[b])
@@ -229,12 +241,14 @@ def train_stage2(
         hist["loss"].append(tot / max(cnt, 1))
         if (ep + 1) % cfg.select_every == 0 or ep == cfg.epochs - 1:
             model.eval()
-            err = _rollout_error(model, sel_seg, dt, G_eval, sel_h, sel_starts, q_std, sel_u)
+            on_cpu = model if dev.type == "cpu" else copy.deepcopy(model).cpu()
+            err = _rollout_error(on_cpu, sel_seg, dt, G_eval, sel_h, sel_starts, q_std, sel_u)
             hist["select_nrmse"].append((ep, err))
             if err < best[0]:
                 best = (err, copy.deepcopy(model.state_dict()), ep)
-            bar.set_postfix(loss=f"{hist['loss'][-1]:.3e}", sel=f"{err:.3f}")
+            bar.update(loss=hist["loss"][-1], select_nrmse=err)
     model.load_state_dict(best[1])
+    model = model.cpu()
     hist["selected_epoch"] = best[2]
     hist["selected_nrmse"] = best[0]
     hist["f_train_hz"] = f_train

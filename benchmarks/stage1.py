@@ -1,0 +1,225 @@
+"""Stage-1 training speed: seconds per step, where a step spends them, and a side-by-side comparison.
+
+Two operating points, each on a synthetic pendulum clip rendered at its size
+(:func:`lagsplat.synth.pendulum.make_pendulum_clip`, 20 s at 30 fps):
+
+========== ========= ====== ========= ===== ===============================
+setting    image     batch  Gaussians d     Stage-1 settings
+========== ========= ====== ========= ===== ===============================
+toy        64 x 64   16     1024      1     ``system=toy`` (the main job)
+softrobot  32 x 32   64     2048      4     ``system=krauss_2seg``, batch 64
+========== ========= ====== ========= ===== ===============================
+
+For each it prints
+
+* s/step and frames/s of :func:`lagsplat.train.stage1.train_stage1`, as the
+  slope between a run of ``--steps / 3`` and one of ``--steps`` steps (set-up,
+  encoding the clip and numba's compilation cancel out), each run in a fresh
+  process;
+* the shares of a step's wall time by phase over ``--profile-steps`` steps:
+  the blocks of ``train_stage1`` labelled for ``torch.profiler`` (encode,
+  decode = conditioning + rasteriser forward, loss, backward = autograd incl.
+  the rasteriser's backward, optimizer), timed by wall clock, and the
+  rasteriser's own forward and backward inside them, so "not rasteriser" is
+  the rest of the step ("steps / run": the labelled blocks' share of the
+  run, set-up excluded from the shares);
+* the rasteriser's forward and forward+backward frame rates on a
+  decoder-like scene of the setting's size (``benchmarks/rasterizer.py``) and
+  their ratio.
+
+With ``--against REF`` the s/step of the git commit ``REF`` (checked out in a
+temporary worktree, its own ``lagsplat`` imported) is measured in the same
+run, alternating with this checkout for ``--rounds`` rounds; the table gives
+both medians and the speed-up, so a change is judged as a ratio on a noisy
+machine.
+
+Usage::
+
+    python benchmarks/stage1.py [--settings toy softrobot] [--steps 90] [--against 2663fff] [--rounds 2]
+
+Prints figures; asserts nothing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+_USER_ENV = dict(os.environ)  # before lagsplat sets its OpenMP defaults: each checkout sets its own
+HERE = Path(__file__).resolve().parent
+ROOT = Path(os.environ.get("LAGSPLAT_ROOT", HERE.parent))
+sys.path.insert(0, str(ROOT))  # the checkout under test (a worktree of another commit with --against)
+
+SETTINGS = {  # the system whose configured Stage-1 settings are used, and what is set on top
+    "toy": {"system": "toy", "size": 64, "set": {}},
+    "softrobot": {"system": "krauss_2seg", "size": 32, "set": {"batch": 64}},
+}
+PHASES = ("stage1.encode", "stage1.decode", "stage1.loss", "stage1.backward", "stage1.optimizer", "stage1.recycle")
+RASTER = ("rasterize.cpu.forward", "rasterize.cpu.backward")
+
+
+def _clip_and_config(setting: str, steps: int):
+    """The setting's clip, its Stage-1 config and ``d``.
+
+    The config is the checkout's own ``conf/`` for the setting's system (so
+    each commit runs with the settings it shipped), with ``steps`` and
+    recycling off (it starts after 500 steps anyway).
+    """
+    from omegaconf import OmegaConf
+
+    from lagsplat.cli import compose
+    from lagsplat.synth.pendulum import make_pendulum_clip
+    from lagsplat.train.stage1 import Stage1Config
+
+    s = SETTINGS[setting]
+    os.environ["LAGSPLAT_CONF"] = str(ROOT / "conf")
+    cfg = compose([f"system={s['system']}"])
+    stage1 = {**OmegaConf.to_container(cfg.stage1, resolve=True), **s["set"], "steps": steps, "recycle_warmup": 10**9}
+    clip = make_pendulum_clip(size=(s["size"], s["size"]))
+    return clip, Stage1Config.from_mapping(stage1), int(cfg.system.d)
+
+
+def worker(setting: str, steps: int, threads: int) -> dict:
+    """Time one ``train_stage1`` run of ``steps`` steps in this process; JSON-able result."""
+    import lagsplat  # noqa: F401  (thread settings before torch starts its pool)
+    import torch
+
+    from lagsplat.train.stage1 import train_stage1
+
+    torch.set_num_threads(threads)
+    clip, cfg, d = _clip_and_config(setting, steps)
+    t0 = time.perf_counter()
+    train_stage1(clip, cfg, d, seed=0, progress=False)
+    return {"seconds": time.perf_counter() - t0, "steps": steps}
+
+
+def _run_worker(root: Path, setting: str, steps: int, threads: int) -> float:
+    """Wall time (s) of a ``steps``-step run by the checkout at ``root``, in a fresh process."""
+    env = {**_USER_ENV, "LAGSPLAT_ROOT": str(root), "PYTHONPATH": str(root)}
+    cmd = [sys.executable, str(HERE / "stage1.py"), "--worker", setting, "--steps", str(steps), "--threads", str(threads)]
+    out = subprocess.run(cmd, env=env, check=True, capture_output=True, text=True).stdout
+    return float(json.loads(out.strip().splitlines()[-1])["seconds"])
+
+
+def seconds_per_step(root: Path, setting: str, steps: int, threads: int) -> float:
+    """Slope of wall time against steps between runs of ``steps // 3`` and ``steps`` steps."""
+    short = max(1, steps // 3)
+    t_short = _run_worker(root, setting, short, threads)
+    t_long = _run_worker(root, setting, steps, threads)
+    return (t_long - t_short) / (steps - short)
+
+
+class _PhaseClock:
+    """Stands in for ``torch.profiler.record_function``: accumulates the wall time spent in each labelled block.
+
+    CPU operations run synchronously, so a block's wall time is its cost; no
+    profiler overhead is added to the many small operations of a step.
+    """
+
+    def __init__(self) -> None:
+        self.totals: dict[str, float] = {}
+
+    @contextlib.contextmanager
+    def __call__(self, name: str):
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.totals[name] = self.totals.get(name, 0.0) + time.perf_counter() - t0
+
+
+def phase_shares(setting: str, steps: int) -> dict[str, float]:
+    """Share of the wall time of ``steps`` Stage-1 steps spent in each labelled phase (after a warm-up run)."""
+    from lagsplat.render import rasterize
+    from lagsplat.train import stage1
+
+    clip, cfg, d = _clip_and_config(setting, 3)
+    stage1.train_stage1(clip, cfg, d, progress=False)  # compile / warm up outside the measurement
+    clock = _PhaseClock()
+    saved = stage1.record_function, rasterize.record_function
+    stage1.record_function = rasterize.record_function = clock
+    try:
+        clip, cfg, d = _clip_and_config(setting, steps)
+        t0 = time.perf_counter()
+        stage1.train_stage1(clip, cfg, d, progress=False)
+        wall = time.perf_counter() - t0
+    finally:
+        stage1.record_function, rasterize.record_function = saved
+    totals = clock.totals
+    step_total = sum(totals.get(k, 0.0) for k in PHASES)
+    shares = {k.split(".", 1)[1] if k in PHASES else k.replace("rasterize.cpu.", "rasterise "): v / step_total for k, v in totals.items()}
+    shares["not rasteriser"] = 1.0 - sum(totals.get(k, 0.0) for k in RASTER) / step_total
+    shares["steps / run"] = step_total / wall
+    return shares
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--settings", nargs="+", default=list(SETTINGS), choices=list(SETTINGS))
+    ap.add_argument("--steps", type=int, default=90, help="steps of the longer timed run (the shorter has a third)")
+    ap.add_argument("--profile-steps", type=int, default=60, help="steps timed by phase for the shares")
+    ap.add_argument("--threads", type=int, default=2, help="torch and numba threads")
+    ap.add_argument("--against", default=None, help="git commit to compare with, side by side")
+    ap.add_argument("--rounds", type=int, default=2, help="alternating timing rounds per checkout")
+    ap.add_argument("--worker", default=None, help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.worker:
+        print(json.dumps(worker(args.worker, args.steps, args.threads)))
+        return
+
+    import lagsplat  # noqa: F401
+    import torch
+
+    sys.path.insert(0, str(HERE))
+    from _common import env_header, print_table
+    from rasterizer import bench_one
+
+    torch.set_num_threads(args.threads)
+    import numba
+
+    numba.set_num_threads(args.threads)
+    print(env_header(f"numba threads: {numba.get_num_threads()}"), f"; load average {os.getloadavg()[0]:.2f}")
+    with tempfile.TemporaryDirectory() as tmp:
+        roots = {"this checkout": ROOT}
+        if args.against:
+            wt = Path(tmp) / "against"
+            subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", "-q", str(wt), args.against], check=True)
+            roots[f"against {args.against}"] = wt
+        try:
+            rows = []
+            for setting in args.settings:
+                clip, cfg, _ = _clip_and_config(setting, 1)
+                times: dict[str, list[float]] = {name: [] for name in roots}
+                for _ in range(args.rounds):
+                    for name, root in roots.items():
+                        times[name].append(seconds_per_step(root, setting, args.steps, args.threads))
+                base = statistics.median(times["this checkout"])
+                row = {"setting": setting, "s/step": f"{base:.4f}", "frames/s": f"{cfg.batch / base:.0f}"}
+                for name, ts in times.items():
+                    if name != "this checkout":
+                        other = statistics.median(ts)
+                        row[f"s/step {name}"] = f"{other:.4f}"
+                        row["speed-up"] = f"{other / base:.2f}x"
+                fwd, fb, _ = bench_one("cpu", cfg.batch, cfg.n_gaussians, clip.images.shape[1], 5)
+                row["raster fwd+bwd / fwd"] = f"{fb / fwd:.2f}"
+                rows.append(row)
+                print(f"  done: {row}", flush=True)
+            print_table(rows)
+            print("\nshare of a step's profiled time (this checkout):")
+            shares = [{"setting": st, **{k: f"{v:.0%}" for k, v in phase_shares(st, args.profile_steps).items()}} for st in args.settings]
+            print_table(shares)
+        finally:
+            if args.against:
+                subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(wt)], check=False)
+
+
+if __name__ == "__main__":
+    main()
