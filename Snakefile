@@ -9,10 +9,20 @@
 #
 #   snakemake -c2 results/tables/krauss.tex --config krauss_source=synthetic   # soft-robot benchmark, offline surrogate
 #
+# Multi-run targets, one job per run (workflow/rules/suite.smk, seeds.smk):
+#   snakemake -c8 suite                            # blind diagnosis suite: one job per clip, then the scoring
+#   snakemake -c8 results/tables/toy_seeds.md      # toy trained with each seed of conf/config.yaml seed_table.seeds
+#   snakemake --profile profiles/slurm suite       # the same jobs submitted to SLURM (profiles/slurm/config.yaml)
+#   snakemake --profile profiles/local -c16 seeds  # a big box (profiles/local/config.yaml)
+# Every job writes its output (stdout and stderr) to results/logs/...; a failed job's log is
+# printed with --show-failed-logs (set in both profiles).
+#
 # Config keys (--config k=v): raw_dir (where source clips are kept / downloaded),
 # overrides (extra Hydra overrides for every stage), results_dir; soft-robot
 # benchmark: krauss_source (zenodo | synthetic), krauss_archive (local
-# processed_data.zip), see workflow/rules/krauss.smk.
+# processed_data.zip), see workflow/rules/krauss.smk; blind diagnosis suite:
+# suite_budget, suite_n_per_effect, suite_args (workflow/rules/suite.smk); seeds:
+# seeds, seed_systems (workflow/rules/seeds.smk).
 import yaml
 from pathlib import Path
 
@@ -54,7 +64,18 @@ for _p in sorted(Path("conf/system").glob("*.yaml")):
 
 
 def cli(stage):
-    return f"python -m lagsplat {stage} system={{wildcards.system}} raw_dir={RAW} results_dir={RESULTS} threads={{threads}} progress=false {OVR}"
+    return f"python -m lagsplat {stage} system={{wildcards.system}} raw_dir={RAW} results_dir={RESULTS} threads={{threads}} {OVR}"
+
+
+# A stage's output goes to its log and to the screen: the training stages print a progress line
+# every ~30 s (no terminal is attached under Snakemake); `set -o pipefail` keeps the stage's exit status.
+SHOW_LOG = " 2>&1 | tee {log}"
+
+
+# A system is one folder name (conf/system/<name>.yaml): never a path, so results/<a>/<b>/metrics.json
+# (a seed's tree, results/seeds/seed<k>/<system>/) is not mistaken for system "<a>/<b>".
+wildcard_constraints:
+    system="[A-Za-z0-9_]+",
 
 
 include: "workflow/rules/ingest.smk"
@@ -65,6 +86,8 @@ include: "workflow/rules/evaluate.smk"
 include: "workflow/rules/report.smk"
 include: "workflow/rules/krauss.smk"
 include: "workflow/rules/diagnose.smk"
+include: "workflow/rules/suite.smk"
+include: "workflow/rules/seeds.smk"
 
 
 rule toy:

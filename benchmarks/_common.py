@@ -12,7 +12,7 @@ import os
 import statistics
 import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, TextIO
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -36,31 +36,37 @@ def env_header(numba_info: str) -> str:
     return f"torch {torch.__version__}: {torch.get_num_threads()} threads; {numba_info}; machine CPUs: {os.cpu_count()}"
 
 
-def print_table(rows: list[dict]) -> pd.DataFrame:
-    """Print ``rows`` as one table after a blank line (markdown, or plain text without tabulate); return the ``DataFrame``."""
+def format_table(table: pd.DataFrame, index: bool = False) -> str:
+    """``table`` as markdown, or as plain text when tabulate is missing; with its index as the first column when ``index``."""
+    try:
+        return table.to_markdown(index=index)
+    except ImportError:  # tabulate missing
+        return table.to_string(index=index)
+
+
+def print_table(rows: list[dict], file: TextIO | None = None) -> pd.DataFrame:
+    """Print ``rows`` as one table after a blank line (:func:`format_table`) to ``file`` (default stdout); return the ``DataFrame``."""
     import pandas as pd
 
     table = pd.DataFrame(rows)
-    print()
-    try:
-        print(table.to_markdown(index=False))
-    except ImportError:  # tabulate missing
-        print(table.to_string(index=False))
+    print(file=file)
+    print(format_table(table), file=file)
     return table
 
 
-def score_verdicts(rows: list[dict]) -> tuple[pd.DataFrame, float, int, int]:
-    """Print the per-clip table and the confusion matrix of a blind diagnosis run.
+def score_verdicts(rows: list[dict], file: TextIO | None = None) -> tuple[pd.DataFrame, float, int, int]:
+    """Print the per-clip table and the confusion matrix of a blind diagnosis run to ``file`` (default stdout).
 
     ``rows`` carry ``truth`` and ``verdict`` (effect names, ``"none"`` for a
-    control) and ``ok`` (verdict correct). Returns ``(table, top-1 accuracy,
-    controls flagged, controls)``.
+    control) and ``ok`` (verdict correct). Both tables are printed by
+    :func:`format_table`. Returns ``(table, top-1 accuracy, controls flagged,
+    controls)``.
     """
     import pandas as pd
 
-    table = print_table(rows)
+    table = print_table(rows, file=file)
     conf = pd.crosstab(table["truth"], table["verdict"], rownames=["truth"], colnames=["verdict"])
-    print("\nconfusion matrix (rows: truth, columns: verdict)")
-    print(conf.to_string())
+    print("\nconfusion matrix (rows: truth, columns: verdict)\n", file=file)
+    print(format_table(conf, index=True), file=file)
     controls = table[table["truth"] == "none"]
     return table, float(table["ok"].mean()), int((controls["verdict"] != "none").sum()), len(controls)

@@ -1,4 +1,4 @@
-"""Blind check of the sim-to-real gap diagnosis at the image level (issue 7, item 5).
+"""Blind check of the sim-to-real gap diagnosis at the image level.
 
 Every clip of the blind suite (:func:`lagsplat.synth.effects.blind_suite`: a
 pendulum and a cart, each candidate effect ``--n-per-effect`` times, controls
@@ -54,7 +54,19 @@ under ``<clip>/d2/``) is scored instead (no control then).
 
     python benchmarks/diagnosis.py [--budget cheap] [--only pendulum-coulomb-0,cart-none-0]
                                    [--n-per-effect 2] [--results results/diagnosis_bench] [--json out.json]
-                                   [--list] [--force] [--rediagnose] [--dof-refit] [--refine-iters N] [--refit-epochs N]
+                                   [--markdown out.md] [--list] [--force] [--rediagnose] [--dof-refit]
+                                   [--refine-iters N] [--refit-epochs N]
+
+One job per clip (what the Snakemake rules of ``workflow/rules/suite.smk`` run,
+each clip on its own core or cluster node), then the scoring over all of them:
+
+    python benchmarks/diagnosis.py --clip pendulum-coulomb-0 --row rows/pendulum-coulomb-0.json [--budget ...]
+    python benchmarks/diagnosis.py --gather rows/*.json --markdown summary.md [--json summary.json]
+
+``--clip`` runs exactly one clip of the suite (the same cache under
+``--results``) and ``--row`` writes its scored row and stage timings as JSON;
+``--gather`` reads such files (one budget) and prints and writes the same
+summary as a run over the whole suite, without running anything.
 
 Scores, not tests: nothing is asserted.
 """
@@ -80,7 +92,7 @@ from lagsplat.diagnose.refit import GAP_METRICS, RefitConfig
 from lagsplat.diagnose.report import DiagnoseConfig, diagnose_system
 from lagsplat.diagnose.where import WhereConfig
 from lagsplat.evaluate import EvalConfig, evaluate
-from lagsplat.io.atomic import write_json
+from lagsplat.io.atomic import atomic_write, write_json
 from lagsplat.io.clip import Clip, load_clip, save_clip
 from lagsplat.synth.effects import blind_suite, make_effect_clip
 from lagsplat.train.stage1 import Stage1Config, load_stage1, save_stage1, train_stage1
@@ -300,10 +312,77 @@ def measurable_gap_medians(rows: list[dict]) -> dict[str, dict]:
     return out
 
 
+def summarize(rows: list[dict], timings: dict[str, dict], budget: str, markdown: bool = False) -> tuple[str, dict]:
+    """The suite's summary over the rows of :func:`score`: the printed report and the ``--json`` record.
+
+    The report holds the per-clip table, the confusion matrix (both by
+    :func:`_common.score_verdicts`), the top-1 accuracy, the controls flagged,
+    the median held-out gap reductions (over all refit effect clips and over
+    :func:`measurable_gap_medians`) and the median wall time per stage.
+    ``markdown``: a title line and the scores as list items, for a ``.md``
+    file; otherwise the plain lines printed after a run. ``timings``: clip
+    name -> stage -> seconds (:func:`run_clip`). The record has ``budget``,
+    ``accuracy``, ``controls_flagged``, ``median_reduction``,
+    ``median_reduction_vs_control``, ``measurable_gap``, ``rows`` and ``timings``.
+    """
+    import io
+
+    import pandas as pd
+
+    buf = io.StringIO()
+    if markdown:
+        print(f"# Blind diagnosis suite: budget {budget}, {len(rows)} clips", file=buf)
+    table, acc, flagged, n_controls = score_verdicts([{k: v for k, v in r.items() if k not in ("before", "after")} for r in rows], file=buf)
+    effects = table[(table["truth"] != "none") & table["refit"]]
+    med = {k: (float(np.nanmedian(effects[f"red_{k}"].astype(float))) if len(effects) and effects[f"red_{k}"].notna().any() else None) for k in GAP_METRICS}
+    med_c = {k: (float(np.nanmedian(effects[f"red_ctrl_{k}"].astype(float))) if len(effects) and effects[f"red_ctrl_{k}"].notna().any() else None) for k in GAP_METRICS}
+    per_stage = pd.DataFrame(list(timings.values())).median().round(1).to_dict()
+    item, sub = ("- ", "  - ") if markdown else ("", "  ")
+    lines = [f"budget: {budget}, clips {len(table)}", f"top-1 accuracy: {acc:.3f} ({int(table['ok'].sum())}/{len(table)})",
+             f"controls flagged: {flagged}/{n_controls}"]  # fmt: skip
+    rel = table[table["reliable"]]
+    lines.append(f"reliable upstream (chart continuous, decoder shows motion; lagsplat.diagnose.report.reliability): {len(rel)}/{len(table)}"
+                 + (f"; top-1 accuracy on those {float(rel['ok'].mean()):.3f}" if len(rel) else ""))  # fmt: skip
+    lines.append(f"effect clips refit: {len(effects)}/{int((table['truth'] != 'none').sum())}")
+    pct = lambda v: "n/a" if v is None else f"{100 * v:+.0f} %"  # noqa: E731
+    for k in GAP_METRICS:
+        lines.append(f"median held-out gap reduction, {k}: {pct(med[k])} (vs the same refit without the term: {pct(med_c[k])})")
+    meas = measurable_gap_medians(rows)
+    lines.append("over the clips whose gap stands out of the no-effect level (the largest of the same system's controls; measurable_gap_medians):")
+    print("\n" + "\n".join(item + ln for ln in lines), file=buf)
+    for k, m in meas.items():
+        print(f"{sub}{k}: {pct(m['median'])} over {m['n']} of {m['n_refit']} clips; "
+              f"of the other {m['n_refit'] - m['n']}, {m['n_kept']} stay at or below the level after the refit; "
+              f"vs the refit without the term {pct(m['median_vs_control'])}", file=buf)  # fmt: skip
+    print(f"{item}median wall time per stage (s, as cached): {per_stage}", file=buf)
+    record = {"budget": budget, "accuracy": acc, "controls_flagged": flagged, "median_reduction": med, "median_reduction_vs_control": med_c,
+              "measurable_gap": meas, "rows": rows, "timings": timings}  # fmt: skip
+    return buf.getvalue(), record
+
+
+def read_rows(paths: list[str]) -> tuple[list[dict], dict[str, dict], str]:
+    """``(rows, timings, budget)`` from the files written by ``--clip ... --row`` (in the order given).
+
+    Raises:
+        ValueError: if the files are of different budgets, or two are of the same clip.
+    """
+    docs = [json.loads(Path(p).read_text()) for p in paths]
+    budgets = sorted({d["budget"] for d in docs})
+    if len(budgets) != 1:
+        raise ValueError(f"--gather: rows of {len(budgets)} budgets ({', '.join(budgets)}); score one budget at a time")
+    names = [d["row"]["clip"] for d in docs]
+    if len(set(names)) != len(names):
+        raise ValueError(f"--gather: a clip given twice: {sorted({n for n in names if names.count(n) > 1})}")
+    return [d["row"] for d in docs], {d["row"]["clip"]: d["timing"] for d in docs}, budgets[0]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--budget", choices=sorted(BUDGETS), default="cheap")
     ap.add_argument("--only", default="", help="comma-separated substrings of clip names to run")
+    ap.add_argument("--clip", default="", help="run exactly this clip of the suite (a name printed by --list)")
+    ap.add_argument("--row", default="", help="with --clip: write the clip's scored row and stage timings here (JSON, read by --gather)")
+    ap.add_argument("--gather", nargs="+", default=[], metavar="ROW", help="run nothing: score the rows written by --clip ... --row")
     ap.add_argument("--n-per-effect", type=int, default=2)
     ap.add_argument("--results", default="results/diagnosis_bench", help="cache folder (per budget and clip)")
     ap.add_argument("--seed", type=int, default=0)
@@ -313,11 +392,20 @@ def main() -> None:
     ap.add_argument("--list", action="store_true", help="list the suite and exit")
     ap.add_argument("--dof-refit", action="store_true", help="when the verdict is missing_dof, rerun Stage 1 / chart / Stage 2 with d = 2 and score its gap")
     ap.add_argument("--json", default="", help="write the per-clip rows and the summary here")
+    ap.add_argument("--markdown", default="", help="write the summary (per-clip table, confusion matrix, scores) here as markdown")
     ap.add_argument("--refine-iters", type=int, default=None,
                     help="chart refinement iterations (lagsplat.chart.refine_latents; default: the budget's); "
                          "another value than the budget's caches under <results>/<budget>-refine<N>")  # fmt: skip
     ap.add_argument("--refit-epochs", type=int, default=None, help="epochs of the refit's fine-tune (default: the budget's; a cached diagnosis is redone only with --rediagnose)")
     args = ap.parse_args()
+    if args.row and not args.clip:
+        ap.error("--row needs --clip (one clip per row file)")
+    if args.gather and (args.clip or args.only):
+        ap.error("--gather runs nothing: no --clip / --only")
+    if args.gather:
+        rows, timings, budget = read_rows(args.gather)
+        report(rows, timings, budget, args)
+        return
     torch.set_num_threads(args.threads)
     if args.refine_iters is not None and args.refine_iters != BUDGETS[args.budget]["refine_iters"]:
         key = f"{args.budget}-refine{args.refine_iters}"
@@ -327,7 +415,11 @@ def main() -> None:
         BUDGETS[args.budget]["refit_epochs"] = args.refit_epochs
 
     suite = blind_suite(args.n_per_effect)
-    if args.only:
+    if args.clip:
+        suite = [s for s in suite if s["name"] == args.clip]
+        if not suite:
+            ap.error(f"--clip {args.clip}: not a clip of the suite with --n-per-effect {args.n_per_effect} (see --list)")
+    elif args.only:
         keys = [k for k in args.only.split(",") if k]
         suite = [s for s in suite if any(k in s["name"] for k in keys)]
     if args.list:
@@ -347,33 +439,20 @@ def main() -> None:
     if not rows:
         print("no clip selected")
         return
-    import pandas as pd
+    if args.row:
+        write_json(args.row, {"budget": args.budget, "row": rows[0], "timing": timings[rows[0]["clip"]]})
+    report(rows, timings, args.budget, args)
 
-    table, acc, flagged, n_controls = score_verdicts([{k: v for k, v in r.items() if k not in ("before", "after")} for r in rows])
-    effects = table[(table["truth"] != "none") & table["refit"]]
-    med = {k: (float(np.nanmedian(effects[f"red_{k}"].astype(float))) if len(effects) and effects[f"red_{k}"].notna().any() else None) for k in GAP_METRICS}
-    med_c = {k: (float(np.nanmedian(effects[f"red_ctrl_{k}"].astype(float))) if len(effects) and effects[f"red_ctrl_{k}"].notna().any() else None) for k in GAP_METRICS}
-    per_stage = pd.DataFrame(list(timings.values())).median().round(1).to_dict()
-    print(f"\nbudget: {args.budget}, clips {len(table)}")
-    print(f"top-1 accuracy: {acc:.3f} ({int(table['ok'].sum())}/{len(table)})")
-    print(f"controls flagged: {flagged}/{n_controls}")
-    rel = table[table["reliable"]]
-    print(f"reliable upstream (chart continuous, decoder shows motion; lagsplat.diagnose.report.reliability): {len(rel)}/{len(table)}"
-          + (f"; top-1 accuracy on those {float(rel['ok'].mean()):.3f}" if len(rel) else ""))  # fmt: skip
-    print(f"effect clips refit: {len(effects)}/{int((table['truth'] != 'none').sum())}")
-    pct = lambda v: "n/a" if v is None else f"{100 * v:+.0f} %"  # noqa: E731
-    for k in GAP_METRICS:
-        print(f"median held-out gap reduction, {k}: {pct(med[k])} (vs the same refit without the term: {pct(med_c[k])})")
-    meas = measurable_gap_medians(rows)
-    print("over the clips whose gap stands out of the no-effect level (the largest of the same system's controls; measurable_gap_medians):")
-    for k, m in meas.items():
-        print(f"  {k}: {pct(m['median'])} over {m['n']} of {m['n_refit']} clips; "
-              f"of the other {m['n_refit'] - m['n']}, {m['n_kept']} stay at or below the level after the refit; "
-              f"vs the refit without the term {pct(m['median_vs_control'])}")  # fmt: skip
-    print(f"median wall time per stage (s, as cached): {per_stage}")
+
+def report(rows: list[dict], timings: dict[str, dict], budget: str, args: argparse.Namespace) -> None:
+    """Print the summary of ``rows`` (:func:`summarize`); write it to ``args.markdown`` and ``args.json`` when given."""
+    text, record = summarize(rows, timings, budget)
+    print(text, end="")
+    if args.markdown:
+        with atomic_write(Path(args.markdown)) as tmp:
+            tmp.write_text(summarize(rows, timings, budget, markdown=True)[0])
     if args.json:
-        write_json(args.json, {"args": vars(args), "accuracy": acc, "controls_flagged": flagged, "median_reduction": med,
-                               "median_reduction_vs_control": med_c, "measurable_gap": meas, "rows": rows, "timings": timings})  # fmt: skip
+        write_json(args.json, {"args": vars(args), **record})
 
 
 if __name__ == "__main__":

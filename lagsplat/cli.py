@@ -5,7 +5,7 @@ One stage per Snakemake rule; each reads only upstream artifacts under
 resolved configuration saved beside it (``config/<stage>.yaml``).
 
 Stages: ``download``, ``ingest``, ``stage1``, ``chart``, ``stage2``,
-``evaluate``, ``figures``, ``forces``, ``diagnose``, ``table``, ``ablation``, ``krauss_table``, ``all`` (ingest ->
+``evaluate``, ``figures``, ``forces``, ``diagnose``, ``table``, ``ablation``, ``krauss_table``, ``seed_table``, ``all`` (ingest ->
 figures in one process), and ``view`` (the interactive viewer, which writes
 nothing).
 """
@@ -40,6 +40,8 @@ stages:
   table      metrics.json of table.systems -> results/tables/<table.name>.tex/.csv
   ablation   variants' metrics.json of one system -> results/tables/<name>_<ablation>.tex/.csv
   krauss_table  soft-robot benchmark (paper Table 4) -> results/tables/krauss.tex/.csv/.md
+  seed_table one system trained with each of seed_table.seeds (results/seeds/seed<k>/<name>/metrics.json)
+             -> results/tables/<name>_seeds.md/.csv (per-seed rows, mean, std, min, max)
   all        ingest .. figures for one system
   view       interactive viewer: drag the identified model in a local web page
              (http://127.0.0.1:<view.port>/; settings in the `view` group of conf/config.yaml)
@@ -159,7 +161,9 @@ def stage_stage1(cfg: DictConfig) -> None:
 
     clip = load_clip(_sysdir(cfg) / "clip.npz")
     s1 = Stage1Config.from_mapping(_container(cfg.stage1))
-    model, hist = train_stage1(clip, s1, int(cfg.system.d), seed=int(cfg.seed), progress=bool(cfg.progress))
+    model, hist = train_stage1(
+        clip, s1, int(cfg.system.d), seed=int(cfg.seed), progress=bool(cfg.progress), device=str(cfg.device), label=f"{cfg.system.name} stage1"
+    )
     save_stage1(_sysdir(cfg) / "stage1.pt", model, _container(cfg.stage1), hist, int(cfg.system.d))
     _save_cfg(cfg, "stage1")
 
@@ -193,7 +197,9 @@ def stage_stage2(cfg: DictConfig) -> None:
 
         ae = load_stage1(_sysdir(cfg) / "stage1.pt")
         inertia = DecoderInertia.from_decoder(ae.decoder, chart.W_inv, chart.mean, chart.height, chart.width)
-    model, hist = train_stage2(chart, s2, seed=int(cfg.seed), progress=bool(cfg.progress), inertia=inertia)
+    model, hist = train_stage2(
+        chart, s2, seed=int(cfg.seed), progress=bool(cfg.progress), inertia=inertia, device=str(cfg.device), label=f"{cfg.system.name} stage2"
+    )
     save_stage2(_outdir(cfg) / "stage2.pt", model, s2, hist)
     _save_cfg(cfg, "stage2")
 
@@ -365,6 +371,23 @@ def stage_ablation(cfg: DictConfig) -> None:
     ablation_table(inputs, Path(cfg.results_dir) / "tables" / f"{cfg.system.name}_{key}.tex")
 
 
+def stage_seed_table(cfg: DictConfig) -> None:
+    """One system trained with each of ``seed_table.seeds`` -> ``results/tables/<system>_seeds.md`` and ``.csv``.
+
+    Reads ``${results_dir}/${seed_table.dir}/seed<k>/<system>/metrics.json``:
+    the ``evaluate`` output of a run with ``seed=<k>
+    results_dir=${results_dir}/${seed_table.dir}/seed<k>`` (the Snakemake
+    rule ``seed_run``).
+    """
+    from lagsplat.report.tables import seed_table
+
+    t = cfg.seed_table
+    seeds = [int(s) for s in t.seeds]
+    root = Path(cfg.results_dir) / str(t.dir)
+    inputs = [root / f"seed{s}" / cfg.system.name / "metrics.json" for s in seeds]
+    seed_table(inputs, seeds, Path(cfg.results_dir) / "tables" / f"{cfg.system.name}_seeds.md")
+
+
 def stage_krauss_table(cfg: DictConfig) -> None:
     """Paper Table 4 -> ``results/tables/<krauss_table.name>.tex``, ``.csv`` and ``.md``.
 
@@ -440,6 +463,7 @@ STAGES: dict[str, Callable[[DictConfig], None]] = {
     "table": stage_table,
     "ablation": stage_ablation,
     "krauss_table": stage_krauss_table,
+    "seed_table": stage_seed_table,
     "all": stage_all,
     "view": stage_view,
 }
@@ -460,6 +484,10 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         cfg = apply_variant(compose(overrides))
+        if "device" in cfg:  # a bad or unavailable device fails here, before any work
+            from lagsplat.train.device import resolve_device
+
+            resolve_device(str(cfg.device))
         if int(cfg.threads) > 0:
             import torch
 

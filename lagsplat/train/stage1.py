@@ -120,7 +120,13 @@ def _reset_adam_rows(opt: torch.optim.Optimizer, params: list[nn.Parameter], mas
 
 
 def train_stage1(
-    clip: Clip, cfg: Stage1Config, d: int, seed: int = 0, progress: bool = True, device: str = "cpu"
+    clip: Clip,
+    cfg: Stage1Config,
+    d: int,
+    seed: int = 0,
+    progress: bool = True,
+    device: str = "cpu",
+    label: str = "stage1",
 ) -> tuple[AutoEncoder, dict]:
     """Fit encoder and decoder jointly on the clip's training frames.
 
@@ -135,6 +141,7 @@ def train_stage1(
             (:func:`~lagsplat.train.device.resolve_device`). The model is
             initialised on the CPU (the same random draws on every device),
             trained on the device, and returned on the CPU.
+        label: what the progress report is headed with (e.g. ``"toy stage1"``).
 
     Each step's phases are labelled for ``torch.profiler``
     (``stage1.encode``, ``stage1.decode``, ``stage1.loss``,
@@ -177,7 +184,7 @@ def train_stage1(
         [{"params": enc.parameters(), "lr": cfg.lr_encoder}, {"params": dec_params, "lr": cfg.lr_decoder}], fused=True
     )
     history: dict[str, list] = {"step": [], "loss": [], "l1": [], "ssim": [], "recycled": []}
-    bar = Progress(cfg.steps, "stage1", enabled=progress)
+    bar = Progress(cfg.steps, label, enabled=progress)
     order = rng.permutation(N)
     pos = 0
     ema = None

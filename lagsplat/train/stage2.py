@@ -136,6 +136,7 @@ def train_stage2(
     augment: Callable[[Lagrangian], torch.nn.Module] | None = None,
     n_u_model: int | None = None,
     device: str = "cpu",
+    label: str = "stage2",
 ) -> tuple[Lagrangian, dict]:
     """Fit the Lagrangian by one differentiable Verlet step per window (Eq. 8).
 
@@ -168,6 +169,7 @@ def train_stage2(
             built on the CPU, its one-step windows are trained on the device,
             the selection rollouts run on a CPU copy, and the model is
             returned on the CPU.
+        label: what the progress report is headed with (e.g. ``"toy stage2"``).
 
     Returns:
         ``(model, history)``; ``model`` is ``augment``'s module when given.
@@ -219,7 +221,7 @@ def train_stage2(
     n = len(Q0)
     hist: dict[str, list] = {"epoch": [], "loss": [], "select_nrmse": []}
     best = (float("inf"), copy.deepcopy(model.state_dict()), -1)
-    bar = Progress(cfg.epochs, "stage2", enabled=progress, unit="epoch")
+    bar = Progress(cfg.epochs, label, enabled=progress, unit="epoch")
     for ep in bar:
         model.train()
         perm = rng.permutation(n)[: min(n, cfg.windows_per_epoch)]

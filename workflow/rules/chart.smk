@@ -5,6 +5,8 @@ rule chart:
         f"{RESULTS}/{{system}}/stage1.pt",
     output:
         f"{RESULTS}/{{system}}/chart.npz",
+    log:
+        f"{RESULTS}/logs/{{system}}/chart.log",
     threads: 2
     shell:
-        cli("chart")
+        cli("chart") + SHOW_LOG

@@ -1,5 +1,5 @@
 rule diagnose:
-    """Sim-to-real gap diagnosis (issue 7): which unmodelled effect, where it shows (time, state,
+    """Sim-to-real gap diagnosis: which unmodelled effect, where it shows (time, state,
     latent directions, image), and the held-out gap before / after a Stage-2 refit with it.
     Writes results/<system>/diagnosis/{report.md, report.json, figures/*.png, refit.pt}."""
     input:
@@ -11,6 +11,8 @@ rule diagnose:
     output:
         f"{RESULTS}/{{system}}/diagnosis/report.md",
         f"{RESULTS}/{{system}}/diagnosis/report.json",
+    log:
+        f"{RESULTS}/logs/{{system}}/diagnose.log",
     threads: 2
     shell:
-        cli("diagnose")
+        cli("diagnose") + SHOW_LOG

@@ -7,9 +7,11 @@ rule evaluate:
         f"{RESULTS}/{{system}}/stage2.pt",
     output:
         f"{RESULTS}/{{system}}/metrics.json",
+    log:
+        f"{RESULTS}/logs/{{system}}/evaluate.log",
     threads: 2
     shell:
-        cli("evaluate")
+        cli("evaluate") + SHOW_LOG
 
 
 rule evaluate_variant:
@@ -21,6 +23,8 @@ rule evaluate_variant:
         f"{RESULTS}/{{system}}/variants/{{variant}}/stage2.pt",
     output:
         f"{RESULTS}/{{system}}/variants/{{variant}}/metrics.json",
+    log:
+        f"{RESULTS}/logs/{{system}}/variants/{{variant}}/evaluate.log",
     threads: 2
     shell:
-        cli("evaluate") + " variant={wildcards.variant}"
+        cli("evaluate") + " variant={wildcards.variant}" + SHOW_LOG

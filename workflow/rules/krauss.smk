@@ -72,8 +72,10 @@ rule krauss_archive:
         members=" ".join(f"--member {s['member']}" for s in _KSRC.values()),
         hint="or pass a local copy with --config krauss_archive=PATH, or place the extracted "
         + " and ".join(f"{s['member']} at {RAW}/{f} (sha256 {s['sha256']})" for f, s in _KSRC.items()),
+    log:
+        f"{RESULTS}/logs/download/{KRAUSS_ARCHIVE_FILE}.log",
     shell:
-        f"python -m lagsplat.io.zenodo archive '{KRAUSS_URL}' {{output}} {{params.members}} --hint '{{params.hint}}'"
+        f"python -m lagsplat.io.zenodo archive '{KRAUSS_URL}' {{output}} {{params.members}} --hint '{{params.hint}}' > {{log}} 2>&1 || {{{{ cat {{log}} >&2; exit 1; }}}}"
 
 
 rule krauss_extract:
@@ -84,10 +86,12 @@ rule krauss_extract:
         f"{RAW}/{{file}}",
     wildcard_constraints:
         file=_kre(_KREAL),
+    log:
+        f"{RESULTS}/logs/download/{{file}}.log",
     params:
         system=lambda w: _KREAL[w.file],
     shell:
-        f"python -m lagsplat download system={{params.system}} raw_dir={RAW} download.file={{wildcards.file}} download.archive={{input}} {OVR}"
+        f"python -m lagsplat download system={{params.system}} raw_dir={RAW} download.file={{wildcards.file}} download.archive={{input}} {OVR} > {{log}} 2>&1 || {{{{ cat {{log}} >&2; exit 1; }}}}"
 
 
 rule krauss_synth:
@@ -102,8 +106,10 @@ rule krauss_synth:
         segments=lambda w: krauss_conf(_KSYN[w.file])["source"]["generator"]["segments"],
         duration=lambda w: config.get("krauss_synth_duration_s", krauss_conf(_KSYN[w.file])["source"]["generator"]["duration_s"]),
         seed=lambda w: config.get("krauss_synth_seed", krauss_conf(_KSYN[w.file])["source"]["generator"]["seed"]),
+    log:
+        f"{RESULTS}/logs/krauss_synth/{{file}}.log",
     shell:
-        "python -m lagsplat.synth.continuum_robot --segments {params.segments} --out {output.npz} --duration-s {params.duration} --seed {params.seed}"
+        "python -m lagsplat.synth.continuum_robot --segments {params.segments} --out {output.npz} --duration-s {params.duration} --seed {params.seed} > {log} 2>&1"
 
 
 rule krauss_table:
@@ -117,11 +123,13 @@ rule krauss_table:
         f"{RESULTS}/tables/krauss.tex",
         f"{RESULTS}/tables/krauss.csv",
         f"{RESULTS}/tables/krauss.md",
+    log:
+        f"{RESULTS}/logs/tables/krauss.log",
     params:
         ablation=",".join(KRAUSS_ABLATION),
     shell:
         f"python -m lagsplat krauss_table krauss_table.one_segment={KRAUSS['1seg']} krauss_table.two_segments={KRAUSS['2seg']} "
-        f"'krauss_table.ablation=[{{params.ablation}}]' results_dir={RESULTS} {OVR}"
+        f"'krauss_table.ablation=[{{params.ablation}}]' results_dir={RESULTS} {OVR} > {{log}} 2>&1"
 
 
 rule krauss:

@@ -4,9 +4,11 @@ rule figures:
         f"{RESULTS}/{{system}}/metrics.json",
     output:
         f"{RESULTS}/{{system}}/figures/rollout.png",
+    log:
+        f"{RESULTS}/logs/{{system}}/figures.log",
     threads: 1
     shell:
-        cli("figures")
+        cli("figures") + SHOW_LOG
 
 
 rule forces:
@@ -16,9 +18,11 @@ rule forces:
     output:
         f"{RESULTS}/{{system}}/forces.json",
         f"{RESULTS}/{{system}}/figures/forces.png",
+    log:
+        f"{RESULTS}/logs/{{system}}/forces.log",
     threads: 1
     shell:
-        cli("forces")
+        cli("forces") + SHOW_LOG
 
 
 rule table:
@@ -31,10 +35,12 @@ rule table:
         f"{RESULTS}/tables/{{table}}.csv",
     wildcard_constraints:
         table="|".join(TABLES),
+    log:
+        f"{RESULTS}/logs/tables/{{table}}.log",
     params:
         systems=lambda w: ",".join(TABLES[w.table]),
     shell:
-        f"python -m lagsplat table table.name={{wildcards.table}} 'table.systems=[{{params.systems}}]' results_dir={RESULTS} {OVR}"
+        f"python -m lagsplat table table.name={{wildcards.table}} 'table.systems=[{{params.systems}}]' results_dir={RESULTS} {OVR} > {{log}} 2>&1"
 
 
 rule ablation_table:
@@ -48,5 +54,7 @@ rule ablation_table:
     wildcard_constraints:
         ablation="|".join(ABLATIONS),
         system="[a-z0-9_]+?",
+    log:
+        f"{RESULTS}/logs/tables/{{system}}_{{ablation}}.log",
     shell:
-        f"python -m lagsplat ablation system={{wildcards.system}} ablation={{wildcards.ablation}} results_dir={RESULTS} {OVR}"
+        f"python -m lagsplat ablation system={{wildcards.system}} ablation={{wildcards.ablation}} results_dir={RESULTS} {OVR} > {{log}} 2>&1"

@@ -4,6 +4,8 @@ rule stage1:
         f"{RESULTS}/{{system}}/clip.npz",
     output:
         f"{RESULTS}/{{system}}/stage1.pt",
+    log:
+        f"{RESULTS}/logs/{{system}}/stage1.log",
     threads: 2
     shell:
-        cli("stage1")
+        cli("stage1") + SHOW_LOG

@@ -5,9 +5,11 @@ rule stage2:
         f"{RESULTS}/{{system}}/stage1.pt",  # the decoder-induced inertia reads the decoder
     output:
         f"{RESULTS}/{{system}}/stage2.pt",
+    log:
+        f"{RESULTS}/logs/{{system}}/stage2.log",
     threads: 2
     shell:
-        cli("stage2")
+        cli("stage2") + SHOW_LOG
 
 
 rule stage2_variant:
@@ -18,6 +20,8 @@ rule stage2_variant:
         f"{RESULTS}/{{system}}/stage1.pt",
     output:
         f"{RESULTS}/{{system}}/variants/{{variant}}/stage2.pt",
+    log:
+        f"{RESULTS}/logs/{{system}}/variants/{{variant}}/stage2.log",
     threads: 2
     shell:
-        cli("stage2") + " variant={wildcards.variant}"
+        cli("stage2") + " variant={wildcards.variant}" + SHOW_LOG
