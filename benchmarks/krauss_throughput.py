@@ -52,7 +52,7 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--seconds", type=float, default=40.0, help="length of the simulated clip")
-    ap.add_argument("--steps", type=int, default=30, help="Stage-1 steps of the longer run (the short one has a third)")
+    ap.add_argument("--steps", type=int, default=90, help="Stage-1 steps of the longer run (the short one has a third)")
     args = ap.parse_args(argv)
 
     import torch
@@ -73,6 +73,8 @@ def main(argv: list[str] | None = None) -> None:
 
     rows = []
     ae = None
+    # warm-up: numba loads (or compiles) the rasteriser's kernels on the first call of the process
+    train_stage1(clip, Stage1Config(n_gaussians=2048, steps=2, batch=16), d=4, seed=0, progress=False)
     for batch in (16, 64):
         n_long, n_short = args.steps, max(1, args.steps // 3)
         cfg = lambda n: Stage1Config(n_gaussians=2048, steps=n, batch=batch, recycle_warmup=10**9)  # noqa: E731
