@@ -12,6 +12,7 @@ nothing).
 
 from __future__ import annotations
 
+import inspect
 import os
 import sys
 import time
@@ -236,7 +237,7 @@ def stage_evaluate(cfg: DictConfig) -> None:
             "system": cfg.system.name,
             "variant": cfg.get("variant"),
             "protocol": protocol,
-            "data": cfg.system.get("data", "real"),
+            "data": data_kind(cfg.system),
             "stage2": _container(cfg.stage2),
             "title": cfg.system.get("title", cfg.system.name),
             "d": int(cfg.system.d),
@@ -323,7 +324,7 @@ def stage_forces(cfg: DictConfig) -> None:
 
 
 def stage_diagnose(cfg: DictConfig) -> None:
-    """Sim-to-real gap diagnosis (issue 7) -> ``diagnosis/report.md``, ``report.json``, ``figures/*.png``.
+    """Sim-to-real gap diagnosis -> ``diagnosis/report.md``, ``report.json``, ``figures/*.png``.
 
     Reads ``clip.npz``, ``stage1.pt``, ``chart.npz``, ``stage2.pt`` and
     ``metrics.json`` (of the variant when ``variant`` is set); settings in the
@@ -469,6 +470,31 @@ STAGES: dict[str, Callable[[DictConfig], None]] = {
 }
 
 
+def data_kind(system: DictConfig) -> str:
+    """What a system's clip is: ``system.data`` when set (``real`` | ``surrogate``), else ``synthetic`` for a
+    procedural source (``source.synth``) and ``real`` for a recording."""
+    if system.get("data"):
+        return str(system.data)
+    sources = list(system.get("sources") or []) or [system.get("source") or {}]
+    return "synthetic" if all(src.get("synth") for src in sources) else "real"
+
+
+def stage_help(stage: str) -> str:
+    """The help of one stage: its usage line, its entry in :data:`USAGE` and its docstring."""
+    lines = USAGE.splitlines()
+    start = next(i for i, ln in enumerate(lines) if ln.startswith(f"  {stage} "))
+    end = start + 1
+    while end < len(lines) and lines[end].startswith("             "):
+        end += 1
+    entry = lines[start:end]
+    doc = inspect.cleandoc(STAGES[stage].__doc__ or "")
+    return (
+        f"usage: python -m lagsplat {stage} system=<name> [key=value ...]\n\n"
+        + "\n".join(entry) + "\n\n" + doc + "\n\n"
+        "Every key of conf/config.yaml and conf/system/<name>.yaml can be set as key=value (Hydra overrides)."
+    )
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point. Returns the process exit code (0 ok, 1 error, 2 usage)."""
     argv = sys.argv[1:] if argv is None else argv
@@ -479,6 +505,9 @@ def main(argv: list[str] | None = None) -> int:
     if stage not in STAGES:
         print(f"lagsplat: unknown stage {stage!r}\n\n{USAGE}", file=sys.stderr)
         return 2
+    if any(a in ("-h", "--help") for a in overrides):
+        print(stage_help(stage))
+        return 0
     from lagsplat.io.clip import ClipError
     from lagsplat.io.download import DownloadError
 

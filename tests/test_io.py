@@ -622,3 +622,19 @@ def test_ingest_synth_hook_calls_make_clip(monkeypatch):
     cfg = {"name": "s", "source": {"synth": {"kind": "spring"}}}
     clip = ingest(cfg)
     assert calls == [cfg] and clip.n_frames == 3
+
+
+def test_atomic_artifacts_follow_the_users_umask(tmp_path):
+    """An artifact gets ``0o666 & ~umask`` like any file the user writes, not mkstemp's private 0600."""
+    import os
+
+    from lagsplat.io.atomic import write_json
+
+    old = os.umask(0o022)
+    try:
+        assert (write_json(tmp_path / "a.json", {"x": 1}).stat().st_mode & 0o777) == 0o644
+        os.umask(0o002)
+        assert (write_json(tmp_path / "b.json", {"x": 1}).stat().st_mode & 0o777) == 0o664
+    finally:
+        os.umask(old)
+    assert json.loads((tmp_path / "b.json").read_text()) == {"x": 1}

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -28,6 +29,19 @@ def test_cli_usage_and_unknown_stage():
     assert run([sys.executable, "-m", "lagsplat", "--help"]).returncode == 0
     r = run([sys.executable, "-m", "lagsplat", "nonsense", "system=toy"])
     assert r.returncode == 2 and "unknown stage" in r.stderr
+
+
+def test_every_stage_prints_its_help(tmp_path):
+    """``python -m lagsplat <stage> --help`` (or ``-h``) exits 0 with the stage's own usage, writing nothing."""
+    from lagsplat.cli import STAGES, stage_help
+
+    for stage in STAGES:
+        text = stage_help(stage)
+        assert text.startswith(f"usage: python -m lagsplat {stage} ") and f"\n  {stage} " in text, stage
+    for stage, flag in (("diagnose", "--help"), ("stage1", "-h"), ("view", "--help")):
+        r = run([sys.executable, "-m", "lagsplat", stage, flag, f"results_dir={tmp_path}"])
+        assert r.returncode == 0 and r.stdout.startswith(f"usage: python -m lagsplat {stage} "), r.stderr
+    assert not any(tmp_path.iterdir())
 
 
 def test_cli_missing_source_is_one_clear_line(tmp_path):
@@ -127,6 +141,10 @@ def test_snakemake_end_to_end_on_the_tiny_toy(tmp_path):
     for name in ("clip.npz", "stage1.pt", "chart.npz", "stage2.pt", "metrics.json", "figures/rollout.png", "config/stage1.yaml"):
         assert (sysdir / name).exists(), name
     m = json.loads((sysdir / "metrics.json").read_text())
+    assert m["data"] == "synthetic"  # a procedural clip is not labelled real
+    umask = os.umask(0o022)
+    os.umask(umask)
+    assert (sysdir / "metrics.json").stat().st_mode & 0o777 == 0o666 & ~umask  # the user's umask, not mkstemp's 0600
     for key in ("eps_freq", "eps_q", "eps_I", "eps_AE", "eps_I_over_AE", "f_sim_hz", "f_enc_hz", "f_truth_hz"):
         entry = m["metrics"][key]
         assert math.isfinite(entry["value"]) and entry["definition"], key
@@ -161,3 +179,11 @@ def test_snakemake_end_to_end_on_the_tiny_toy(tmp_path):
         assert r["linearity"]["f_lat_rel_err"] < 1e-9 and r["kernel"]["rel"] < 1e-6
         assert r["background"]["on_object_median_dq"] > 0
     assert len(fj["lever"]["r_px"]) == len(fj["lever"]["f_lat"]) > 2 and (sysdir / "figures" / "forces.png").exists()
+
+
+def test_data_kind_of_each_system():
+    """``metrics.json``'s ``data``: the system's own label, else synthetic for procedural sources, real for recordings."""
+    from lagsplat.cli import compose, data_kind
+
+    kinds = {name: data_kind(compose([f"system={name}"]).system) for name in ("toy", "two_carts", "oscillating_cart", "krauss_2seg", "krauss_2seg_synth")}
+    assert kinds == {"toy": "synthetic", "two_carts": "synthetic", "oscillating_cart": "real", "krauss_2seg": "real", "krauss_2seg_synth": "surrogate"}

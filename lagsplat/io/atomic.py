@@ -24,7 +24,8 @@ def atomic_write(path: str | Path) -> Iterator[Path]:
 
     Yields:
         A temporary file path in the same folder (same file system, so the
-        final ``os.replace`` is atomic).
+        final ``os.replace`` is atomic). The final file's mode follows the
+        user's umask (``0o666 & ~umask``), like a file opened for writing.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -33,11 +34,20 @@ def atomic_write(path: str | Path) -> Iterator[Path]:
     tmp_path = Path(tmp)
     try:
         yield tmp_path
+        if tmp_path.exists():  # mkstemp made it 0600; the artifact gets the user's umask, as open() would give it
+            os.chmod(tmp_path, 0o666 & ~_umask())
         os.replace(tmp_path, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             tmp_path.unlink()
         raise
+
+
+def _umask() -> int:
+    """The process's file-creation mask (read by setting it and putting it back)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 def write_json(path: str | Path, obj: Any) -> Path:
