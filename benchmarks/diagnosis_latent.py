@@ -1,4 +1,4 @@
-"""Blind check of the effect diagnosis at the latent level (issue 7, item 5; no Stage 1).
+"""Blind check of the effect diagnosis at the latent level (no Stage 1).
 
 Every clip of the blind suite (:func:`lagsplat.synth.effects.blind_suite`: a
 pendulum and a cart, each effect twice, controls included) is simulated; its

@@ -1,4 +1,4 @@
-"""Forces against a known truth: the synthetic pendulum pushed at a known point (issue 5, item 4).
+"""Forces against a known truth: the synthetic pendulum pushed at a known point.
 
 The model is one trained on the checkered pendulum's *free* motion
 (``results/pendulum_force``: ``snakemake -c2 results/pendulum_force/forces.json``;
@@ -164,8 +164,8 @@ def main() -> None:
         help="score a force only where the model saw the brushed material move by at least this much (rms px) in "
         "the training clip (ForceTransport.observed_motion); the others are printed apart",
     )
-    ap.add_argument("--max-deg", type=float, default=5.0, help="direction tolerance counted in the summary (issue 5)")
-    ap.add_argument("--max-pct", type=float, default=10.0, help="magnitude tolerance counted in the summary (issue 5)")
+    ap.add_argument("--max-deg", type=float, default=5.0, help="direction tolerance counted in the summary")
+    ap.add_argument("--max-pct", type=float, default=10.0, help="magnitude tolerance counted in the summary")
     args = ap.parse_args()
     summaries = [(d, force_truth(Path(d), args)) for d in args.results]
     if len(summaries) > 1:

@@ -28,7 +28,7 @@ Usage::
 
     python benchmarks/interactive.py [--threads 2] [--repeats 5] [--no-page]
 
-The target of issue 5 is >= 30 Hz (goal 60) at 128x128 with about 2000 Gaussians.
+The target is >= 30 Hz (goal 60) at 128x128 with about 2000 Gaussians.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Training throughput at the soft-robot operating point, and the wall time it projects for the real data.
 
-Issue 6, item 6: is the full 43 872-frame Krauss benchmark practical on one
+Is the full 43 872-frame Krauss benchmark practical on one
 CPU machine? This script measures, on a short simulated two-segment robot in
 the identical format (``lagsplat.synth.continuum_robot``; 32x32 RGB, 4
 pressures, d = 4, 2048 Gaussians):
@@ -15,7 +15,7 @@ pressures, d = 4, 2048 Gaussians):
 each as the slope between a short and a longer run (so set-up, compilation
 and the chart are not counted), and projects the wall time of
 
-* the published budget (notes §5, §8.8): Stage 1 68.6k steps x 64 frames,
+* the published budget (the reference code): Stage 1 68.6k steps x 64 frames,
   Stage 2 47k steps x 32 windows;
 * the README's suggested override (Stage 1 50k x 64, Stage 2 500 x 3000 windows).
 

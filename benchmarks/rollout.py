@@ -90,7 +90,7 @@ def main(argv: list[str] | None = None):
     print(env_header(f"numba {numba.__version__}"))
     print(f"batch 1, h = 1/{args.rate:g} s, widths {tuple(args.hidden)}, potential {args.potential}; median of {args.repeats} timed calls after one warm-up\n")
 
-    # ---- issue 4: the long rollout at d = 1, compile time apart
+    # ---- the long rollout at d = 1, compile time apart
     h = 1.0 / args.rate
     n_long = round(args.seconds * args.rate) + 1
     model = make(1)

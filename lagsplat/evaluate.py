@@ -5,7 +5,7 @@ with its definition and horizon, so tables never recompute anything.
 
 Protocol (held-out segment, latents whitened and smoothed with a Gaussian of
 ``sigma`` frames as in training; initial velocity by the second-order forward
-difference, reference notes §9):
+difference, as the reference code does):
 
 * ``eps_freq``: the free-oscillation frequency of a rollout against the one
   the encoded video shows, both from :func:`lagsplat.metrics.spectral_peak_frequency`
@@ -24,7 +24,7 @@ short for it): the smoothing replicates that frame backwards, so a velocity
 read there is biased low (about half at a mid-swing start). A linear model's
 frequency does not care, but one whose frequency depends on the amplitude (an
 end stop) then runs at the wrong one. The reference protocol never starts
-there either: it skips the recording's first 8 s (notes §9.1, §9.2).
+there either: it skips the recording's first 8 s (the reference code).
 """
 
 from __future__ import annotations

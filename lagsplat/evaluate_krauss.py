@@ -1,6 +1,6 @@
 """The soft-robot benchmark protocol of Krauss et al. 2026 as published (paper §4.4, Table 4).
 
-The numbers of paper Table 4 come from a fixed protocol (reference notes §9),
+The numbers of paper Table 4 come from a fixed protocol (the reference code),
 reproduced here exactly so that our rows are comparable with the published
 ones. Everything runs on the *validation* clip: the held-out frames
 ``[n_train, T)`` of the contiguous 80/20 split, ``n`` frames, ``DT = 1001/60000``
@@ -45,11 +45,11 @@ s. Latents are the whitened encodings of the frozen chart (``chart.q``).
       ``default_rng(0).integers(480, n - H - 3)``, measured smoothed pressure,
       ``eps_q = sqrt(mean |q_sim - q_enc|^2_G) / q_std``.
 
-Departures from the reference code, each deliberate (notes §12):
+Departures from the reference code, each deliberate:
 
 * A window whose mass solve fails (``LinAlgError``) is counted as diverged and
   dropped; the reference pads it with its last state and scores the frozen
-  trajectory (notes §12.9).
+  trajectory (the reference code).
 * The rest-position criteria of §9.2 (over-damped relaxation, 20-period
   rollouts) and the spectral coherence at ``f_enc`` are not computed: Table 4
   does not use them.
@@ -94,14 +94,14 @@ __all__ = [
 ]
 
 DT_KRAUSS = 1001 / 60000
-"""Frame interval of the published recordings, seconds (59.94 fps; notes §2.3)."""
+"""Frame interval of the published recordings, seconds (59.94 fps; the reference code)."""
 
 
 @dataclass
 class KraussEvalConfig:
     """Settings of the published protocol (``krauss_eval`` group of ``conf/system/krauss_*.yaml``).
 
-    Defaults are the published values (reference notes §9); ``period_s`` is
+    Defaults are the published values (the reference code); ``period_s`` is
     the two-segment one (``--period-s 0.6870``).
 
     Attributes:
@@ -158,7 +158,7 @@ class KraussEvalConfig:
 def n_states(horizon_s: float, dt: float) -> int:
     """Number of states of a ``horizon_s`` horizon, initial state included: ``round(horizon_s / dt)``.
 
-    0.5 s at 59.94 fps gives ``round(29.97) = 30`` (notes §9.1).
+    0.5 s at 59.94 fps gives ``round(29.97) = 30`` (the reference code).
 
     Raises:
         ValueError: if the result is below 3 (no forward-difference velocity).
@@ -172,7 +172,7 @@ def n_states(horizon_s: float, dt: float) -> int:
 def mse_window_starts(n: int, horizon: int, skip: int, n_windows: int = 50, seed: int = 0) -> np.ndarray:
     """Start frames of the multi-step MSE: ``default_rng(seed).integers(skip, n - horizon, n_windows)``.
 
-    Uniform with replacement (duplicates possible, as published; notes §9.1, §12.9).
+    Uniform with replacement (duplicates possible, as published; the reference code).
 
     Args:
         n: frames in the validation clip.
@@ -191,7 +191,7 @@ def mse_window_starts(n: int, horizon: int, skip: int, n_windows: int = 50, seed
 
 
 def ae_floor_frames(n: int, skip: int, count: int = 1000) -> np.ndarray:
-    """Frames of the AE floor: ``linspace(skip, n - 1, count)`` truncated to integers (notes §9.1).
+    """Frames of the AE floor: ``linspace(skip, n - 1, count)`` truncated to integers (the reference code).
 
     Raises:
         ValueError: if ``n - 1 < skip``.
@@ -205,7 +205,7 @@ def leading_duplicates(frames: np.ndarray, first: int = 6, ratio: float = 50.0) 
     """Number of leading duplicated frames to trim before the §9.2 criteria.
 
     ``m_j = MSE(frame_{j+1}, frame_j)`` for the first ``first`` pairs; frames
-    are trimmed from the start while ``m_j < median(m) / ratio`` (notes §9.2
+    are trimmed from the start while ``m_j < median(m) / ratio`` (the published
     "Setup": "consecutive-frame MSE < median/50 among the first 6"; the exact
     loop of the reference is not documented, this is our reading).
 
@@ -227,7 +227,7 @@ def leading_duplicates(frames: np.ndarray, first: int = 6, ratio: float = 50.0) 
 
 
 def flat_intervals(P_raw: np.ndarray, lo: int, min_len: int, step_tol: float = 0.01, total_tol: float = 0.05, max_intervals: int = 20) -> list[tuple[int, int]]:
-    """Constant-pressure (free-oscillation) intervals of a pressure record (notes §9.2).
+    """Constant-pressure (free-oscillation) intervals of a pressure record (the reference code).
 
     On frames ``[lo, n)``: ``amp`` = max over chambers of the peak-to-peak of
     ``P_raw[lo:]``; frame ``t`` is flat when ``max_c |P[t+1, c] - P[t, c]| <
@@ -279,7 +279,7 @@ def flat_intervals(P_raw: np.ndarray, lo: int, min_len: int, step_tol: float = 0
 
 
 def peak_frequency(x: np.ndarray, dt: float, G: np.ndarray | None = None, min_cycles: float = 1.5) -> float:
-    """Spectral peak frequency as the published estimator computes it, Hz (notes §9.2).
+    """Spectral peak frequency as the published estimator computes it, Hz (the reference code).
 
     Mean removed, Hann window, real FFT; power ``|F|^2`` (1-D) or
     ``Re F^T G Re F + Im F^T G Im F``; bins below ``min_cycles`` cycles per
@@ -314,7 +314,7 @@ def peak_frequency(x: np.ndarray, dt: float, G: np.ndarray | None = None, min_cy
 # --------------------------------------------------------------------------- rollouts
 @torch.no_grad()
 def rollout_zoh(model: Any, q0: np.ndarray, v0: np.ndarray, dt: float, n_states_: int, P: np.ndarray | None) -> np.ndarray:
-    """Velocity-Verlet rollouts with the pressure held over each step (notes §8.7, §9.1).
+    """Velocity-Verlet rollouts with the pressure held over each step (the reference code).
 
     Step ``i -> i+1`` evaluates both accelerations with ``P[:, i]``. A window
     whose step fails (non-finite state or a ``LinAlgError`` in the mass solve)
@@ -616,13 +616,13 @@ def evaluate_krauss(
     fw = f"{len(ok)} window(s) in {len(fq['intervals'])} constant-pressure interval(s) of the validation clip"
     hc = f"{H} states = {cfg.cycle_periods:g} x {cfg.period_s} s, {cyc['n_finite']}/{cfg.n_windows} windows"
     out: dict[str, dict] = {
-        "mse_0p5s": _entry(_finite(ms["mse"]), "image MSE of decode(q_sim) against frames s..s+H-1 (state i <-> frame s+i, initial state included), mean over C x H x W, states and finite windows; pressure zero-order hold (Krauss et al. 2026 protocol, notes §9.1)", h91, "MSE, pixels in [0,1]"),
+        "mse_0p5s": _entry(_finite(ms["mse"]), "image MSE of decode(q_sim) against frames s..s+H-1 (state i <-> frame s+i, initial state included), mean over C x H x W, states and finite windows; pressure zero-order hold (Krauss et al. 2026 protocol, the reference code)", h91, "MSE, pixels in [0,1]"),
         "mse_0p5s_sem": _entry(_finite(ms["sem"]), "standard error over windows of the per-window mean MSE (ddof 1)", h91, "MSE"),
         "mse_0p5s_per_step": _entry([_finite(x) for x in ms["per_step"]], "per-state MSE averaged over the finite windows", h91, "MSE"),
         "mse_window_starts": _entry([int(s) for s in ms["starts"]], "validation-frame indices of the rollout starts", h91, "frame"),
         "n_diverged": _entry(int(cfg.n_windows - ms["n_finite"]), "MSE windows dropped as non-finite (or failed mass solve)", h91, "count"),
         "ae_floor": _entry(ae_floor, "autoencoder floor: MSE(decode(z_raw[i]), frame i), unsmoothed encodings, frames linspace(480, n-1, 1000) of the validation clip", f"{cfg.ae_frames} frames", "MSE, pixels in [0,1]"),
-        "eps_freq": _entry(_finite(fq["eps_freq"]), "mean over windows of |f_sim - f_enc| / f_enc, spectral peak (Hann, log-parabolic) of the projection on G_bar's most visible eigenvector; free rollout with the pressure frozen at the window start (notes §9.2)", fw, "fraction"),
+        "eps_freq": _entry(_finite(fq["eps_freq"]), "mean over windows of |f_sim - f_enc| / f_enc, spectral peak (Hann, log-parabolic) of the projection on G_bar's most visible eigenvector; free rollout with the pressure frozen at the window start (the reference code)", fw, "fraction"),
         "eps_freq_aggregate": _entry(_finite(fq["eps_freq_agg"]), "same with the G_bar-aggregate spectrum", fw, "fraction"),
         "f_enc_hz": _entry(_finite(fq["f_enc_hz"]), "free-oscillation frequency of the encoded video (mean over windows, top mode)", fw, "Hz"),
         "f_sim_hz": _entry(_finite(fq["f_sim_hz"]), "free-oscillation frequency of the model's rollouts (mean over windows, top mode)", fw, "Hz"),
@@ -634,7 +634,7 @@ def evaluate_krauss(
         ),
         "free_intervals": _entry([[int(a), int(b)] for a, b in fq["intervals"]], "constant-pressure intervals [a, b) found on the raw pressures (1 % per frame, 5 % total, >= 2 s), validation frames after trimming", "", "frame"),
         "n_trimmed": _entry(k, "leading duplicated validation frames trimmed before §9.2", "", "frames"),
-        "eps_q": _entry(_finite(cyc["eps_q"]), "latent NRMSE sqrt(mean |q_sim - q_enc|^2_G) / G-RMS spread of q_enc, G = G_bar at trace d, measured smoothed pressure (notes §9.2 cycle error)", hc, "1 = predicting the mean"),
+        "eps_q": _entry(_finite(cyc["eps_q"]), "latent NRMSE sqrt(mean |q_sim - q_enc|^2_G) / G-RMS spread of q_enc, G = G_bar at trace d, measured smoothed pressure (the published cycle error)", hc, "1 = predicting the mean"),
         "eps_I_cycle": _entry(_finite(cyc["eps_I"]), "image MSE of the cycle rollouts against the real frames", hc, "MSE"),
         "eps_AE_cycle": _entry(_finite(cyc["eps_AE"]), "autoencoder floor on the same frames", hc, "MSE"),
         "q_std": _entry(fq["q_std"], "G-RMS spread of the smoothed encoded validation trajectory", "", "latent units"),

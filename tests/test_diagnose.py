@@ -1,4 +1,4 @@
-"""Tests of the sim-to-real gap diagnosis at the latent level (lagsplat.diagnose, issue 7 item 3).
+"""Tests of the sim-to-real gap diagnosis at the latent level (lagsplat.diagnose).
 
 No Stage 1: the true 1-D coordinate of a synthetic clip (lagsplat.synth.effects)
 stands in for the chart, linearly mapped and with chart-like white noise; the

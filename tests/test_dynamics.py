@@ -61,7 +61,7 @@ def test_verlet_is_second_order_without_damping() -> None:
 
 def test_verlet_converges_to_the_damped_solution() -> None:
     # With damping the step is the reference "semi-implicit" Verlet (the second
-    # force uses the half-step velocity, notes §8.7): its local velocity error is
+    # force uses the half-step velocity, the reference code): its local velocity error is
     # O(h^2 c a), so the global error is first order (halving h halves it), not
     # second order as for the conservative scheme above.
     osc = Oscillator(m=1.0, k=4.0, c=0.4)

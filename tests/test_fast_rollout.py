@@ -112,7 +112,7 @@ def test_float32_model_rolls_out_in_float32() -> None:
 
 
 def test_1000_s_rollout_at_30_hz_is_fast() -> None:
-    """Issue 4: a 1000 s free rollout at d = 1 in under 5 s (default widths (64, 64))."""
+    """A 1000 s free rollout at d = 1 in under 5 s (default widths (64, 64))."""
     import time
 
     model = _model(1, "scalar", "convex", seed=0, hidden=(64, 64))

@@ -1,4 +1,4 @@
-"""Soft-robot data rules (issue 6, item 1): archive download, member extraction, SHA256, split, systems.
+"""Soft-robot data rules: archive download, member extraction, SHA256, split, systems.
 
 A tiny NPZ in the Krauss layout is zipped in ``tmp_path`` as
 ``processed_data/scr_dataset_raw_2seg_32x32_59fps.npz`` and fetched by

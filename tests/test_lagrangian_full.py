@@ -1,4 +1,4 @@
-"""The full latent Lagrangian of issue 4 (paper §3.3, App. A): invex potential,
+"""The full latent Lagrangian (paper §3.3, App. A): invex potential,
 concave actuation map, decoder-induced inertia, loaded equilibrium, modal
 analysis, multi-episode Stage-2 windows and the ablation variants."""
 

@@ -1,4 +1,4 @@
-"""Several recordings of one system (issue 4 item 6): ingest of ``system.sources``,
+"""Several recordings of one system: ingest of ``system.sources``,
 episodes in the clip, and Stage-2 windows that never cross a recording."""
 
 from __future__ import annotations

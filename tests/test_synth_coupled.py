@@ -1,4 +1,4 @@
-"""Tests of the synthetic coupled-carts clip (lagsplat.synth.coupled_carts, issue 4 item 7)."""
+"""Tests of the synthetic coupled-carts clip (lagsplat.synth.coupled_carts)."""
 
 from __future__ import annotations
 

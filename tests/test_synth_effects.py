@@ -1,4 +1,4 @@
-"""Tests of the synthetic clips with one known unmodelled effect (lagsplat.synth.effects, issue 7 item 5)."""
+"""Tests of the synthetic clips with one known unmodelled effect (lagsplat.synth.effects)."""
 
 from __future__ import annotations
 

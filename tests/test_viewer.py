@@ -1,4 +1,4 @@
-"""Interactive viewer (issue 5): the drag session without a browser, then the page in headless Chromium.
+"""Interactive viewer: the drag session without a browser, then the page in headless Chromium.
 
 Session tests run on two systems: the trained toy (``results/toy``, skipped
 when its artifacts are missing) and a hand-built pendulum

@@ -1,4 +1,4 @@
-"""Sim-to-real gap diagnosis (issue 7): which unmodelled effect makes the identified model depart from the recording.
+"""Sim-to-real gap diagnosis: which unmodelled effect makes the identified model depart from the recording.
 
 Pipeline (each step usable alone):
 
@@ -71,7 +71,7 @@ def diagnose_chart(model: Any, chart: Any, which: int | None = 0, sigma: float |
         chart: the :class:`~lagsplat.chart.Chart`.
         which: split used (``0`` train, ``1`` held-out, ``None`` all); the
             held-out frames should stay out of the diagnosis so the gap can be
-            measured on them afterwards (issue 7, item 4).
+            measured on them afterwards.
         sigma: smoothing, frames (default automatic).
         **select_kwargs: passed to :func:`select_effect`; the model's modal
             frequencies are passed as ``model_freqs_hz`` when it has ``modal_analysis``.

@@ -1,4 +1,4 @@
-"""The library of candidate unmodelled effects (issue 7, item 3).
+"""The library of candidate unmodelled effects.
 
 The Lagrangian class of the paper (§3.3) leaves out dry friction, contact,
 impacts, non-polynomial stiffness, unlogged inputs and slow changes of the

@@ -1,4 +1,4 @@
-"""How far the gap shrinks: refit Stage 2 with the diagnosed effect and measure the held-out gap (issue 7, item 4).
+"""How far the gap shrinks: refit Stage 2 with the diagnosed effect and measure the held-out gap.
 
 Refit
 -----

@@ -1,4 +1,4 @@
-"""The sim-to-real gap report of one trained system (issue 7, items 1 to 4).
+"""The sim-to-real gap report of one trained system.
 
 :func:`diagnose_system` reads the artifacts of ``results/<system>/`` (``clip.npz``,
 ``stage1.pt``, ``chart.npz``, ``stage2.pt``, ``metrics.json``) and writes

@@ -1,4 +1,4 @@
-"""Residual generalized force of a fitted model on an encoded trajectory (issue 7, item 3).
+"""Residual generalized force of a fitted model on an encoded trajectory.
 
 What the identified Lagrangian leaves unexplained, in the units of the
 Euler-Lagrange equation (paper Eq. 7): along the encoded trajectory,

@@ -1,4 +1,4 @@
-"""Which unmodelled effect explains the residual: fit, rank, test, and collect the evidence (issue 7, item 3).
+"""Which unmodelled effect explains the residual: fit, rank, test, and collect the evidence.
 
 Every candidate of :mod:`lagsplat.diagnose.effects` is fitted to the residual
 generalized force ``r`` of :mod:`lagsplat.diagnose.residual` by linear least

@@ -1,4 +1,4 @@
-"""Winning effects as torch terms for the Stage-2 refit (issue 7, item 4).
+"""Winning effects as torch terms for the Stage-2 refit.
 
 Each diagnosed effect becomes a generalized-force module ``f_eff(q, qdot, t)``
 ``[B,d]`` that is added to the right-hand side of the Euler-Lagrange equation

@@ -1,4 +1,4 @@
-"""Where the identified simulation departs from the recording (issue 7, item 2).
+"""Where the identified simulation departs from the recording.
 
 The gap between a fitted model and the video is localised four ways, each
 against what the autoencoder floor already explains (the decoder cannot

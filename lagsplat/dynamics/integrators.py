@@ -45,7 +45,7 @@ def verlet_step(
     ``a1 = a(q, qdot, f(t))``; ``v_half = qdot + h/2 a1``; ``q1 = q + h v_half``;
     ``a2 = a(q1, v_half, f(t + h))``; ``qdot1 = v_half + h/2 a2``. The second
     force evaluation uses the half-step velocity for the velocity-dependent
-    terms, as in the reference implementation (notes §8.7). For a
+    terms, as in the reference implementation. For a
     conservative model this is the symplectic, second-order Stormer-Verlet
     scheme; the dissipative terms are integrated to first order (the error
     halves with ``h``, tests/test_dynamics.py).
@@ -149,7 +149,7 @@ def initial_state(q: np.ndarray, starts: np.ndarray, dt: float) -> tuple[Tensor,
     """Initial state ``(q0 [N,d], qdot0 [N,d])`` read off an encoded trajectory.
 
     Position at each start, velocity by the second-order forward difference
-    over the next two frames (reference notes §9.1), the convention of every
+    over the next two frames (the reference code), the convention of every
     rollout that is scored or plotted.
 
     Args:

@@ -46,7 +46,7 @@ def segments(split: np.ndarray, which: int, episode: np.ndarray | None = None) -
         split: int ``[T]`` split labels (``TRAIN`` / ``HELD_OUT``).
         which: the label to select.
         episode: optional int ``[T]`` recording index; a run also ends where
-            the episode changes (multi-clip training, issue 4).
+            the episode changes (multi-clip training).
 
     Returns:
         List of int64 index arrays, in time order (empty if none).

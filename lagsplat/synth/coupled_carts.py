@@ -1,7 +1,7 @@
 """Two spring-coupled carts with exactly known modes, rendered as a small video clip.
 
 The synthetic 2-DOF truth for the full latent Lagrangian with ``d = 2``
-(issue 4, item 7): a model's identified modal frequencies are checked against
+: a model's identified modal frequencies are checked against
 ``clip.meta["truth"]["f_modes_hz"]`` (within 3 %) and its damping ratios
 against ``clip.meta["truth"]["zeta_modes"]`` (within 30 %).
 

@@ -1,4 +1,4 @@
-"""Simple systems with one known unmodelled effect each: the withheld data of the gap diagnosis (issue 7, item 5).
+"""Simple systems with one known unmodelled effect each: the withheld data of the gap diagnosis.
 
 Every clip shows one of two 1-DOF systems, a pendulum or a cart on a spring,
 whose motion obeys a linear-damping law plus *exactly one* candidate effect of

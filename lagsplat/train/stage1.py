@@ -235,7 +235,7 @@ def train_stage1(
             bar.update(loss=ema, l1=parts["l1"], ssim=parts["ssim"])
         # Recycling of dead primitives; never in the last period, so that every
         # recycled primitive is trained before the model is saved (fixes the
-        # reference's prune-at-last-epoch, notes §12.2).
+        # reference's prune-at-last-epoch, the reference code).
         at_period = (step + 1) % cfg.recycle_every == 0
         if step >= cfg.recycle_warmup and at_period and step + cfg.recycle_every < cfg.steps:
             with torch.no_grad(), record_function("stage1.recycle"):

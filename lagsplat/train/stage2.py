@@ -88,7 +88,7 @@ class Stage2Config:
 
 
 def one_step_windows(q: np.ndarray, dt: float, k: int, u: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
-    """Training pairs of Eq. 8 from one contiguous trajectory (reference notes §8.6).
+    """Training pairs of Eq. 8 from one contiguous trajectory (the reference code).
 
     For every ``s``: state ``(q[s+k], (q[s+2k] - q[s]) / 2k dt)`` and target
     ``(q[s+2k], (q[s+3k] - q[s+k]) / 2k dt)``, one step of ``h = k dt``.
@@ -155,7 +155,7 @@ def train_stage2(
         progress: report progress (:class:`~lagsplat.train.progress.Progress`:
             a tqdm bar on a terminal, a line every ~30 s otherwise).
         inertia: the :class:`DecoderInertia` when ``cfg.mass == "decoder"``.
-        augment: hook for the gap-diagnosis refit (issue 7, :mod:`lagsplat.diagnose.refit`):
+        augment: hook for the gap-diagnosis refit (:mod:`lagsplat.diagnose.refit`):
             called once with the built Lagrangian after its rest state and energy
             gauge are set, it returns the module that is trained and selected
             instead (e.g. the fitted weights loaded and effect terms added,
@@ -233,7 +233,7 @@ def train_stage2(
             eq, ev = q1 - Q1[b], h * (v1 - V1[b])
             loss = (cfg.w_q * torch.einsum("bi,ij,bj->b", eq, A, eq) + cfg.w_v * torch.einsum("bi,ij,bj->b", ev, A, ev)).mean() / d
             if not torch.isfinite(loss):
-                continue  # skip a diverged batch (reference notes §8.8)
+                continue  # skip a diverged batch (the reference code)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
