@@ -334,8 +334,11 @@ def summarize(rows: list[dict], timings: dict[str, dict], budget: str, markdown:
         print(f"# Blind diagnosis suite: budget {budget}, {len(rows)} clips", file=buf)
     table, acc, flagged, n_controls = score_verdicts([{k: v for k, v in r.items() if k not in ("before", "after")} for r in rows], file=buf)
     effects = table[(table["truth"] != "none") & table["refit"]]
-    med = {k: (float(np.nanmedian(effects[f"red_{k}"].astype(float))) if len(effects) and effects[f"red_{k}"].notna().any() else None) for k in GAP_METRICS}
-    med_c = {k: (float(np.nanmedian(effects[f"red_ctrl_{k}"].astype(float))) if len(effects) and effects[f"red_ctrl_{k}"].notna().any() else None) for k in GAP_METRICS}
+    def median(col: str) -> float | None:
+        return float(np.nanmedian(effects[col].astype(float))) if len(effects) and effects[col].notna().any() else None
+
+    med = {k: median(f"red_{k}") for k in GAP_METRICS}
+    med_c = {k: median(f"red_ctrl_{k}") for k in GAP_METRICS}
     per_stage = pd.DataFrame(list(timings.values())).median().round(1).to_dict()
     item, sub = ("- ", "  - ") if markdown else ("", "  ")
     lines = [f"budget: {budget}, clips {len(table)}", f"top-1 accuracy: {acc:.3f} ({int(table['ok'].sum())}/{len(table)})",

@@ -69,8 +69,8 @@ PHASES = ("stage1.encode", "stage1.decode", "stage1.loss", "stage1.backward", "s
 RASTER = ("rasterize.cpu.forward", "rasterize.cpu.backward")
 
 
-def _clip_and_config(setting: str, steps: int):
-    """The setting's clip, its Stage-1 config and ``d``.
+def _config(setting: str, steps: int):
+    """The setting's Stage-1 config and ``d``.
 
     The config is the checkout's own ``conf/`` for the setting's system (so
     each commit runs with the settings it shipped), with ``steps`` and
@@ -79,15 +79,21 @@ def _clip_and_config(setting: str, steps: int):
     from omegaconf import OmegaConf
 
     from lagsplat.cli import compose
-    from lagsplat.synth.pendulum import make_pendulum_clip
     from lagsplat.train.stage1 import Stage1Config
 
     s = SETTINGS[setting]
     os.environ["LAGSPLAT_CONF"] = str(ROOT / "conf")
     cfg = compose([f"system={s['system']}"])
     stage1 = {**OmegaConf.to_container(cfg.stage1, resolve=True), **s["set"], "steps": steps, "recycle_warmup": 10**9}
-    clip = make_pendulum_clip(size=(s["size"], s["size"]))
-    return clip, Stage1Config.from_mapping(stage1), int(cfg.system.d)
+    return Stage1Config.from_mapping(stage1), int(cfg.system.d)
+
+
+def _clip(setting: str):
+    """The synthetic pendulum clip at the setting's size."""
+    from lagsplat.synth.pendulum import make_pendulum_clip
+
+    size = SETTINGS[setting]["size"]
+    return make_pendulum_clip(size=(size, size))
 
 
 def worker(setting: str, steps: int, threads: int) -> dict:
@@ -98,7 +104,7 @@ def worker(setting: str, steps: int, threads: int) -> dict:
     from lagsplat.train.stage1 import train_stage1
 
     torch.set_num_threads(threads)
-    clip, cfg, d = _clip_and_config(setting, steps)
+    clip, (cfg, d) = _clip(setting), _config(setting, steps)
     t0 = time.perf_counter()
     train_stage1(clip, cfg, d, seed=0, progress=False)
     return {"seconds": time.perf_counter() - t0, "steps": steps}
@@ -141,16 +147,17 @@ class _PhaseClock:
 
 def phase_shares(setting: str, steps: int) -> dict[str, float]:
     """Share of the wall time of ``steps`` Stage-1 steps spent in each labelled phase (after a warm-up run)."""
+    from dataclasses import replace
+
     from lagsplat.render import rasterize
     from lagsplat.train import stage1
 
-    clip, cfg, d = _clip_and_config(setting, 3)
-    stage1.train_stage1(clip, cfg, d, progress=False)  # compile / warm up outside the measurement
+    clip, (cfg, d) = _clip(setting), _config(setting, steps)
+    stage1.train_stage1(clip, replace(cfg, steps=3), d, progress=False)  # compile / warm up outside the measurement
     clock = _PhaseClock()
     saved = stage1.record_function, rasterize.record_function
     stage1.record_function = rasterize.record_function = clock
     try:
-        clip, cfg, d = _clip_and_config(setting, steps)
         t0 = time.perf_counter()
         stage1.train_stage1(clip, cfg, d, progress=False)
         wall = time.perf_counter() - t0
@@ -199,7 +206,7 @@ def main(argv: list[str] | None = None) -> None:
         try:
             rows = []
             for setting in args.settings:
-                clip, cfg, _ = _clip_and_config(setting, 1)
+                cfg, _ = _config(setting, 1)
                 times: dict[str, list[float]] = {name: [] for name in roots}
                 for _ in range(args.rounds):
                     for name, root in roots.items():
@@ -211,12 +218,12 @@ def main(argv: list[str] | None = None) -> None:
                         other = statistics.median(ts)
                         row[f"s/step {name}"] = f"{other:.4f}"
                         row["speed-up"] = f"{other / base:.2f}x"
-                fwd, fb, _ = bench_one("cpu", cfg.batch, cfg.n_gaussians, clip.images.shape[1], 5)
+                fwd, fb, _ = bench_one("cpu", cfg.batch, cfg.n_gaussians, SETTINGS[setting]["size"], 5)
                 row["raster fwd+bwd / fwd"] = f"{fb / fwd:.2f}"
                 rows.append(row)
                 print(f"  done: {row}", flush=True)
             print_table(rows)
-            print("\nshare of a step's profiled time (this checkout):")
+            print("\nshare of a step's wall time by phase (this checkout):")
             shares = [{"setting": st, **{k: f"{v:.0%}" for k, v in phase_shares(st, args.profile_steps).items()}} for st in args.settings]
             print_table(shares)
         finally:
