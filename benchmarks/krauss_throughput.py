@@ -17,7 +17,7 @@ and the chart are not counted), and projects the wall time of
 
 * the published budget (the reference code): Stage 1 68.6k steps x 64 frames,
   Stage 2 47k steps x 32 windows;
-* the README's suggested override (Stage 1 50k x 64, Stage 2 500 x 3000 windows).
+* the suggested override of ``conf/system/krauss_2seg.yaml`` (Stage 1 50k x 64, Stage 2 500 x 3000 windows).
 
 Usage::
 
@@ -98,7 +98,7 @@ def main(argv: list[str] | None = None) -> None:
     s2 = float(table[table.stage == "2"]["s/step"].iloc[0])
     proj = [
         {"budget": "published (68.6k x 64 frames; 47k x 32 windows)", "stage 1 h": 68_600 * s1_64 / 3600, "stage 2 h": 47_000 * s2 / 3600},
-        {"budget": "README override (50k x 64; 500 x 3000 windows / 32)", "stage 1 h": 50_000 * s1_64 / 3600, "stage 2 h": 500 * 3000 / 32 * s2 / 3600},
+        {"budget": "suggested override (50k x 64; 500 x 3000 windows / 32)", "stage 1 h": 50_000 * s1_64 / 3600, "stage 2 h": 500 * 3000 / 32 * s2 / 3600},
     ]
     for p in proj:
         p["total h"] = p["stage 1 h"] + p["stage 2 h"]

@@ -36,7 +36,7 @@ Two brushes (``brush=``):
   static background primitive seen through the checkered pendulum's bob took
   11-17 % of the weight at its centre on some trainings) no longer pulls the
   part's Jacobian towards the background's. Default 0: every composited
-  primitive (README "Forces" gives what ``tau = 0.5`` changes).
+  primitive (docs/forces.md gives what ``tau = 0.5`` changes).
 
 A :class:`Selection` freezes the weights of the primitives under the click:
 the force keeps acting on the same material while the object moves, and its
@@ -264,8 +264,8 @@ class ForceTransport:
         in ``q``). Given the encoded *training* states it says how much motion
         of this material the video showed the decoder. Its ``J_i`` are learned
         from that motion alone, so where it is below about a pixel the video
-        barely constrains them and a force there is extrapolated (README
-        "Forces": the checkered pendulum's counter-arm, seen moving 0.41-0.57 px
+        barely constrains them and a force there is extrapolated
+        (docs/forces.md: the checkered pendulum's counter-arm, seen moving 0.41-0.57 px
         against 2.5-5.5 px along the rod, reads its lever arm 11-38 % short
         over 9 trainings).
 

@@ -215,7 +215,7 @@ def rigidity_penalty(
     by a pixel or more; where the motion is sub-pixel (near a pivot) the image
     barely constrains it (+-50 % between neighbours at the checkered
     pendulum's counter-arm). Measured on that pendulum at weight ``1e-2``
-    (README "Forces"): the largest deviation of ``J`` from the lever arm along
+    (docs/forces.md): the largest deviation of ``J`` from the lever arm along
     the rod a median 8 % over 8 seeds (11 % without), the AE floor doubled,
     the counter-arm still off by 12-20 %.
 
