@@ -95,7 +95,8 @@ from lagsplat.evaluate import EvalConfig, evaluate
 from lagsplat.io.atomic import atomic_write, write_json
 from lagsplat.io.clip import Clip, load_clip, save_clip
 from lagsplat.synth.effects import blind_suite, make_effect_clip
-from lagsplat.train.stage1 import Stage1Config, load_stage1, save_stage1, train_stage1
+from lagsplat.train.stage1 import Stage1Config, train_stage1
+from lagsplat.models.autoencoder import load_stage1, save_stage1
 from lagsplat.train.stage2 import Stage2Config, load_stage2, save_stage2, train_stage2
 
 #: Budget name -> settings (see the module docstring).

@@ -74,7 +74,7 @@ from lagsplat.io.clip import TRAIN, load_clip
 from lagsplat.force import ForceTransport, calibrate_kappa
 from lagsplat.force_checks import ForceCheckConfig
 from lagsplat.synth.pendulum import PIVOT_Y, ROD_LENGTH
-from lagsplat.train.stage1 import load_stage1
+from lagsplat.models.autoencoder import load_stage1
 from lagsplat.train.stage2 import load_stage2
 
 

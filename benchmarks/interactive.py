@@ -64,7 +64,7 @@ def _doubled(ae, jitter_px: float = 0.3, seed: int = 0):
     import torch
 
     from lagsplat.models.decoder import ConditionedGaussians
-    from lagsplat.train.stage1 import AutoEncoder
+    from lagsplat.models.autoencoder import AutoEncoder
 
     src = ae.decoder
     dec = ConditionedGaussians(2 * src.K, src.d, backend=src.backend)
@@ -79,7 +79,7 @@ def _doubled(ae, jitter_px: float = 0.3, seed: int = 0):
 def _sessions(args):
     """``[(name, Session)]`` of the configurations measured."""
     from lagsplat.chart import load_chart
-    from lagsplat.train.stage1 import load_stage1
+    from lagsplat.models.autoencoder import load_stage1
     from lagsplat.train.stage2 import load_stage2
     from lagsplat.viewer.session import Session
     from lagsplat.viewer.synthetic import synthetic_pendulum

@@ -2,7 +2,7 @@
 
 Ground truth for ``eps_freq`` on real recordings, computed without lagsplat's
 encoder: the object's colour centroid is tracked in every raw frame, and the
-same spectral estimator (:func:`lagsplat.metrics.spectral_peak_frequency`) is
+same spectral estimator (:func:`lagsplat.timeseries.spectral_peak_frequency`) is
 applied to its horizontal position over the clip's held-out segment (the same
 frame range and split as ``results/<system>/clip.npz``) and over the whole clip.
 
@@ -24,7 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import numpy as np  # noqa: E402
 
 from lagsplat.io.video import read_video  # noqa: E402
-from lagsplat.metrics import spectral_peak_frequency  # noqa: E402
+from lagsplat.timeseries import spectral_peak_frequency  # noqa: E402
 
 # system -> (file, fps override, colour mask on RGB float frames, row band)
 CLIPS = {

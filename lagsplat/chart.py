@@ -39,7 +39,7 @@ from torch import Tensor
 
 from lagsplat.io.atomic import atomic_write
 from lagsplat.io.clip import HELD_OUT, TRAIN, Clip, segments
-from lagsplat.train.stage1 import AutoEncoder, frames_to_tensor
+from lagsplat.models.autoencoder import AutoEncoder, frames_to_tensor
 
 __all__ = [
     "Chart",

@@ -18,9 +18,12 @@ import sys
 import time
 import warnings
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 from omegaconf import DictConfig, OmegaConf
+
+if TYPE_CHECKING:
+    from lagsplat.artifacts import Artifacts
 
 __all__ = ["main", "compose", "find_conf_dir", "STAGES"]
 
@@ -33,7 +36,7 @@ stages:
   chart      stage1.pt -> chart.npz          (whitening, G_bar, A, AE floor)
   stage2     chart.npz -> stage2.pt          (latent Lagrangian)
   evaluate   -> metrics.json                 (eps_freq, eps_q, eps_I / eps_AE; system.protocol=krauss:
-             the published soft-robot protocol, lagsplat.evaluate_krauss)
+             the published soft-robot protocol, lagsplat.evaluate.krauss)
   figures    -> figures/rollout.png
   forces     -> forces.json, figures/forces.png (force-transport checks: background, linearity, kernel)
   diagnose   -> diagnosis/report.md, report.json, figures/ (sim-to-real gap: which unmodelled effect,
@@ -84,14 +87,12 @@ def compose(overrides: list[str]) -> DictConfig:
         return hcompose(config_name="config", overrides=overrides)
 
 
-def _sysdir(cfg: DictConfig) -> Path:
-    return Path(cfg.results_dir) / cfg.system.name
+def artifacts_of(cfg: DictConfig) -> "Artifacts":
+    """The run's artifact paths (:class:`lagsplat.artifacts.Artifacts`): ``${results_dir}/<system>/``,
+    the model's under ``variants/<variant>/`` when ``variant`` is set, each overridable as ``artifacts.<name>=PATH``."""
+    from lagsplat.artifacts import Artifacts
 
-
-def _outdir(cfg: DictConfig) -> Path:
-    """Where stage2 / evaluate / figures write: the system folder, or ``variants/<name>/`` under it."""
-    v = cfg.get("variant")
-    return _sysdir(cfg) / "variants" / str(v) if v else _sysdir(cfg)
+    return Artifacts.for_run(cfg.results_dir, cfg.system.name, cfg.get("variant"), _container(cfg.get("artifacts") or {}))
 
 
 def apply_variant(cfg: DictConfig) -> DictConfig:
@@ -112,7 +113,7 @@ def apply_variant(cfg: DictConfig) -> DictConfig:
 def _save_cfg(cfg: DictConfig, stage: str) -> None:
     from lagsplat.io.atomic import atomic_write
 
-    with atomic_write(_outdir(cfg) / "config" / f"{stage}.yaml") as tmp:
+    with atomic_write(artifacts_of(cfg).config(stage)) as tmp:
         tmp.write_text(OmegaConf.to_yaml(cfg, resolve=True))
 
 
@@ -149,90 +150,73 @@ def stage_download(cfg: DictConfig) -> None:
 
 def stage_ingest(cfg: DictConfig) -> None:
     """Source clip -> ``clip.npz``."""
-    from lagsplat.io.ingest import ingest_to_file
+    from lagsplat.ingest import ingest_to_file
 
-    ingest_to_file(_container(cfg.system), _sysdir(cfg) / "clip.npz")
+    ingest_to_file(_container(cfg.system), artifacts_of(cfg).clip)
     _save_cfg(cfg, "ingest")
 
 
 def stage_stage1(cfg: DictConfig) -> None:
     """``clip.npz`` -> ``stage1.pt``."""
-    from lagsplat.io.clip import load_clip
-    from lagsplat.train.stage1 import Stage1Config, save_stage1, train_stage1
+    from lagsplat.models.autoencoder import save_stage1
+    from lagsplat.train.stage1 import Stage1Config, train_stage1
 
-    clip = load_clip(_sysdir(cfg) / "clip.npz")
+    a = artifacts_of(cfg)
+    clip = a.load_clip()
     s1 = Stage1Config.from_mapping(_container(cfg.stage1))
     model, hist = train_stage1(
         clip, s1, int(cfg.system.d), seed=int(cfg.seed), progress=bool(cfg.progress), device=str(cfg.device), label=f"{cfg.system.name} stage1"
     )
-    save_stage1(_sysdir(cfg) / "stage1.pt", model, _container(cfg.stage1), hist, int(cfg.system.d))
+    save_stage1(a.stage1, model, _container(cfg.stage1), hist, int(cfg.system.d))
     _save_cfg(cfg, "stage1")
 
 
 def stage_chart(cfg: DictConfig) -> None:
     """``stage1.pt`` -> ``chart.npz``."""
     from lagsplat.chart import build_chart, save_chart
-    from lagsplat.io.clip import load_clip
-    from lagsplat.train.stage1 import load_stage1
 
-    d = _sysdir(cfg)
+    a = artifacts_of(cfg)
     chart = build_chart(
-        load_stage1(d / "stage1.pt"), load_clip(d / "clip.npz"), int(cfg.chart.n_metric_samples), float(cfg.chart.rho), int(cfg.seed),
+        a.load_stage1(), a.load_clip(), int(cfg.chart.n_metric_samples), float(cfg.chart.rho), int(cfg.seed),
         refine_iters=int(cfg.chart.get("refine_iters", 0)),
     )
-    save_chart(d / "chart.npz", chart)
+    save_chart(a.chart, chart)
     _save_cfg(cfg, "chart")
 
 
 def stage_stage2(cfg: DictConfig) -> None:
     """``chart.npz`` -> ``stage2.pt``."""
-    from lagsplat.chart import load_chart
     from lagsplat.train.stage2 import Stage2Config, save_stage2, train_stage2
 
+    a = artifacts_of(cfg)
     s2 = Stage2Config.from_mapping(_container(cfg.stage2))
-    chart = load_chart(_sysdir(cfg) / "chart.npz")
+    chart = a.load_chart()
     inertia = None
     if s2.mass == "decoder":  # parameter-free inertia from the frozen Stage-1 decoder (paper Eq. 7)
         from lagsplat.models.lagrangian import DecoderInertia
-        from lagsplat.train.stage1 import load_stage1
 
-        ae = load_stage1(_sysdir(cfg) / "stage1.pt")
+        ae = a.load_stage1()
         inertia = DecoderInertia.from_decoder(ae.decoder, chart.W_inv, chart.mean, chart.height, chart.width)
     model, hist = train_stage2(
         chart, s2, seed=int(cfg.seed), progress=bool(cfg.progress), inertia=inertia, device=str(cfg.device), label=f"{cfg.system.name} stage2"
     )
-    save_stage2(_outdir(cfg) / "stage2.pt", model, s2, hist)
+    save_stage2(a.stage2, model, s2, hist)
     _save_cfg(cfg, "stage2")
 
 
 def stage_evaluate(cfg: DictConfig) -> None:
     """Upstream artifacts -> ``metrics.json``."""
-    from lagsplat.chart import load_chart
-    from lagsplat.evaluate import EvalConfig, evaluate
+    from lagsplat.evaluate import SETTINGS_GROUP, protocol_for, run_protocol
     from lagsplat.io.atomic import write_json
-    from lagsplat.io.clip import load_clip
-    from lagsplat.train.stage1 import load_stage1
-    from lagsplat.train.stage2 import load_stage2
 
-    d = _sysdir(cfg)
-    clip = load_clip(d / "clip.npz")
-    chart = load_chart(d / "chart.npz")
-    model, ck = load_stage2(_outdir(cfg) / "stage2.pt")
-    protocol = cfg.system.get("protocol") or "default"
-    if protocol == "krauss":  # the published soft-robot protocol (paper §4.4, Table 4)
-        import json
-
-        from lagsplat.evaluate_krauss import KraussEvalConfig, evaluate_krauss
-
-        truth_path = cfg.system.get("truth")
-        truth = json.loads(Path(truth_path).read_text()) if truth_path else None
-        kc = KraussEvalConfig.from_mapping(_container(cfg.krauss_eval) if cfg.get("krauss_eval") else None)
-        m = evaluate_krauss(clip, load_stage1(d / "stage1.pt"), chart, model, kc, source=str(d / "clip.npz"), truth=truth)
-    else:
-        ev = EvalConfig(**_container(cfg.evaluate))
-        m = evaluate(clip, load_stage1(d / "stage1.pt"), chart, model, ev, source=str(d / "clip.npz"))
+    a = artifacts_of(cfg)
+    clip, chart = a.load_clip(), a.load_chart()
+    model, ck = a.load_stage2()
+    protocol = protocol_for(cfg.system)  # the published soft-robot protocol for system.protocol=krauss (paper §4.4, Table 4)
+    settings = cfg.get(SETTINGS_GROUP[protocol])
+    m = run_protocol(protocol, clip, a.load_stage1(), chart, model, _container(settings) if settings else {}, _container(cfg.system), str(a.clip))
     write_json(
-        _outdir(cfg) / "metrics.json",
+        a.metrics,
         {
             "system": cfg.system.name,
             "variant": cfg.get("variant"),
@@ -258,7 +242,7 @@ def stage_figures(cfg: DictConfig) -> None:
     from lagsplat.viz.rollout import rollout_figure
 
     title = str(cfg.system.get("title", cfg.system.name)) + (f" [{cfg.variant}]" if cfg.get("variant") else "")
-    rollout_figure(_sysdir(cfg), title=title, provenance=str(cfg.system.get("provenance", "")), model_dir=_outdir(cfg))
+    rollout_figure(artifacts_of(cfg), title=title, provenance=str(cfg.system.get("provenance", "")))
 
 
 def stage_forces(cfg: DictConfig) -> None:
@@ -271,25 +255,21 @@ def stage_forces(cfg: DictConfig) -> None:
     import numpy as np
     import torch
 
-    from lagsplat.chart import load_chart
     from lagsplat.force import BRUSHES, ForceTransport
     from lagsplat.force_checks import ForceCheckConfig, plot_force_checks, public_result, run_force_checks
     from lagsplat.io.atomic import write_json
-    from lagsplat.io.clip import load_clip
     from lagsplat.train.config import dataclass_from_mapping
-    from lagsplat.train.stage1 import load_stage1
-    from lagsplat.train.stage2 import load_stage2
 
-    d, out = _sysdir(cfg), _outdir(cfg)
+    a = artifacts_of(cfg)
     fc = dataclass_from_mapping(ForceCheckConfig, OmegaConf.to_container(cfg.get("forces", {}), resolve=True), "forces")
-    ae, chart = load_stage1(d / "stage1.pt"), load_chart(d / "chart.npz")
-    model, _ = load_stage2(out / "stage2.pt")
+    ae, chart = a.load_stage1(), a.load_chart()
+    model, _ = a.load_stage2()
     model.eval()
     tr = ForceTransport.from_autoencoder(ae, chart, min_transmittance=fc.min_transmittance)
     with torch.no_grad():
         z = model.q_rest.detach()[None] @ torch.as_tensor(chart.W_inv, dtype=torch.float32) + torch.as_tensor(chart.mean, dtype=torch.float32)
         rest = (ae.decode(z)[0].clamp(0, 1).permute(1, 2, 0).numpy() * 255 + 0.5).astype(np.uint8)
-    clip = load_clip(d / "clip.npz")
+    clip = a.load_clip()
     res = run_force_checks(model, tr, clip.images, rest, fc)
     lever = None
     if clip.meta.get("source") == "lagsplat.synth.pendulum":  # known pivot: the lever-arm profile along the rod
@@ -303,7 +283,7 @@ def stage_forces(cfg: DictConfig) -> None:
         lever = lever_profile(model, tr, (W / 2.0, PIVOT_Y * H), (0.0, 1.0), radii, force, fc.sigma)
         res["lever"] = {"r_px": lever["r"].tolist(), "f_lat": lever["f_lat"][:, 0].tolist(), "dq": lever["dq"][:, 0].tolist()}
     title = str(cfg.system.get("title", cfg.system.name)) + ": forces through J^T f"
-    plot_force_checks(res, rest, out / "figures" / "forces.png", title=title, lever=lever)
+    plot_force_checks(res, rest, a.forces_figure, title=title, lever=lever)
     pub = public_result(res)
     pub["brush"] = tr.brush
     pub["min_transmittance"] = tr.min_transmittance
@@ -312,7 +292,7 @@ def stage_forces(cfg: DictConfig) -> None:
     for name in (b for b in BRUSHES if b != tr.brush):
         other = run_force_checks(model, ForceTransport.from_autoencoder(ae, chart, brush=name), clip.images, rest, fc)
         pub["other_brushes"][name] = {k: other[k] for k in ("background", "linearity", "kernel")}
-    write_json(out / "forces.json", pub)
+    write_json(a.forces, pub)
     for name, r in {tr.brush: pub, **pub["other_brushes"]}.items():
         b, lin, ker = r["background"], r["linearity"], r["kernel"]
         gap = "exactly still" if b["ratio"] is None else f"{b['ratio']:.0f}x below the object"
@@ -337,39 +317,42 @@ def stage_diagnose(cfg: DictConfig) -> None:
     dc = DiagnoseConfig.from_mapping(_container(cfg.diagnose) if cfg.get("diagnose") else None)
     dc.refit.seed = int(cfg.seed)
     title = str(cfg.system.get("title", cfg.system.name)) + (f" [{cfg.variant}]" if cfg.get("variant") else "")
-    rep = diagnose_system(_sysdir(cfg), _outdir(cfg), _outdir(cfg) / "diagnosis", dc, EvalConfig(**_container(cfg.evaluate)), title, bool(cfg.progress))
+    a = artifacts_of(cfg)
+    rep = diagnose_system(a, dc, EvalConfig(**_container(cfg.evaluate)), title, bool(cfg.progress))
     red = (rep["gap"].get("reduction") or {}).get("eps_q")
     print(
         f"{cfg.system.name}: {rep['verdict_text']}; held-out eps_q {rep['gap']['before']['eps_q']:.4f}"
         + (f" -> {rep['gap']['after']['eps_q']:.4f} ({100 * red:+.0f} %)" if red is not None else "")
-        + f"; report: {_outdir(cfg) / 'diagnosis' / 'report.md'}"
+        + f"; report: {a.report_md}"
     )
     from lagsplat.io.atomic import atomic_write
 
-    with atomic_write(_outdir(cfg) / "diagnosis" / "config.yaml") as tmp:  # beside the report: the stage writes only under diagnosis/
+    with atomic_write(a.diagnosis_config) as tmp:  # beside the report: the stage writes only under diagnosis/
         tmp.write_text(OmegaConf.to_yaml(cfg, resolve=True))
 
 
 def stage_table(cfg: DictConfig) -> None:
     """``metrics.json`` of ``table.systems`` -> ``results/tables/<table.name>.tex`` and ``.csv``."""
+    from lagsplat.artifacts import table_path, variant_metrics_path
     from lagsplat.report.tables import physical_table
 
     t = cfg.get("table", {})
     name = t.get("name", "physical")
     systems = list(t.get("systems", [cfg.system.name]))
-    inputs = [Path(cfg.results_dir) / s / "metrics.json" for s in systems]
-    physical_table(inputs, Path(cfg.results_dir) / "tables" / f"{name}.tex")
+    inputs = [variant_metrics_path(cfg.results_dir, s, None) for s in systems]
+    physical_table(inputs, table_path(cfg.results_dir, name))
 
 
 def stage_ablation(cfg: DictConfig) -> None:
     """Variant ``metrics.json`` of one system -> ``results/tables/<system>_<ablation>.tex`` and ``.csv``."""
+    from lagsplat.artifacts import table_path, variant_metrics_path
     from lagsplat.report.tables import ablation_table
 
     key = str(cfg.ablation)
     if key not in cfg.ablations:
         raise KeyError(f"unknown ablation {key!r}; known: {sorted(cfg.ablations)} (conf/config.yaml, key ablations)")
-    inputs = [_sysdir(cfg) / "variants" / v / "metrics.json" for v in cfg.ablations[key]]
-    ablation_table(inputs, Path(cfg.results_dir) / "tables" / f"{cfg.system.name}_{key}.tex")
+    inputs = [variant_metrics_path(cfg.results_dir, cfg.system.name, v) for v in cfg.ablations[key]]
+    ablation_table(inputs, table_path(cfg.results_dir, f"{cfg.system.name}_{key}"))
 
 
 def stage_seed_table(cfg: DictConfig) -> None:
@@ -380,13 +363,13 @@ def stage_seed_table(cfg: DictConfig) -> None:
     results_dir=${results_dir}/${seed_table.dir}/seed<k>`` (the Snakemake
     rule ``seed_run``).
     """
+    from lagsplat.artifacts import seed_metrics_path, table_path
     from lagsplat.report.tables import seed_table
 
     t = cfg.seed_table
     seeds = [int(s) for s in t.seeds]
-    root = Path(cfg.results_dir) / str(t.dir)
-    inputs = [root / f"seed{s}" / cfg.system.name / "metrics.json" for s in seeds]
-    seed_table(inputs, seeds, Path(cfg.results_dir) / "tables" / f"{cfg.system.name}_seeds.md")
+    inputs = [seed_metrics_path(cfg.results_dir, str(t.dir), s, cfg.system.name) for s in seeds]
+    seed_table(inputs, seeds, table_path(cfg.results_dir, f"{cfg.system.name}_seeds", ".md"))
 
 
 def stage_krauss_table(cfg: DictConfig) -> None:
@@ -397,15 +380,16 @@ def stage_krauss_table(cfg: DictConfig) -> None:
     ``two_segments`` and of the two-segment ``krauss_table.ablation``
     variants. A run whose ``metrics.json`` is missing gives no row.
     """
+    from lagsplat.artifacts import table_path, variant_metrics_path
     from lagsplat.report.krauss import krauss_table
 
     t = cfg.krauss_table
-    res = Path(cfg.results_dir)
+    res = cfg.results_dir
     krauss_table(
-        res / str(t.one_segment) / "metrics.json" if t.get("one_segment") else None,
-        res / str(t.two_segments) / "metrics.json" if t.get("two_segments") else None,
-        [res / str(t.two_segments) / "variants" / str(v) / "metrics.json" for v in (t.get("ablation") or [])],
-        res / "tables" / f"{t.name}.tex",
+        variant_metrics_path(res, str(t.one_segment), None) if t.get("one_segment") else None,
+        variant_metrics_path(res, str(t.two_segments), None) if t.get("two_segments") else None,
+        [variant_metrics_path(res, str(t.two_segments), str(v)) for v in (t.get("ablation") or [])],
+        table_path(res, str(t.name)),
     )
 
 
@@ -429,8 +413,7 @@ def stage_view(cfg: DictConfig) -> None:
     v = cfg.view
     fs = v.get("force_scale", "auto")
     session = load_session(
-        _sysdir(cfg),
-        _outdir(cfg),
+        artifacts_of(cfg),
         sigma=float(v.sigma),
         force_scale="auto" if fs in (None, "auto") else float(fs),
         kappa=float(v.kappa),
@@ -495,6 +478,47 @@ def stage_help(stage: str) -> str:
     )
 
 
+class _Tee:
+    """A text stream that writes to the terminal stream and to a log file."""
+
+    def __init__(self, stream, log) -> None:
+        self.stream, self.log = stream, log
+
+    def write(self, text: str) -> int:
+        self.log.write(text)
+        self.log.flush()
+        return self.stream.write(text)
+
+    def flush(self) -> None:
+        self.stream.flush()
+        self.log.flush()
+
+    def isatty(self) -> bool:
+        return self.stream.isatty()
+
+    def __getattr__(self, name: str):
+        return getattr(self.stream, name)
+
+
+def run_logged(stage: str, cfg: DictConfig) -> None:
+    """Run ``STAGES[stage](cfg)``; with ``cfg.log`` set, its stdout and stderr also go to that file (created, truncated)."""
+    log_path = cfg.get("log")
+    if not log_path:
+        STAGES[stage](cfg)
+        return
+    Path(log_path).parent.mkdir(parents=True, exist_ok=True)
+    with open(log_path, "w", encoding="utf-8") as log:
+        out, err = sys.stdout, sys.stderr
+        sys.stdout, sys.stderr = _Tee(out, log), _Tee(err, log)
+        try:
+            STAGES[stage](cfg)
+        except BaseException as exc:
+            log.write(f"lagsplat {stage}: {type(exc).__name__}: {exc}\n")
+            raise
+        finally:
+            sys.stdout, sys.stderr = out, err
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point. Returns the process exit code (0 ok, 1 error, 2 usage)."""
     argv = sys.argv[1:] if argv is None else argv
@@ -523,7 +547,7 @@ def main(argv: list[str] | None = None) -> int:
             torch.set_num_threads(int(cfg.threads))
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message="Converting a tensor with requires_grad=True to a scalar")
-            STAGES[stage](cfg)
+            run_logged(stage, cfg)
     except (ClipError, DownloadError, FileNotFoundError, KeyError, ValueError) as exc:
         msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         print(f"lagsplat {stage}: error: {msg}", file=sys.stderr)

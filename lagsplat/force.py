@@ -123,7 +123,7 @@ class ForceTransport:
         """Read the constant Jacobians off a trained Stage-1 autoencoder and its frozen chart.
 
         Args:
-            ae: :class:`~lagsplat.train.stage1.AutoEncoder` (its ``decoder``, ``height``, ``width``).
+            ae: :class:`~lagsplat.models.autoencoder.AutoEncoder` (its ``decoder``, ``height``, ``width``).
             chart: :class:`~lagsplat.chart.Chart` (``W_inv``, ``mean``).
             brush: ``"visible"`` (default) or ``"paper"``.
             min_transmittance: the visible brush's front-surface threshold (class docstring).

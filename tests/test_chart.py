@@ -9,7 +9,7 @@ import torch
 from lagsplat.chart import chart_continuity, fit_whitening, loss_metric, visibility_metric
 from lagsplat.models.decoder import ConditionedGaussians
 from lagsplat.models.encoder import CpAEEncoder
-from lagsplat.train.stage1 import AutoEncoder, frames_to_tensor
+from lagsplat.models.autoencoder import AutoEncoder, frames_to_tensor
 
 
 def test_whitening_gives_identity_covariance_and_inverts():

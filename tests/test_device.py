@@ -39,7 +39,8 @@ def test_stage1_and_stage2_train_on_cuda_and_return_cpu_models() -> None:
     """A short Stage 1 on CUDA reconstructs as well as the CPU one (same seed and steps), and Stage 2 runs there."""
     from lagsplat.chart import build_chart
     from lagsplat.synth.pendulum import make_pendulum_clip
-    from lagsplat.train.stage1 import Stage1Config, frames_to_tensor, train_stage1
+    from lagsplat.train.stage1 import Stage1Config, train_stage1
+    from lagsplat.models.autoencoder import frames_to_tensor
     from lagsplat.train.stage2 import Stage2Config, train_stage2
 
     clip = make_pendulum_clip(size=(32, 32), duration_s=8.0)

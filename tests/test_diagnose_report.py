@@ -519,7 +519,7 @@ def test_cli_diagnose_stage_on_a_tiny_system(tmp_path) -> None:
     """``python -m lagsplat diagnose`` on artifacts written by hand (system ``toy_tiny``'s name, synthetic content)."""
     from lagsplat.io.clip import save_clip
     from lagsplat.models.encoder import CpAEEncoder
-    from lagsplat.train.stage1 import AutoEncoder, save_stage1
+    from lagsplat.models.autoencoder import AutoEncoder, save_stage1
     from lagsplat.train.stage2 import save_stage2
 
     ae, chart, model, clip = _pushed_pendulum()

@@ -13,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from lagsplat.dynamics.integrators import rollout, verlet_step
-from lagsplat.metrics import spectral_peak_frequency
+from lagsplat.timeseries import spectral_peak_frequency
 from lagsplat.models.icnn import ICNN, ConvexPotential
 from lagsplat.models.lagrangian import Lagrangian
 

@@ -141,7 +141,7 @@ def test_edited_dynamics_scale_frequency_and_damping_as_physics_says():
     same = EditedDynamics(m)
     a = m.acceleration(q0, torch.full((1, 1), 0.3)).detach()
     np.testing.assert_allclose(same.acceleration(q0, torch.full((1, 1), 0.3)).numpy(), a.numpy(), rtol=1e-5)
-    from lagsplat.metrics import spectral_peak_frequency
+    from lagsplat.timeseries import spectral_peak_frequency
 
     def freq(dyn):
         q, _ = rollout(dyn, q0, v0, 1 / 60, 60 * 12, fast=False)

@@ -6,8 +6,6 @@ import base64
 import hashlib
 import json
 import struct
-import sys
-import types
 import warnings
 from pathlib import Path
 
@@ -21,8 +19,6 @@ from lagsplat.io import (
     Clip,
     ClipError,
     TimingWarning,
-    ingest,
-    ingest_to_file,
     load_clip,
     read_image_folder,
     read_mcap,
@@ -32,6 +28,7 @@ from lagsplat.io import (
     sha256_file,
     zero_order_hold,
 )
+from lagsplat.ingest import ingest, ingest_to_file
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 needs_real = pytest.mark.skipif(not REAL.is_dir(), reason="real clips (../shared/data/real) not available")
@@ -618,7 +615,9 @@ def test_ingest_synth_hook_calls_make_clip(monkeypatch):
         calls.append(cfg)
         return Clip(images=np.zeros((3, 4, 4, 3), np.uint8), t=np.arange(3) * 0.1)
 
-    monkeypatch.setitem(sys.modules, "lagsplat.synth", types.SimpleNamespace(make_clip=make_clip))
+    import lagsplat.ingest
+
+    monkeypatch.setattr(lagsplat.ingest, "make_clip", make_clip)
     cfg = {"name": "s", "source": {"synth": {"kind": "spring"}}}
     clip = ingest(cfg)
     assert calls == [cfg] and clip.n_frames == 3

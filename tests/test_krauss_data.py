@@ -192,7 +192,7 @@ def test_download_stage_extracts_and_ingest_splits(archive, tmp_path):
     assert dest.read_bytes() == data
 
     from lagsplat.cli import compose
-    from lagsplat.io.ingest import ingest
+    from lagsplat.ingest import ingest
 
     cfg = compose(["system=krauss_2seg", f"raw_dir={raw}"])
     clip = ingest(cfg.system)

@@ -1,4 +1,4 @@
-"""The published soft-robot protocol (lagsplat.evaluate_krauss) and the Table-4 builder (lagsplat.report.krauss).
+"""The published soft-robot protocol (lagsplat.evaluate.krauss) and the Table-4 builder (lagsplat.report.krauss).
 
 Index conventions are checked against models whose rollouts are known in
 closed form (zero acceleration, acceleration = pressure, a damped linear
@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 import torch
 
-from lagsplat import metrics
+from lagsplat import timeseries
 from lagsplat.chart import Chart
-from lagsplat.evaluate_krauss import (
+from lagsplat.evaluate.krauss import (
     DT_KRAUSS,
     KraussEvalConfig,
     ae_floor_frames,
@@ -183,9 +183,9 @@ def test_peak_frequency_first_bin_above_the_cut_is_not_refined():
     t = np.arange(n) * DT
     x = np.cos(2 * math.pi * 2.3 * df * t)  # 2.3 cycles per window: peak in bin 2, lower neighbour cut
     assert peak_frequency(x, DT) == pytest.approx(2 * df, rel=1e-12)
-    assert metrics.spectral_peak_frequency(x, DT) != pytest.approx(2 * df, rel=1e-6)  # the generic estimator refines
+    assert timeseries.spectral_peak_frequency(x, DT) != pytest.approx(2 * df, rel=1e-6)  # the generic estimator refines
     y = np.cos(2 * math.pi * 8.3 * df * t)
-    assert peak_frequency(y, DT) == metrics.spectral_peak_frequency(y, DT)
+    assert peak_frequency(y, DT) == timeseries.spectral_peak_frequency(y, DT)
 
 
 def test_leading_duplicates():

@@ -13,7 +13,7 @@ import torch
 
 from lagsplat.chart import Chart
 from lagsplat.dynamics.integrators import actuation_schedule, rollout
-from lagsplat.metrics import spectral_peak_frequency
+from lagsplat.timeseries import spectral_peak_frequency
 from lagsplat.models.decoder import ConditionedGaussians
 from lagsplat.models.icnn import ConcaveMap, ConvexPotential, IResNet
 from lagsplat.models.lagrangian import DecoderInertia, Lagrangian

@@ -7,6 +7,7 @@ import pytest
 from scipy.ndimage import gaussian_filter1d
 
 from lagsplat import metrics as M
+from lagsplat import timeseries as TS
 
 DT = 1.0 / 30.0
 
@@ -21,7 +22,7 @@ def _sine(f_hz: float, n: int, dt: float = DT, phase: float = 0.4, amp: float = 
 @pytest.mark.parametrize("phase", [0.0, 1.1, 2.5])
 def test_sinusoid_frequency_recovered(n: int, cycles: float, phase: float) -> None:
     f = cycles / (n * DT)  # non-integer bin positions included
-    est = M.spectral_peak_frequency(_sine(f, n, phase=phase), DT)
+    est = TS.spectral_peak_frequency(_sine(f, n, phase=phase), DT)
     assert abs(est - f) / f < 3e-3
 
 
@@ -29,7 +30,7 @@ def test_frequency_is_sub_bin() -> None:
     # The refinement must move off the bin grid (offset a quarter bin here).
     n = 512
     f = 20.25 / (n * DT)
-    est = M.spectral_peak_frequency(_sine(f, n), DT)
+    est = TS.spectral_peak_frequency(_sine(f, n), DT)
     assert abs(est - f) / f < 1e-3
     assert abs(est * n * DT - 20.0) > 0.1
 
@@ -38,7 +39,7 @@ def test_frequency_with_other_dt_and_offset() -> None:
     dt = 0.004
     n = 2000
     x = 7.0 + _sine(3.3, n, dt=dt)  # the mean is removed
-    assert M.spectral_peak_frequency(x, dt) == pytest.approx(3.3, rel=3e-3)
+    assert TS.spectral_peak_frequency(x, dt) == pytest.approx(3.3, rel=3e-3)
 
 
 @pytest.mark.parametrize("seed", range(5))
@@ -46,7 +47,7 @@ def test_frequency_with_noise(seed: int) -> None:
     rng = np.random.default_rng(seed)
     n, f = 450, 1.37
     x = _sine(f, n) + 0.3 * rng.standard_normal(n)
-    assert abs(M.spectral_peak_frequency(x, DT) - f) / f < 1e-2
+    assert abs(TS.spectral_peak_frequency(x, DT) - f) / f < 1e-2
 
 
 @pytest.mark.parametrize("f_n", [0.7, 1.37, 2.2])
@@ -58,23 +59,23 @@ def test_damped_sinusoid(f_n: float) -> None:
     wd = w0 * np.sqrt(1 - zeta**2)
     x = np.exp(-zeta * w0 * t) * np.cos(wd * t)
     f_d = wd / (2 * np.pi)
-    assert abs(M.spectral_peak_frequency(x, DT) - f_d) / f_d < 1e-2
+    assert abs(TS.spectral_peak_frequency(x, DT) - f_d) / f_d < 1e-2
 
 
 def test_g_aggregate_picks_the_mode_g_weighs_most() -> None:
     n = 600
     f1, f2 = 0.9, 2.3
     q = np.stack([_sine(f1, n, amp=1.0), _sine(f2, n, amp=1.0, phase=1.0)], axis=1)
-    assert M.spectral_peak_frequency(q, DT, G=np.diag([10.0, 0.1])) == pytest.approx(f1, rel=3e-3)
-    assert M.spectral_peak_frequency(q, DT, G=np.diag([0.1, 10.0])) == pytest.approx(f2, rel=3e-3)
+    assert TS.spectral_peak_frequency(q, DT, G=np.diag([10.0, 0.1])) == pytest.approx(f1, rel=3e-3)
+    assert TS.spectral_peak_frequency(q, DT, G=np.diag([0.1, 10.0])) == pytest.approx(f2, rel=3e-3)
     # In a mixed chart q' = q A^T the metric A^-T G A^-1 gives the same answer.
     A = np.array([[1.0, 0.8], [-0.5, 1.2]])
     Ai = np.linalg.inv(A)
     G = np.diag([0.1, 10.0])
-    assert M.spectral_peak_frequency(q @ A.T, DT, G=Ai.T @ G @ Ai) == pytest.approx(f2, rel=3e-3)
+    assert TS.spectral_peak_frequency(q @ A.T, DT, G=Ai.T @ G @ Ai) == pytest.approx(f2, rel=3e-3)
     # Without G the larger-amplitude mode wins.
     q2 = np.stack([_sine(f1, n, amp=0.3), _sine(f2, n, amp=1.0)], axis=1)
-    assert M.spectral_peak_frequency(q2, DT) == pytest.approx(f2, rel=3e-3)
+    assert TS.spectral_peak_frequency(q2, DT) == pytest.approx(f2, rel=3e-3)
 
 
 def test_low_frequency_cut_ignores_drift() -> None:
@@ -86,31 +87,31 @@ def test_low_frequency_cut_ignores_drift() -> None:
     # A slow swing of one cycle per window, as strong as the oscillation: without
     # the cut it wins, with the default 1.5-cycle cut it is ignored.
     drift = np.sin(2 * np.pi * 1.0 / T * t + 0.3)
-    assert M.spectral_peak_frequency(osc + drift, DT, min_cycles=0.0) < 2.0 / T
-    assert M.spectral_peak_frequency(osc + drift, DT) == pytest.approx(f, rel=3e-3)
+    assert TS.spectral_peak_frequency(osc + drift, DT, min_cycles=0.0) < 2.0 / T
+    assert TS.spectral_peak_frequency(osc + drift, DT) == pytest.approx(f, rel=3e-3)
     # A linear drift spanning 15x the oscillation amplitude is ignored too.
     ramp = 15.0 * t / T
-    assert M.spectral_peak_frequency(osc + ramp, DT, min_cycles=0.0) < 2.0 / T
-    assert M.spectral_peak_frequency(osc + ramp, DT) == pytest.approx(f, rel=3e-3)
+    assert TS.spectral_peak_frequency(osc + ramp, DT, min_cycles=0.0) < 2.0 / T
+    assert TS.spectral_peak_frequency(osc + ramp, DT) == pytest.approx(f, rel=3e-3)
 
 
 def test_frequency_errors() -> None:
     with pytest.raises(ValueError, match="flat"):
-        M.spectral_peak_frequency(np.full(100, 3.0), DT)
+        TS.spectral_peak_frequency(np.full(100, 3.0), DT)
     with pytest.raises(ValueError, match="flat"):
-        M.spectral_peak_frequency(np.zeros((100, 2)), DT, G=np.eye(2))
+        TS.spectral_peak_frequency(np.zeros((100, 2)), DT, G=np.eye(2))
     with pytest.raises(ValueError, match="8"):
-        M.spectral_peak_frequency(np.arange(7.0), DT)
+        TS.spectral_peak_frequency(np.arange(7.0), DT)
     x = _sine(1.0, 100)
     x[10] = np.nan
     with pytest.raises(ValueError, match="non-finite"):
-        M.spectral_peak_frequency(x, DT)
+        TS.spectral_peak_frequency(x, DT)
     with pytest.raises(ValueError):
-        M.spectral_peak_frequency(np.zeros((10, 2, 2)), DT)
+        TS.spectral_peak_frequency(np.zeros((10, 2, 2)), DT)
     with pytest.raises(ValueError, match="dt"):
-        M.spectral_peak_frequency(_sine(1.0, 100), 0.0)
+        TS.spectral_peak_frequency(_sine(1.0, 100), 0.0)
     with pytest.raises(ValueError, match="G"):
-        M.spectral_peak_frequency(np.zeros((100, 2)) + _sine(1.0, 100)[:, None], DT, G=np.eye(3))
+        TS.spectral_peak_frequency(np.zeros((100, 2)) + _sine(1.0, 100)[:, None], DT, G=np.eye(3))
 
 
 # ----------------------------------------------------------------------------- metric helpers
@@ -242,11 +243,11 @@ def test_forward_difference_exact_on_quadratics() -> None:
     t = np.arange(12) * dt
     q = np.stack([3 * t**2 - t + 2, -0.5 * t**2 + 4 * t], axis=1)
     v_true = np.stack([6 * t - 1, -t + 4], axis=1)
-    v = M.forward_difference_velocity(q, dt)
+    v = TS.forward_difference_velocity(q, dt)
     assert v.shape == (10, 2)
     np.testing.assert_allclose(v, v_true[:-2], atol=1e-10)
     with pytest.raises(ValueError):
-        M.forward_difference_velocity(q[:2], dt)
+        TS.forward_difference_velocity(q[:2], dt)
 
 
 def test_central_difference_and_offset() -> None:
@@ -254,24 +255,24 @@ def test_central_difference_and_offset() -> None:
     t = np.arange(20) * dt
     q = np.stack([2 * t**2, np.sin(t)], axis=1)
     for k in (1, 3):
-        v, off = M.central_difference_velocity(q, dt, k=k)
+        v, off = TS.central_difference_velocity(q, dt, k=k)
         assert off == k
         assert v.shape == (20 - 2 * k, 2)
         np.testing.assert_allclose(v[:, 0], 4 * t[off : off + len(v)], atol=1e-10)
     with pytest.raises(ValueError):
-        M.central_difference_velocity(q[:4], dt, k=2)
+        TS.central_difference_velocity(q[:4], dt, k=2)
     with pytest.raises(ValueError):
-        M.central_difference_velocity(q, dt, k=0)
+        TS.central_difference_velocity(q, dt, k=0)
 
 
 def test_gaussian_smooth() -> None:
     rng = np.random.default_rng(3)
     q = rng.standard_normal((50, 3))
-    s0 = M.gaussian_smooth(q, 0)
+    s0 = TS.gaussian_smooth(q, 0)
     np.testing.assert_array_equal(s0, q)
     assert s0 is not q
-    np.testing.assert_allclose(M.gaussian_smooth(q, 1.0), gaussian_filter1d(q, 1.0, axis=0, mode="nearest"))
+    np.testing.assert_allclose(TS.gaussian_smooth(q, 1.0), gaussian_filter1d(q, 1.0, axis=0, mode="nearest"))
     const = np.ones((10, 2))
-    np.testing.assert_allclose(M.gaussian_smooth(const, 2.0), const)
+    np.testing.assert_allclose(TS.gaussian_smooth(const, 2.0), const)
     with pytest.raises(ValueError):
-        M.gaussian_smooth(q, -1.0)
+        TS.gaussian_smooth(q, -1.0)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from lagsplat.io.clip import HELD_OUT, TRAIN, ClipError, concatenate_clips, load_clip, save_clip
-from lagsplat.io.ingest import ingest
+from lagsplat.ingest import ingest
 
 
 def _npz(path, n, value, p=None):

@@ -10,7 +10,8 @@ import torch
 from lagsplat.models.decoder import ConditionedGaussians
 from lagsplat.synth.pendulum import make_pendulum_clip
 from lagsplat.train.losses import rigidity_penalty
-from lagsplat.train.stage1 import Stage1Config, frames_to_tensor, train_stage1
+from lagsplat.train.stage1 import Stage1Config, train_stage1
+from lagsplat.models.autoencoder import frames_to_tensor
 
 H = W = 32
 

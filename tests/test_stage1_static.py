@@ -14,7 +14,8 @@ import torch
 
 from lagsplat.synth.pendulum import make_pendulum_clip
 from lagsplat.train.losses import static_motion_penalty
-from lagsplat.train.stage1 import Stage1Config, frames_to_tensor, static_pixels, train_stage1
+from lagsplat.train.stage1 import Stage1Config, static_pixels, train_stage1
+from lagsplat.models.autoencoder import frames_to_tensor
 
 
 def _static_motion_and_mse(ae, clip, static: torch.Tensor) -> tuple[float, float]:

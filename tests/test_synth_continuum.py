@@ -15,7 +15,7 @@ from scipy.optimize import root
 
 import lagsplat.synth.continuum_robot as cr
 from lagsplat.io.npz import read_npz
-from lagsplat.metrics import spectral_peak_frequency
+from lagsplat.timeseries import spectral_peak_frequency
 
 CLIP_S = 40.0  # short clips for the file tests
 

@@ -11,7 +11,7 @@ import pytest
 from omegaconf import OmegaConf
 
 from lagsplat.io.clip import HELD_OUT, TRAIN, Clip, load_clip, save_clip
-from lagsplat.metrics import spectral_peak_frequency
+from lagsplat.timeseries import spectral_peak_frequency
 from lagsplat.synth import GENERATORS, make_clip
 from lagsplat.synth.coupled_carts import (
     MAX_DISPLACEMENT,

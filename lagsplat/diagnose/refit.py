@@ -46,7 +46,7 @@ training rollouts) saw, with the code of :func:`lagsplat.evaluate.evaluate`
 (``eps_q``, ``eps_freq``, ``eps_I``, ``eps_AE``), plus the envelope decay of
 :func:`envelope_decay`: a free rollout from the start of the longest held-out
 segment over its whole length, started past the smoothing's edge
-(:func:`lagsplat.metrics.smoothing_edge`: read at a mid-swing first frame the
+(:func:`lagsplat.timeseries.smoothing_edge`: read at a mid-swing first frame the
 velocity is about halved, and a friction model started with too little energy
 stops early); the amplitude of each half cycle (half the
 difference of consecutive extrema of the most visible coordinate, offset-free)
@@ -91,7 +91,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from lagsplat import metrics
+from lagsplat import metrics, timeseries
 from lagsplat.diagnose.effects import get_effect
 from lagsplat.diagnose.terms import (
     AugmentedLagrangian,
@@ -611,7 +611,7 @@ def energy_check(model: nn.Module, chart: Any, n_rollouts: int = 8, periods: flo
         rng = np.random.default_rng(seed)
         idx = rng.choice(len(q), size=min(n_rollouts, len(q)), replace=False)
         try:
-            f = metrics.spectral_peak_frequency(metrics.project(chart.q[max(segs, key=len)], metrics.top_direction(chart.G_bar)), dt)
+            f = timeseries.spectral_peak_frequency(metrics.project(chart.q[max(segs, key=len)], metrics.top_direction(chart.G_bar)), dt)
         except ValueError:
             f = 1.0 / (len(q) * dt)
         n = int(max(16, round(periods / (f * dt))))
@@ -680,8 +680,8 @@ def envelope_decay(chart: Any, model: nn.Module, sigma: float = 1.0) -> dict[str
         return out
     ho = max(held, key=len)
     dt = float(np.median(np.diff(chart.t)))
-    skip = metrics.smoothing_edge(sigma)  # its edge replication would halve a mid-swing velocity
-    q_s = metrics.gaussian_smooth(chart.q[ho], sigma)[skip:]
+    skip = timeseries.smoothing_edge(sigma)  # its edge replication would halve a mid-swing velocity
+    q_s = timeseries.gaussian_smooth(chart.q[ho], sigma)[skip:]
     ho = ho[skip:]
     n = len(q_s)
     if n < 16:
@@ -689,7 +689,7 @@ def envelope_decay(chart: Any, model: nn.Module, sigma: float = 1.0) -> dict[str
     top = metrics.top_direction(chart.G_bar)
     p_enc = q_s @ top
     try:
-        f = metrics.spectral_peak_frequency(p_enc, dt)
+        f = timeseries.spectral_peak_frequency(p_enc, dt)
     except ValueError:
         return out
     period = 1.0 / (f * dt)
@@ -766,14 +766,14 @@ def noise_floor(chart: Any, model: nn.Module, eval_cfg: Any | None = None, n_dra
     if not held:
         raise ClipError(f"{source}: the clip has no held-out frames to evaluate on")
     ho = max(held, key=len)
-    n, e = len(ho), metrics.smoothing_edge(cfg.sigma)
+    n, e = len(ho), timeseries.smoothing_edge(cfg.sigma)
     if n < e + 5:
         raise ClipError(f"{source}: held-out segment has {n} frames, too short for a noise floor")
     dt = float(np.median(np.diff(chart.t)))
     noise = chart_noise([chart.q[s] for s in held])
     u = chart.u[ho]
     u = np.concatenate([u[e:], np.repeat(u[-1:], e, 0)]) if u.shape[1] else u  # the actuation the motion from frame e saw
-    q0, v0 = initial_state(metrics.gaussian_smooth(chart.q[ho], cfg.sigma), np.array([e]), dt)
+    q0, v0 = initial_state(timeseries.gaussian_smooth(chart.q[ho], cfg.sigma), np.array([e]), dt)
     clean, _ = rollout(model, q0, v0, dt, n, u=actuation_schedule(u[None] if u.shape[1] else None, dt))
     clean = clean[0].double().numpy()
     out: dict[str, Any] = {"eps_q": None, "eps_freq": None, "eps_q_sd": None, "eps_freq_sd": None, "noise": noise.tolist(), "n_draws": int(n_draws)}

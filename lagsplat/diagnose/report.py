@@ -24,7 +24,6 @@ read only by the gap measurement.
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from collections.abc import Mapping, Sequence
@@ -35,9 +34,10 @@ from typing import Any
 import numpy as np
 import torch
 
-from lagsplat import metrics
+from lagsplat.artifacts import DIAGNOSIS_FIGURES, DIAGNOSIS_FILES, Artifacts
+from lagsplat import metrics, timeseries
 from lagsplat.diagnose import diagnose_chart
-from lagsplat.diagnose.select import _plain
+from lagsplat.diagnose.select import plain_value
 from lagsplat.diagnose.refit import (
     GAP_METRICS,
     RefitConfig,
@@ -194,7 +194,7 @@ def plot_gap(chart: Any, runs: Mapping[str, tuple[Any, Any]], path: str | Path, 
     ho = max(held, key=len)
     dt = float(np.median(np.diff(chart.t)))
     top = metrics.top_direction(chart.G_bar)
-    q_s = metrics.gaussian_smooth(chart.q[ho], sigma)
+    q_s = timeseries.gaussian_smooth(chart.q[ho], sigma)
     fig, ax = plt.subplots(1, 1, figsize=(10, 3.6))
     ax.plot(chart.t[ho], q_s @ top, color="k", lw=1.6, label="encoded (held out)")
     a = metrics.rollout_start(sigma, len(ho), 3)  # past the smoothing's edge, as the metrics start
@@ -316,17 +316,17 @@ def diagnose_artifacts(
                 done=True, spec=r.spec.to_dict(), fitted_terms=r.fitted_terms, energy_check=energy_check(r.model, r.chart),
                 selected_epoch=r.history.get("selected_epoch"), selected_train_nrmse=r.history.get("selected_nrmse"),
                 control_selected_train_nrmse=None if r.control_history is None else r.control_history.get("selected_nrmse"),
-                checkpoint="refit.pt",
+                checkpoint=DIAGNOSIS_FILES["refit"],
             )  # fmt: skip
-            save_refit(out / "refit.pt", r, stage2_cfg)
-    if not refit_rec["done"] and (out / "refit.pt").exists():  # a refit of an earlier run no longer applies
-        (out / "refit.pt").unlink()
-    p = plot_gap(chart, runs, fig_dir / "gap.png", title or system, eval_cfg.sigma)
+            save_refit(out / DIAGNOSIS_FILES["refit"], r, stage2_cfg)
+    if not refit_rec["done"] and (out / DIAGNOSIS_FILES["refit"]).exists():  # a refit of an earlier run no longer applies
+        (out / DIAGNOSIS_FILES["refit"]).unlink()
+    p = plot_gap(chart, runs, fig_dir / DIAGNOSIS_FIGURES["gap"], title or system, eval_cfg.sigma)
     if p is not None:
         figures["gap"] = str(Path(p).relative_to(out))
-    for name in ("where_time", "where_state", "where_latent", "where_image", "gap"):  # figures of an earlier run that no longer apply
-        f = fig_dir / f"{name}.png"
-        if f.exists() and f"figures/{name}.png" not in figures.values():
+    for fname in DIAGNOSIS_FIGURES.values():  # figures of an earlier run that no longer apply
+        f = fig_dir / fname
+        if f.exists() and f"figures/{fname}" not in figures.values():
             f.unlink()
     timings["gap_and_refit_s"] = time.perf_counter() - t0
 
@@ -349,53 +349,45 @@ def diagnose_artifacts(
         "config": cfg.to_dict(),
         "timings": timings,
     }  # fmt: skip
-    report = _plain(report)
+    report = plain_value(report)
     write_report(report, out)
     return report
 
 
 def diagnose_system(
-    system_dir: str | Path, model_dir: str | Path | None = None, out_dir: str | Path | None = None, cfg: DiagnoseConfig | None = None,
-    eval_cfg: Any | None = None, title: str = "", progress: bool = False,
+    artifacts: Artifacts | str | Path, cfg: DiagnoseConfig | None = None, eval_cfg: Any | None = None, title: str = "", progress: bool = False,
 ) -> dict[str, Any]:
-    """:func:`diagnose_artifacts` on the artifacts of ``results/<system>/``.
+    """:func:`diagnose_artifacts` on the artifacts of one run.
 
     Args:
-        system_dir: folder with ``clip.npz``, ``stage1.pt``, ``chart.npz`` (and ``stage2.pt``, ``metrics.json``).
-        model_dir: folder of ``stage2.pt`` / ``metrics.json`` (a variant's; default ``system_dir``).
-        out_dir: output folder (default ``<model_dir>/diagnosis``).
+        artifacts: the run's :class:`~lagsplat.artifacts.Artifacts` (``clip.npz``, ``stage1.pt``,
+            ``chart.npz``, ``stage2.pt``, optional ``metrics.json``; the report goes to
+            ``artifacts.diagnosis``), or a ``results/<system>/`` folder in the standard layout.
         cfg, eval_cfg, title, progress: see :func:`diagnose_artifacts`.
 
     Returns:
         The report.
 
     Raises:
-        FileNotFoundError: if an artifact is missing.
+        FileNotFoundError: naming the first missing artifact.
     """
-    from lagsplat.chart import load_chart
-    from lagsplat.io.clip import load_clip
-    from lagsplat.train.stage1 import load_stage1
-    from lagsplat.train.stage2 import Stage2Config, load_stage2
+    from lagsplat.train.stage2 import Stage2Config
 
-    d = Path(system_dir)
-    md = d if model_dir is None else Path(model_dir)
-    for name in ("clip.npz", "stage1.pt", "chart.npz"):
-        if not (d / name).exists():
-            raise FileNotFoundError(f"{d / name}: missing; run the upstream stages first")
-    clip = load_clip(d / "clip.npz")
-    ae = load_stage1(d / "stage1.pt")
-    chart = load_chart(d / "chart.npz")
-    model, ck = load_stage2(md / "stage2.pt")
+    a = artifacts if isinstance(artifacts, Artifacts) else Artifacts.at(artifacts)
+    a.require("clip", "stage1", "chart", "stage2")
+    clip, ae, chart = a.load_clip(), a.load_stage1(), a.load_chart()
+    model, ck = a.load_stage2()
     s2 = Stage2Config.from_mapping(ck["config"])
     inertia = None
     if s2.mass == "decoder":
         from lagsplat.models.lagrangian import DecoderInertia
 
         inertia = DecoderInertia.from_decoder(ae.decoder, chart.W_inv, chart.mean, chart.height, chart.width)
-    mj = json.loads((md / "metrics.json").read_text()) if (md / "metrics.json").exists() else None
+    mj = a.load_metrics()
+    name = a.system_dir.name
     return diagnose_artifacts(
-        clip, ae, chart, model, s2, Path(out_dir) if out_dir else md / "diagnosis", cfg, eval_cfg,
-        title or (mj or {}).get("title", d.name), d.name, inertia, mj, progress, ck.get("history"),
+        clip, ae, chart, model, s2, a.diagnosis, cfg, eval_cfg,
+        title or (mj or {}).get("title", name), name, inertia, mj, progress, ck.get("history"),
     )  # fmt: skip
 
 
@@ -625,8 +617,8 @@ def render_markdown(rep: Mapping[str, Any]) -> str:
 def write_report(report: Mapping[str, Any], out_dir: str | Path) -> tuple[Path, Path]:
     """Write ``report.json`` and ``report.md`` under ``out_dir`` atomically; returns their paths."""
     out = Path(out_dir)
-    pj = write_json(out / "report.json", report)
-    pm = out / "report.md"
+    pj = write_json(out / DIAGNOSIS_FILES["report_json"], report)
+    pm = out / DIAGNOSIS_FILES["report_md"]
     with atomic_write(pm) as tmp:
         tmp.write_text(render_markdown(report))
     return pm, pj

@@ -83,7 +83,7 @@ import numpy as np
 import torch
 from scipy.ndimage import gaussian_filter1d
 
-from lagsplat import metrics
+from lagsplat import metrics, timeseries
 
 #: Default residual smoothing: ``sigma = period / SIGMA_PER_PERIOD`` frames (clipped to ``[2, 6]``), ``period`` the dominant one in frames.
 SIGMA_PER_PERIOD = 12.0
@@ -366,7 +366,7 @@ def _dominant_frequency(segs: Sequence[np.ndarray], dt: float, G: np.ndarray) ->
     longest = max(segs, key=len)
     e = metrics.top_direction(G)
     try:
-        return float(metrics.spectral_peak_frequency(longest @ e, dt))
+        return float(timeseries.spectral_peak_frequency(longest @ e, dt))
     except ValueError:
         return float("nan")
 

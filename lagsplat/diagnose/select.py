@@ -160,7 +160,7 @@ class CandidateFit:
         """JSON-serialisable record (without the per-sample force)."""
         return {
             "effect": self.effect,
-            "params": _plain(self.params),
+            "params": plain_value(self.params),
             "direction": [float(v) for v in self.direction],
             "coefficients": {n: {"value": float(c), "se": float(s)} for n, c, s in zip(self.names, self.coef, self.se)},
             "ssr": float(self.ssr),
@@ -172,7 +172,7 @@ class CandidateFit:
             "physical": bool(self.physical),
             "practical": bool(self.practical),
             "significant": bool(self.significant),
-            "interpretation": _plain(self.interpretation),
+            "interpretation": plain_value(self.interpretation),
         }
 
 
@@ -214,10 +214,10 @@ class Diagnosis:
             "winner": self.winner,
             "effects": [f.to_dict() for f in self.effects],
             "ranking": [f.to_dict() for f in self.ranking],
-            "null": _plain(self.null),
-            "evidence": _plain(self.evidence),
-            "nuisance": _plain(self.nuisance),
-            "settings": _plain(self.settings),
+            "null": plain_value(self.null),
+            "evidence": plain_value(self.evidence),
+            "nuisance": plain_value(self.nuisance),
+            "settings": plain_value(self.settings),
         }
 
     def summary(self) -> str:
@@ -240,13 +240,14 @@ class Diagnosis:
         return "\n".join(lines)
 
 
-def _plain(x: Any) -> Any:
+def plain_value(x: Any) -> Any:
+    """``x`` with NumPy scalars and arrays turned into Python numbers and lists, recursively (for JSON)."""
     if isinstance(x, dict):
-        return {str(k): _plain(v) for k, v in x.items()}
+        return {str(k): plain_value(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
-        return [_plain(v) for v in x]
+        return [plain_value(v) for v in x]
     if isinstance(x, np.ndarray):
-        return _plain(x.tolist())
+        return plain_value(x.tolist())
     if isinstance(x, (np.floating, float)):
         return float(x) if math.isfinite(float(x)) else None  # strict JSON has no NaN / inf
     if isinstance(x, (np.integer, int)) and not isinstance(x, bool):

@@ -9,7 +9,7 @@ the error in excess of that floor is the simulation's):
   Verlet from the encoded state, :func:`lagsplat.dynamics.integrators.rollout`,
   initial state as in :mod:`lagsplat.evaluate`) started every
   ``start_every_periods`` natural periods from past the smoothing's edge
-  (:func:`lagsplat.metrics.smoothing_edge`) and run ``horizon_periods``; their
+  (:func:`lagsplat.timeseries.smoothing_edge`) and run ``horizon_periods``; their
   deviation ``dq = q_sim - q_enc`` is read in the visibility metric,
   ``e_roll = dq^T G_bar dq``, which is the image MSE the deviation causes to
   first order (``G_bar = E[J^T J]`` per pixel and channel, paper Eq. 6), and
@@ -54,7 +54,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from lagsplat import metrics
+from lagsplat.artifacts import DIAGNOSIS_FIGURES
+from lagsplat import metrics, timeseries
 from lagsplat.dynamics.integrators import actuation_schedule, initial_state, rollout
 from lagsplat.io.atomic import atomic_write
 from lagsplat.io.clip import HELD_OUT, TRAIN
@@ -263,7 +264,7 @@ def time_localisation(model: Any, chart: Any, res: Any | None = None, cfg: Where
     f = float(getattr(res, "f_dominant_hz", float("nan"))) if res is not None else float("nan")
     if not (math.isfinite(f) and f > 0):
         longest = max(segs, key=len)
-        f = metrics.spectral_peak_frequency(metrics.project(metrics.gaussian_smooth(chart.q[longest], cfg.sigma), top), dt)
+        f = timeseries.spectral_peak_frequency(metrics.project(timeseries.gaussian_smooth(chart.q[longest], cfg.sigma), top), dt)
     period = 1.0 / (f * dt)  # frames
     H = int(max(8, round(cfg.horizon_periods * period)))
     step = int(max(1, round(cfg.start_every_periods * period)))
@@ -276,7 +277,7 @@ def time_localisation(model: Any, chart: Any, res: Any | None = None, cfg: Where
     frames, tt, segid, p_enc, e_roll, floor = [], [], [], [], [], []
     roll_f, roll_q, dq_acc, dq_n, p_sims = [], [], np.zeros(chart.d), 0, []
     for k, seg in enumerate(segs):
-        q_s = metrics.gaussian_smooth(chart.q[seg], cfg.sigma)
+        q_s = timeseries.gaussian_smooth(chart.q[seg], cfg.sigma)
         n = len(q_s)
         h = min(H, n - 2)
         first = metrics.rollout_start(cfg.sigma, n, h + 2)  # past the smoothing's edge (biased velocity)
@@ -606,7 +607,7 @@ def image_localisation(
         ValueError: if no state is given or the frames do not match the decoder's resolution.
     """
     from lagsplat.force import ForceTransport
-    from lagsplat.train.stage1 import frames_to_tensor
+    from lagsplat.models.autoencoder import frames_to_tensor
 
     cfg = cfg or WhereConfig()
     frames = np.asarray(frames, int)
@@ -886,11 +887,11 @@ def plot_where(where: Where, fig_dir: str | Path, title: str = "") -> dict[str, 
     fig_dir = Path(fig_dir)
     out = {}
     if where.time is not None:
-        out["time"] = str(plot_time(where.time, fig_dir / "where_time.png", title))
+        out["time"] = str(plot_time(where.time, fig_dir / DIAGNOSIS_FIGURES["where_time"], title))
     if where.state is not None:
-        out["state"] = str(plot_state(where.state, fig_dir / "where_state.png", title))
+        out["state"] = str(plot_state(where.state, fig_dir / DIAGNOSIS_FIGURES["where_state"], title))
     if where.latent is not None:
-        out["latent"] = str(plot_latent(where.latent, fig_dir / "where_latent.png", title))
+        out["latent"] = str(plot_latent(where.latent, fig_dir / DIAGNOSIS_FIGURES["where_latent"], title))
     if where.image is not None:
-        out["image"] = str(plot_image(where.image, fig_dir / "where_image.png", title))
+        out["image"] = str(plot_image(where.image, fig_dir / DIAGNOSIS_FIGURES["where_image"], title))
     return out

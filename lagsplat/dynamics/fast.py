@@ -51,7 +51,7 @@ import torch
 from numba import njit
 from torch import Tensor, nn
 
-from lagsplat.models.icnn import ICNN, ConvexPotential, IResNet, _spectral_norm
+from lagsplat.models.icnn import ICNN, ConvexPotential, IResNet, spectral_norm_estimate
 from lagsplat.models.lagrangian import CholeskyField, Lagrangian
 
 __all__ = [
@@ -237,8 +237,8 @@ def export_model(model: Lagrangian) -> FastModel:
         W1, b1 = np.zeros((nb, width, d)), np.zeros((nb, width))
         W2, b2 = np.zeros((nb, d, width)), np.zeros((nb, d))
         for k, (a, b) in enumerate(zip(phi.l1, phi.l2)):
-            W1[k] = _np(a.weight / _spectral_norm(a.weight).clamp_min(1.0))
-            W2[k] = _np(b.weight * (phi.lip / _spectral_norm(b.weight).clamp_min(phi.lip)))
+            W1[k] = _np(a.weight / spectral_norm_estimate(a.weight).clamp_min(1.0))
+            W2[k] = _np(b.weight * (phi.lip / spectral_norm_estimate(b.weight).clamp_min(phi.lip)))
             b1[k], b2[k] = _np(a.bias), _np(b.bias)
     else:
         W1, b1, W2, b2 = np.zeros((0, 1, d)), np.zeros((0, 1)), np.zeros((0, d, 1)), np.zeros((0, d))

@@ -12,7 +12,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from lagsplat.metrics import forward_difference_velocity
+from lagsplat.timeseries import forward_difference_velocity
 
 __all__ = ["HasAcceleration", "verlet_step", "rollout", "initial_state", "actuation_schedule"]
 

@@ -1,8 +1,7 @@
-"""Ingest layer: read videos, image folders, .npz and .mcap recordings into a :class:`Clip`.
+"""The bottom layer: read videos, image folders, .npz and .mcap recordings; the clip artifact; atomic writes.
 
-Public entry points:
+Public entry points (a system configuration becomes a clip in :mod:`lagsplat.ingest`, one layer up):
 
-* :func:`ingest` / :func:`ingest_to_file`: system configuration -> validated clip.
 * Readers: :func:`read_video`, :func:`read_image_folder`, :func:`read_npz`,
   :func:`read_mcap` (all raise :class:`ClipError` with one line naming the file).
 * Timing rule: :func:`resolve_timing`, :class:`TimingWarning`.
@@ -34,9 +33,6 @@ _EXPORTS = {
     "sha256_file": "download",
     "IMAGE_EXTENSIONS": "images",
     "read_image_folder": "images",
-    "ingest": "ingest",
-    "ingest_to_file": "ingest",
-    "source_format": "ingest",
     "read_mcap": "mcap_io",
     "zero_order_hold": "mcap_io",
     "read_npz": "npz",

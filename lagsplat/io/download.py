@@ -55,13 +55,14 @@ def sha256_file(path: str | Path) -> str:
     return h.hexdigest()
 
 
-def _reason(exc: BaseException) -> str:
+def failure_reason(exc: BaseException) -> str:
+    """A short human reason for a failed download (HTTP status, network error, OS error)."""
     if isinstance(exc, urllib.error.HTTPError):
         return f"HTTP {exc.code} {exc.reason}"
     if isinstance(exc, urllib.error.URLError):
         r = exc.reason
         if isinstance(r, BaseException):
-            return _reason(r)
+            return failure_reason(r)
         return str(r)
     if isinstance(exc, (socket.timeout, TimeoutError)):
         return "timed out"
@@ -113,14 +114,14 @@ def fetch(url: str, dest: str | Path, sha256: str, timeout: float = 60) -> Path:
                         h.update(chunk)
                         out.write(chunk)
             except urllib.error.HTTPError as exc:
-                raise DownloadError(f"cannot download {url} ({_reason(exc)}); {by_hand}") from None
+                raise DownloadError(f"cannot download {url} ({failure_reason(exc)}); {by_hand}") from None
             except ValueError as exc:  # unknown url type, malformed URL
                 raise DownloadError(f"cannot download {url} ({exc}); {by_hand}") from None
             except (urllib.error.URLError, OSError, http.client.HTTPException) as exc:
                 if scheme == "file" and not isinstance(exc, (socket.timeout, TimeoutError)):
-                    raise DownloadError(f"cannot download {url} ({_reason(exc)}); {by_hand}") from None
+                    raise DownloadError(f"cannot download {url} ({failure_reason(exc)}); {by_hand}") from None
                 raise DownloadError(
-                    f"cannot download {url} ({_reason(exc)}); you appear to be offline: {by_hand}"
+                    f"cannot download {url} ({failure_reason(exc)}); you appear to be offline: {by_hand}"
                 ) from None
         got = h.hexdigest()
         if got != expected:

@@ -17,7 +17,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from lagsplat.io._common import FrameCollector, FrameTransform, check_range, cv_to_rgb, natural_key, validate_range
+from lagsplat.io.common import FrameCollector, FrameTransform, check_range, cv_to_rgb, natural_key, validate_range
 from lagsplat.io.clip import ClipError
 
 __all__ = ["read_image_folder", "IMAGE_EXTENSIONS", "list_image_files"]

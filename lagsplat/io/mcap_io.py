@@ -46,7 +46,7 @@ from typing import Any, Iterator, Sequence
 import cv2
 import numpy as np
 
-from lagsplat.io._common import FrameCollector, FrameTransform, check_range, cv_to_rgb, validate_range
+from lagsplat.io.common import FrameCollector, FrameTransform, check_range, cv_to_rgb, validate_range
 from lagsplat.io.clip import ClipError
 from lagsplat.io.timing import resolve_timing
 

@@ -38,7 +38,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from lagsplat.io._common import FrameCollector, FrameTransform, check_range, natural_key, validate_range
+from lagsplat.io.common import FrameCollector, FrameTransform, check_range, natural_key, validate_range
 from lagsplat.io.clip import ClipError
 from lagsplat.io.timing import TimingWarning
 

@@ -43,14 +43,14 @@ from typing import Any
 import cv2
 import numpy as np
 
-from lagsplat.io._common import FrameCollector, FrameTransform, check_range, cv_to_rgb, validate_range
+from lagsplat.io.common import FrameCollector, FrameTransform, check_range, cv_to_rgb, validate_range
 from lagsplat.io.clip import ClipError
 from lagsplat.io.timing import resolve_timing
 
 __all__ = ["read_video", "VIDEO_EXTENSIONS"]
 
 VIDEO_EXTENSIONS = (".mp4", ".webm", ".mov", ".avi", ".mkv", ".m4v")
-"""File extensions (lower case) treated as video by :func:`lagsplat.io.ingest.ingest`."""
+"""File extensions (lower case) treated as video by :func:`lagsplat.ingest.ingest`."""
 
 _OPEN_TIMEOUT_MS = 30_000
 _MIN_DECODED_FRACTION = 0.9

@@ -59,7 +59,7 @@ import zlib
 from pathlib import Path
 from typing import Iterable
 
-from lagsplat.io.download import DownloadError, _reason, sha256_file
+from lagsplat.io.download import DownloadError, failure_reason, sha256_file
 
 __all__ = ["fetch_archive", "extract_member", "fetch_member", "main"]
 
@@ -101,19 +101,19 @@ def _download(url: str, out: Path, timeout: float, by_hand: str, progress: bool)
                 try:
                     fh.write(chunk)
                 except OSError as exc:  # disk full, read-only folder: not a network problem
-                    raise DownloadError(f"cannot write the download of {url} to {out.parent} ({_reason(exc)})") from None
+                    raise DownloadError(f"cannot write the download of {url} to {out.parent} ({failure_reason(exc)})") from None
                 got += len(chunk)
                 if progress and got >= next_report:
                     print(f"[lagsplat] {url}: {got / 1e9:.2f} GB{total_s}", file=sys.stderr, flush=True)
                     next_report += _PROGRESS_EVERY
     except urllib.error.HTTPError as exc:
-        raise DownloadError(f"cannot download {url} ({_reason(exc)}); {by_hand}") from None
+        raise DownloadError(f"cannot download {url} ({failure_reason(exc)}); {by_hand}") from None
     except ValueError as exc:  # unknown url type, malformed URL
         raise DownloadError(f"cannot download {url} ({exc}); {by_hand}") from None
     except (urllib.error.URLError, OSError, http.client.HTTPException) as exc:
         if scheme == "file" and not isinstance(exc, (socket.timeout, TimeoutError)):
-            raise DownloadError(f"cannot download {url} ({_reason(exc)}); {by_hand}") from None
-        raise DownloadError(f"cannot download {url} ({_reason(exc)}); you appear to be offline: {by_hand}") from None
+            raise DownloadError(f"cannot download {url} ({failure_reason(exc)}); {by_hand}") from None
+        raise DownloadError(f"cannot download {url} ({failure_reason(exc)}); you appear to be offline: {by_hand}") from None
 
 
 def _members(archive: Path, label: str) -> set[str]:
@@ -122,7 +122,7 @@ def _members(archive: Path, label: str) -> set[str]:
         with zipfile.ZipFile(archive) as zf:
             return set(zf.namelist())
     except (zipfile.BadZipFile, zipfile.LargeZipFile, OSError, EOFError, ValueError) as exc:
-        raise DownloadError(f"{label} is not a readable zip archive ({_reason(exc) if isinstance(exc, OSError) else exc})") from None
+        raise DownloadError(f"{label} is not a readable zip archive ({failure_reason(exc) if isinstance(exc, OSError) else exc})") from None
 
 
 def _missing_member(label: str, member: str, names: set[str]) -> DownloadError:
@@ -241,7 +241,7 @@ def extract_member(archive: str | Path, member: str, dest: str | Path, sha256: s
             except (zipfile.BadZipFile, zlib.error, EOFError, ValueError, NotImplementedError) as exc:
                 raise DownloadError(f"member {member} of {archive} is corrupt ({exc})") from None
             except OSError as exc:
-                raise DownloadError(f"cannot extract {member} of {archive} to {dest} ({_reason(exc)})") from None
+                raise DownloadError(f"cannot extract {member} of {archive} to {dest} ({failure_reason(exc)})") from None
         got = h.hexdigest()
         if got != expected:
             raise DownloadError(f"sha256 mismatch for member {member} of {archive}: expected {expected}, got {got}")

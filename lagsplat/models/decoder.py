@@ -1,4 +1,9 @@
-"""Gaussians in the space--state volume, conditioned on the latent state ``q``.
+"""Gaussians in the space--state volume, conditioned on the latent state.
+
+The decoder reads the *raw* latent ``z`` (the encoder's output, ``[B,d]``);
+the chart (:mod:`lagsplat.chart`) whitens it to the state ``q = (z - mean) W``
+in which the Lagrangian, the metrics and the forces live, and
+``Chart.to_raw`` maps back. Below, ``z`` is the raw latent throughout.
 
 Each primitive ``k`` is a Gaussian in ``(2 + d)`` dimensions, spatial block ``s``
 (normalised image coordinates: ``x`` in [0, 1] across the width, ``y`` in [0, 1]
@@ -38,7 +43,8 @@ from lagsplat.render.rasterize import Backend, rasterize
 
 __all__ = ["ConditionedGaussians", "DecoderGeometry", "inverse_softplus", "latent_gate", "tril_inverse"]
 
-_DIAG_FLOOR = 1e-4
+DIAG_FLOOR = 1e-4
+"""Floor added to the softplus of each Cholesky diagonal entry (keeps the covariances positive definite)."""
 _GATE_CLAMP = 20.0  # Mahalanobis^2 clamp of the gate: w_z >= exp(-10)
 
 
@@ -145,7 +151,7 @@ class ConditionedGaussians(nn.Module):
         n = 2 + self.d
         vals = self.L_raw
         diag = self.tril_i == self.tril_j
-        vals = torch.where(diag, F.softplus(vals) + _DIAG_FLOOR, vals)
+        vals = torch.where(diag, F.softplus(vals) + DIAG_FLOOR, vals)
         L = vals.new_zeros(self.K, n, n)
         L[:, self.tril_i, self.tril_j] = vals
         return L
@@ -173,31 +179,31 @@ class ConditionedGaussians(nn.Module):
             L_qq_inv=L_qq_inv,
         )
 
-    def condition(self, q: Tensor, geom: DecoderGeometry | None = None) -> tuple[Tensor, Tensor, DecoderGeometry]:
-        """Slice every primitive at ``q``.
+    def condition(self, z: Tensor, geom: DecoderGeometry | None = None) -> tuple[Tensor, Tensor, DecoderGeometry]:
+        """Slice every primitive at ``z``.
 
         Args:
-            q: ``[B,d]`` raw latent states.
+            z: ``[B,d]`` raw latent states.
             geom: precomputed :meth:`geometry` (computed if ``None``).
 
         Returns:
             ``(means [B,K,2], gate [B,K], geom)``: conditional means in normalised
-            image units and the latent gate ``w_z(q)`` in (0, 1]; the rendered
+            image units and the latent gate ``w_z`` in (0, 1]; the rendered
             opacity is ``geom.alpha * gate``.
 
         Raises:
-            ValueError: if ``q`` is not ``[B,d]``.
+            ValueError: if ``z`` is not ``[B,d]``.
         """
-        if q.dim() != 2 or q.shape[1] != self.d:
-            raise ValueError(f"q must be [B,{self.d}], got {tuple(q.shape)}")
+        if z.dim() != 2 or z.shape[1] != self.d:
+            raise ValueError(f"z must be [B,{self.d}], got {tuple(z.shape)}")
         g = self.geometry() if geom is None else geom
-        diff = q[:, None, :] - g.mu_q[None]  # [B,K,d]
+        diff = z[:, None, :] - g.mu_q[None]  # [B,K,d]
         means = g.mu_s[None] + torch.einsum("kij,bkj->bki", g.J, diff)
-        return means, latent_gate(q, g.mu_q, g.L_qq, g.L_qq_inv), g
+        return means, latent_gate(z, g.mu_q, g.L_qq, g.L_qq_inv), g
 
-    def presence(self, q: Tensor) -> Tensor:
-        """Normalised presence weights ``w_hat_i(q)`` (paper Eq. 7), ``[B,K]``, summing to 1."""
-        means, gate, g = self.condition(q)
+    def presence(self, z: Tensor) -> Tensor:
+        """Normalised presence weights ``w_hat_i(z)`` (paper Eq. 7), ``[B,K]``, summing to 1."""
+        means, gate, g = self.condition(z)
         w = g.alpha[None] * gate
         return w / w.sum(-1, keepdim=True).clamp_min(1e-12)
 
@@ -233,28 +239,28 @@ class ConditionedGaussians(nn.Module):
 
     # --------------------------------------------------------------- rendering
     def forward(
-        self, q: Tensor, height: int, width: int, backend: Backend | None = None, geom: DecoderGeometry | None = None
+        self, z: Tensor, height: int, width: int, backend: Backend | None = None, geom: DecoderGeometry | None = None
     ) -> Tensor:
-        """Render the states ``q [B,d]`` to images ``[B,3,H,W]`` in [0, 1].
+        """Render the states ``z [B,d]`` to images ``[B,3,H,W]`` in [0, 1].
 
         ``geom``: a precomputed :meth:`geometry` (a frozen decoder rendered many
         times, e.g. by the viewer, need not rebuild it per frame).
         """
-        return self.render(q, height, width, backend, geom)[0]
+        return self.render(z, height, width, backend, geom)[0]
 
     def render(
         self,
-        q: Tensor,
+        z: Tensor,
         height: int,
         width: int,
         backend: Backend | None = None,
         geom: DecoderGeometry | None = None,
         extra: Tensor | None = None,
     ) -> tuple[Tensor, Tensor | None]:
-        """Render ``q [B,d]`` and, in the same compositing pass, per-primitive channels ``extra``.
+        """Render ``z [B,d]`` and, in the same compositing pass, per-primitive channels ``extra``.
 
         Args:
-            q, height, width, backend, geom: as :meth:`forward`.
+            z, height, width, backend, geom: as :meth:`forward`.
             extra: ``[K,C]`` values composited like colours over a zero
                 background, e.g. each primitive's Jacobian in pixels: the
                 result at pixel ``p`` is ``sum_i T_i(p) a_i(p) extra_i``, the
@@ -264,7 +270,7 @@ class ConditionedGaussians(nn.Module):
         Returns:
             ``(image [B,3,H,W] in [0, 1], extra image [B,C,H,W] or None)``.
         """
-        means, gate, g = self.condition(q, geom)
+        means, gate, g = self.condition(z, geom)
         scale = means.new_tensor([float(width), float(height)])
         cov_px = g.cov * scale[None, :, None] * scale[None, None, :]
         colors, bg = g.colors, self.background
@@ -283,8 +289,8 @@ class ConditionedGaussians(nn.Module):
         )
         return img[:, :3].clamp(0.0, 1.0), (img[:, 3:] if extra is not None else None)
 
-    def render_motion(self, q: Tensor, height: int, width: int, q_std: Tensor) -> tuple[Tensor, Tensor]:
-        """Render ``q [B,d]`` with its motion field, ``sum_i T_i a_i J_i diag(q_std)`` in pixels.
+    def render_motion(self, z: Tensor, height: int, width: int, q_std: Tensor) -> tuple[Tensor, Tensor]:
+        """Render ``z [B,d]`` with its motion field, ``sum_i T_i a_i J_i diag(q_std)`` in pixels.
 
         The field a force applied at each pixel is pulled back through (the
         visible brush of :mod:`lagsplat.force`, paper Eq. 9), scaled by the
@@ -295,7 +301,7 @@ class ConditionedGaussians(nn.Module):
             ``(image [B,3,H,W], motion [B,2d,H,W])``.
         """
         J_px, _ = self.pixel_geometry(height, width)
-        return self.render(q, height, width, extra=(J_px * q_std.reshape(1, 1, -1)).reshape(self.K, -1))
+        return self.render(z, height, width, extra=(J_px * q_std.reshape(1, 1, -1)).reshape(self.K, -1))
 
     # ----------------------------------------------------------- initialisation
     @staticmethod
@@ -309,7 +315,7 @@ class ConditionedGaussians(nn.Module):
         m = 2 + self.d
         raw = torch.zeros(n, m * (m + 1) // 2)
         is_diag = (self.tril_i == self.tril_j).cpu()
-        raw[:, is_diag] = inverse_softplus(torch.cat([sigma_q, torch.full((2,), sigma_xy)]) - _DIAG_FLOOR)
+        raw[:, is_diag] = inverse_softplus(torch.cat([sigma_q, torch.full((2,), sigma_xy)]) - DIAG_FLOOR)
         return raw
 
     @torch.no_grad()

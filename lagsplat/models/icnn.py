@@ -48,7 +48,7 @@ class ICNN(nn.Module):
         return h @ F.softplus(self.out)
 
 
-def _spectral_norm(w: Tensor) -> Tensor:
+def spectral_norm_estimate(w: Tensor) -> Tensor:
     """Largest singular value of a matrix (exact, differentiable)."""
     return torch.linalg.matrix_norm(w, ord=2)
 
@@ -82,8 +82,8 @@ class IResNet(nn.Module):
     def forward(self, x: Tensor) -> Tensor:
         """``phi(x)``."""
         for a, b in zip(self.l1, self.l2):
-            w1 = a.weight / _spectral_norm(a.weight).clamp_min(1.0)
-            w2 = b.weight * (self.lip / _spectral_norm(b.weight).clamp_min(self.lip))
+            w1 = a.weight / spectral_norm_estimate(a.weight).clamp_min(1.0)
+            w2 = b.weight * (self.lip / spectral_norm_estimate(b.weight).clamp_min(self.lip))
             x = x + F.linear(F.elu(F.linear(x, w1, a.bias)), w2, b.bias)
         return x
 
@@ -91,8 +91,8 @@ class IResNet(nn.Module):
     def inverse(self, y: Tensor, iters: int = 100, tol: float = 1e-7) -> Tensor:
         """``phi^-1(y)`` by the contraction ``x <- y_b - g(x)`` block by block (converges as ``lip^n``)."""
         for a, b in reversed(list(zip(self.l1, self.l2))):
-            w1 = a.weight / _spectral_norm(a.weight).clamp_min(1.0)
-            w2 = b.weight * (self.lip / _spectral_norm(b.weight).clamp_min(self.lip))
+            w1 = a.weight / spectral_norm_estimate(a.weight).clamp_min(1.0)
+            w2 = b.weight * (self.lip / spectral_norm_estimate(b.weight).clamp_min(self.lip))
             x = y.clone()
             for _ in range(iters):
                 x_new = y - F.linear(F.elu(F.linear(x, w1, a.bias)), w2, b.bias)

@@ -63,7 +63,7 @@ import numpy as np
 from scipy.linalg import eigh, expm
 
 from lagsplat.io.clip import HELD_OUT, TRAIN, Clip, segments
-from lagsplat.metrics import spectral_peak_frequency
+from lagsplat.timeseries import spectral_peak_frequency
 from lagsplat.synth._clip import check_timing, check_train_fraction, contiguous_train_frames
 from lagsplat.synth._render import (
     SUPERSAMPLE,
@@ -519,7 +519,7 @@ def make_coupled_carts_clip(
                  mass, stiffness, damping   [2][2] matrices M, K, C
                  mode_shapes        [2][2] Phi, column i = mode i, Phi^T M Phi = I
                  springs            [k1, k2, k3] (N/m)
-                 f_observed_hz      spectral peak (lagsplat.metrics.spectral_peak_frequency)
+                 f_observed_hz      spectral peak (lagsplat.timeseries.spectral_peak_frequency)
                                     of the true cart-1 displacement on the longest held-out
                                     segment (the first of equal ones), the segment the
                                     single-frequency evaluator measures

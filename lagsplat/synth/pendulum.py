@@ -39,7 +39,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from lagsplat.io.clip import HELD_OUT, TRAIN, Clip
-from lagsplat.metrics import spectral_peak_frequency
+from lagsplat.timeseries import spectral_peak_frequency
 from lagsplat.synth._clip import check_timing, check_train_fraction, contiguous_train_frames
 from lagsplat.synth._render import (
     SUPERSAMPLE,
@@ -288,7 +288,7 @@ def make_pendulum_clip(
         truth:  f_natural_hz, zeta,
                 f_damped_small_angle_hz = f_natural sqrt(1 - zeta^2),
                 f_observed_hz  (spectral peak of the true theta on the held-out
-                                segment, lagsplat.metrics.spectral_peak_frequency:
+                                segment, lagsplat.timeseries.spectral_peak_frequency:
                                 what a perfect model shows at that amplitude),
                 theta0_rad, decay_rate_per_s = zeta w0
         theta:  list of the true angle per frame (rad)

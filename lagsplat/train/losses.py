@@ -167,7 +167,7 @@ def static_motion_penalty(motion: Tensor, static: Tensor) -> Tensor:
     ``2 d`` entries of the Jacobian times the spread of each latent, from
     :meth:`~lagsplat.models.decoder.ConditionedGaussians.render` with
     ``extra``); ``static [H,W]`` marks the pixels whose colour never changes in
-    the training frames (:func:`lagsplat.force_checks.motion_masks`). The
+    the training frames (:func:`lagsplat.motion.motion_masks`). The
     penalty is the mean squared motion over those pixels, in px^2: what a
     force applied there would move (the visible brush of :mod:`lagsplat.force`
     pulls back exactly this field, paper Eq. 9), which paper §4.5 requires to

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
@@ -11,16 +10,17 @@ import torch
 from torch import Tensor, nn
 from torch.profiler import record_function
 
-from lagsplat.io.atomic import save_torch
 from lagsplat.io.clip import Clip
+from lagsplat.models.autoencoder import AutoEncoder, frames_to_tensor
 from lagsplat.models.decoder import ConditionedGaussians
+from lagsplat.motion import motion_masks
 from lagsplat.models.encoder import CpAEEncoder, nonlocal_filter_penalty
 from lagsplat.train.config import dataclass_from_mapping
 from lagsplat.train.device import resolve_device
 from lagsplat.train.losses import kinematic_penalty, reconstruction_loss, rigidity_penalty, static_motion_penalty
 from lagsplat.train.progress import Progress
 
-__all__ = ["Stage1Config", "AutoEncoder", "train_stage1", "save_stage1", "load_stage1", "frames_to_tensor"]
+__all__ = ["Stage1Config", "train_stage1", "static_pixels", "decay_state_coupling"]
 
 
 @dataclass
@@ -73,40 +73,6 @@ class Stage1Config:
     def from_mapping(cls, m: Mapping[str, Any]) -> "Stage1Config":
         """Build from a (Hydra) mapping; unknown keys raise ``KeyError``."""
         return dataclass_from_mapping(cls, m, "stage1")
-
-
-class AutoEncoder(nn.Module):
-    """Encoder + decoder pair with the image size they were trained at.
-
-    Args:
-        encoder: :class:`CpAEEncoder`.
-        decoder: :class:`ConditionedGaussians`.
-        height, width: training resolution in pixels.
-    """
-
-    def __init__(self, encoder: CpAEEncoder, decoder: ConditionedGaussians, height: int, width: int) -> None:
-        super().__init__()
-        self.encoder, self.decoder = encoder, decoder
-        self.height, self.width = int(height), int(width)
-
-    def encode(self, x: Tensor) -> Tensor:
-        """``[B,3,H,W]`` -> raw latent ``z [B,d]``."""
-        return self.encoder(x)
-
-    def decode(self, z: Tensor, height: int | None = None, width: int | None = None) -> Tensor:
-        """Raw latent ``z [B,d]`` -> ``[B,3,H,W]`` (training resolution by default)."""
-        return self.decoder(z, height or self.height, width or self.width)
-
-    @torch.no_grad()
-    def encode_frames(self, frames: np.ndarray, batch: int = 128) -> Tensor:
-        """Encode uint8 frames ``[T,H,W,3]`` to ``z [T,d]`` (eval mode, no grad)."""
-        out = [self.encoder(frames_to_tensor(frames[i : i + batch])) for i in range(0, len(frames), batch)]
-        return torch.cat(out)
-
-
-def frames_to_tensor(frames: np.ndarray) -> Tensor:
-    """uint8 ``[T,H,W,3]`` -> float32 ``[T,3,H,W]`` in [0, 1]."""
-    return torch.from_numpy(np.ascontiguousarray(frames)).permute(0, 3, 1, 2).float().div_(255.0)
 
 
 def _reset_adam_rows(opt: torch.optim.Optimizer, params: list[nn.Parameter], mask: Tensor) -> None:
@@ -255,12 +221,10 @@ def train_stage1(
 def static_pixels(frames: np.ndarray, margin: float = 1.0) -> Tensor | None:
     """Pixels whose colour never changes in ``frames`` (uint8 ``[T,H,W,3]``), at least ``margin`` px from any that does.
 
-    The ``changing`` rule of :func:`lagsplat.force_checks.motion_masks`
+    The ``changing`` rule of :func:`lagsplat.motion.motion_masks`
     (temporal std above 1.5x the noise floor); ``[H,W]`` bool, or ``None``
     when nothing in the frames changes (no motion to separate from).
     """
-    from lagsplat.force_checks import motion_masks
-
     try:
         _, static, _ = motion_masks(frames, sigma=max(margin, 1e-6) / 3.0)
     except ValueError:
@@ -297,40 +261,3 @@ def decay_state_coupling(dec: ConditionedGaussians, rate: float) -> None:
         raise ValueError(f"state-coupling decay per step must be in [0, 1), got {rate}")
     sq = (dec.tril_i >= dec.d) & (dec.tril_j < dec.d)
     dec.L_raw[:, sq] *= 1.0 - rate
-
-
-def save_stage1(path: str | Path, model: AutoEncoder, config: Mapping[str, Any], history: dict, d: int) -> Path:
-    """Write ``stage1.pt`` atomically: weights, sizes and the config that made them."""
-    return save_torch(
-        path,
-        {
-            "encoder": model.encoder.state_dict(),
-            "decoder": model.decoder.state_dict(),
-            "d": d,
-            "n_gaussians": model.decoder.K,
-            "height": model.height,
-            "width": model.width,
-            "encoder_channels": [m.out_channels for m in model.encoder.features if isinstance(m, nn.Conv2d)],
-            "encoder_kernel": model.encoder.features[0].kernel_size[0],
-            "config": dict(config),
-            "history": history,
-        },
-    )
-
-
-def load_stage1(path: str | Path) -> AutoEncoder:
-    """Rebuild the :class:`AutoEncoder` saved by :func:`save_stage1` (eval mode).
-
-    Raises:
-        FileNotFoundError: if ``path`` does not exist.
-    """
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"{path}: stage-1 checkpoint not found")
-    ck = torch.load(path, map_location="cpu", weights_only=False)
-    enc = CpAEEncoder(ck["d"], tuple(ck["encoder_channels"]), ck["encoder_kernel"])
-    enc.load_state_dict(ck["encoder"])
-    backend = ck["config"].get("backend", "auto") if isinstance(ck.get("config"), dict) else "auto"
-    dec = ConditionedGaussians(ck["n_gaussians"], ck["d"], backend=backend)
-    dec.load_state_dict(ck["decoder"])
-    return AutoEncoder(enc, dec, ck["height"], ck["width"]).eval()

@@ -11,7 +11,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 import torch
 
-from lagsplat import metrics
+from lagsplat import metrics, timeseries
 from lagsplat.chart import Chart
 from lagsplat.dynamics.integrators import actuation_schedule, initial_state, rollout, verlet_step
 from lagsplat.io.atomic import save_torch
@@ -185,7 +185,7 @@ def train_stage2(
     train_segs = [s for s in chart.segments(TRAIN) if len(s) > 3 * cfg.stride + 3]
     if not train_segs:
         raise ValueError("no training segment is long enough for one stage-2 window")
-    q_smooth = [metrics.gaussian_smooth(chart.q[s], cfg.sigma) for s in train_segs]
+    q_smooth = [timeseries.gaussian_smooth(chart.q[s], cfg.sigma) for s in train_segs]
     u_segs = [chart.u[s] for s in train_segs]
     wins = [one_step_windows(qs, dt, cfg.stride, us) for qs, us in zip(q_smooth, u_segs)]
     Q0, V0, Q1, V1, U0, U1 = (torch.as_tensor(np.concatenate([w[i] for w in wins]), dtype=torch.float32) for i in range(6))
@@ -197,7 +197,7 @@ def train_stage2(
     # and the selection horizon (nothing from held-out frames is used here).
     i_long = int(np.argmax([len(x) for x in q_smooth]))
     longest = q_smooth[i_long]
-    f_train = metrics.spectral_peak_frequency(metrics.project(longest, metrics.top_direction(chart.G_bar)), dt)
+    f_train = timeseries.spectral_peak_frequency(metrics.project(longest, metrics.top_direction(chart.G_bar)), dt)
     model = cfg.build(d, n_u if n_u_model is None else int(n_u_model), inertia)
     with torch.no_grad():
         model.potential_hat.q_rest.copy_(torch.as_tensor(np.concatenate(q_smooth).mean(0), dtype=torch.float32))

@@ -40,6 +40,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from lagsplat.artifacts import Artifacts
 from lagsplat.dynamics.integrators import initial_state, verlet_step
 from lagsplat.force import EditedDynamics, ForceTransport, Selection
 from lagsplat.io.clip import TRAIN
@@ -106,7 +107,7 @@ class Session:
     """One interactive simulation of an identified system (thread-safe).
 
     Args:
-        ae: Stage-1 :class:`~lagsplat.train.stage1.AutoEncoder` (``decode``,
+        ae: Stage-1 :class:`~lagsplat.models.autoencoder.AutoEncoder` (``decode``,
             ``decoder``, ``height``, ``width``).
         chart: the frozen :class:`~lagsplat.chart.Chart` (``to_raw``, ``W_inv``,
             ``mean``, ``q``, ``t``, ``split``).
@@ -467,21 +468,18 @@ def _frame_interval(t) -> float:
     return float(np.median(dts))
 
 
-def load_session(sysdir: str | Path, model_dir: str | Path | None = None, **kwargs) -> Session:
+def load_session(artifacts: Artifacts | str | Path, **kwargs) -> Session:
     """A :class:`Session` on the artifacts of one system.
 
     Args:
-        sysdir: ``results/<system>/`` holding ``stage1.pt`` and ``chart.npz``.
-        model_dir: where ``stage2.pt`` is (default ``sysdir``; a variant's folder otherwise).
+        artifacts: the run's :class:`~lagsplat.artifacts.Artifacts` (``stage1.pt``, ``chart.npz``,
+            ``stage2.pt``), or a ``results/<system>/`` folder in the standard layout.
         **kwargs: passed to :class:`Session`.
 
     Raises:
         FileNotFoundError: naming the missing artifact.
     """
-    from lagsplat.chart import load_chart
-    from lagsplat.train.stage1 import load_stage1
-    from lagsplat.train.stage2 import load_stage2
-
-    sysdir = Path(sysdir)
-    model, _ = load_stage2(Path(model_dir or sysdir) / "stage2.pt")
-    return Session(load_stage1(sysdir / "stage1.pt"), load_chart(sysdir / "chart.npz"), model, **kwargs)
+    a = artifacts if isinstance(artifacts, Artifacts) else Artifacts.at(artifacts)
+    a.require("stage1", "chart", "stage2")
+    model, _ = a.load_stage2()
+    return Session(a.load_stage1(), a.load_chart(), model, **kwargs)

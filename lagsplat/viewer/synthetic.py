@@ -22,7 +22,7 @@ import numpy as np
 import torch
 
 from lagsplat.chart import Chart
-from lagsplat.models.decoder import _DIAG_FLOOR, ConditionedGaussians, inverse_softplus
+from lagsplat.models.decoder import DIAG_FLOOR, ConditionedGaussians, inverse_softplus
 from lagsplat.models.lagrangian import Lagrangian
 
 __all__ = ["decoder_from_primitives", "synthetic_pendulum"]
@@ -54,7 +54,7 @@ def decoder_from_primitives(pos_px, J_px, colors, alpha, sigma_px, height: int, 
     L[:, 2, 2] = sig / height
     raw = L[:, dec.tril_i, dec.tril_j]
     diag = dec.tril_i == dec.tril_j
-    raw[:, diag] = inverse_softplus(raw[:, diag] - _DIAG_FLOOR)
+    raw[:, diag] = inverse_softplus(raw[:, diag] - DIAG_FLOOR)
     dec.L_raw.copy_(raw)
     dec.mu_raw.copy_(torch.logit(((pos / scale + 0.1) / 1.2).clamp(1e-4, 1 - 1e-4)))
     dec.mu_q.zero_()

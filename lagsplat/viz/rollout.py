@@ -11,20 +11,30 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
-from lagsplat import metrics  # noqa: E402
-from lagsplat.chart import load_chart  # noqa: E402
+from lagsplat import timeseries  # noqa: E402
+from lagsplat.artifacts import Artifacts  # noqa: E402
 from lagsplat.dynamics.integrators import actuation_schedule, initial_state, rollout  # noqa: E402
 from lagsplat.io.atomic import atomic_write  # noqa: E402
-from lagsplat.io.clip import HELD_OUT, load_clip  # noqa: E402
-from lagsplat.train.stage1 import load_stage1  # noqa: E402
-from lagsplat.train.stage2 import load_stage2  # noqa: E402
+from lagsplat.io.clip import HELD_OUT  # noqa: E402
 
-__all__ = ["rollout_figure"]
+__all__ = ["rollout_figure", "held_out_frequency"]
 
 
-def rollout_figure(
-    system_dir: str | Path, title: str = "", provenance: str = "", sigma: float = 1.0, model_dir: str | Path | None = None
-) -> Path:
+def held_out_frequency(metrics: dict) -> float:
+    """The encoded held-out frequency (Hz) a ``metrics.json`` block gives: the paper protocol's
+    ``f_enc_segment_hz`` (whole held-out segment), else the mean over windows ``f_enc_hz`` (both protocols).
+
+    Raises:
+        ValueError: if neither is present and finite.
+    """
+    for key in ("f_enc_segment_hz", "f_enc_hz"):
+        v = (metrics.get(key) or {}).get("value")
+        if v is not None and np.isfinite(v) and v > 0:
+            return float(v)
+    raise ValueError("metrics.json has no finite f_enc_segment_hz or f_enc_hz: evaluate the run first")
+
+
+def rollout_figure(artifacts: Artifacts | str | Path, title: str = "", provenance: str = "", sigma: float = 1.0) -> Path:
     """One free rollout across the train / held-out boundary, latent and images.
 
     The model starts from the encoded state (position and velocity) one
@@ -36,25 +46,25 @@ def rollout_figure(
     ``q`` (the autoencoder's own floor) and the render at the predicted ``q``.
 
     Args:
-        system_dir: ``results/<system>`` holding clip, stage1, chart, stage2 and metrics.
+        artifacts: the run's :class:`~lagsplat.artifacts.Artifacts` (clip, stage1, chart,
+            stage2, metrics; the figure goes to ``artifacts.rollout_figure``), or a
+            ``results/<system>`` folder in the standard layout.
         title: figure title.
         provenance: data source line printed under the figure.
         sigma: latent smoothing (frames) used for the initial state.
-        model_dir: folder of ``stage2.pt`` / ``metrics.json`` and of the figure
-            (a variant's folder; default ``system_dir``).
 
     Returns:
-        Path of ``figures/rollout.png`` under ``model_dir``.
-    """
-    d = Path(system_dir)
-    md = d if model_dir is None else Path(model_dir)
-    clip = load_clip(d / "clip.npz")
-    chart = load_chart(d / "chart.npz")
-    ae = load_stage1(d / "stage1.pt")
-    model, _ = load_stage2(md / "stage2.pt")
-    import json
+        Path of the figure (``figures/rollout.png``).
 
-    f_enc = json.loads((md / "metrics.json").read_text())["metrics"]["f_enc_segment_hz"]["value"]
+    Raises:
+        FileNotFoundError: naming a missing artifact (``metrics.json`` included: the figure prints its metrics).
+    """
+    a = artifacts if isinstance(artifacts, Artifacts) else Artifacts.at(artifacts)
+    a.require("clip", "stage1", "chart", "stage2", "metrics")
+    clip, chart, ae = a.load_clip(), a.load_chart(), a.load_stage1()
+    model, _ = a.load_stage2()
+    metrics = a.load_metrics()["metrics"]
+    f_enc = held_out_frequency(metrics)
     dt = float(np.median(np.diff(chart.t)))
     ho = max(chart.segments(HELD_OUT), key=len)
     period = int(round(1.0 / (f_enc * dt)))
@@ -62,13 +72,13 @@ def rollout_figure(
     if chart.episode[s0] != chart.episode[ho[0]]:  # a held-out recording: start at its first frame
         s0 = int(ho[0])
     # smooth from `edge` frames earlier where the recording has them, else start `edge` frames in:
-    # the smoothing's replicated edge would bias the initial velocity (lagsplat.metrics.smoothing_edge)
-    edge = metrics.smoothing_edge(sigma)
+    # the smoothing's replicated edge would bias the initial velocity (lagsplat.timeseries.smoothing_edge)
+    edge = timeseries.smoothing_edge(sigma)
     first = int(np.flatnonzero(chart.episode == chart.episode[s0])[0])
     lead = max(s0 - edge, first)
     s0 = min(max(s0, lead + edge), int(ho[-1]) - 2)
     idx = np.arange(s0, int(ho[-1]) + 1)
-    q_s = metrics.gaussian_smooth(chart.q[lead : int(ho[-1]) + 1], sigma)[s0 - lead :]
+    q_s = timeseries.gaussian_smooth(chart.q[lead : int(ho[-1]) + 1], sigma)[s0 - lead :]
     q0, v0 = initial_state(q_s, np.array([0]), dt)
     pred, _ = rollout(model, q0, v0, dt, len(idx), u=actuation_schedule(chart.u[idx][None], dt))
     pred = pred[0].numpy()
@@ -119,7 +129,7 @@ def rollout_figure(
     if provenance:
         fig.text(0.01, 0.005, f"data: {provenance}", fontsize=6, color="0.4")
     fig.tight_layout(rect=(0, 0.015, 1, 1))
-    out = md / "figures" / "rollout.png"
+    out = a.rollout_figure
     with atomic_write(out) as tmp:
         fig.savefig(tmp, dpi=120, format="png")
     plt.close(fig)

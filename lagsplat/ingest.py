@@ -52,13 +52,14 @@ from typing import Any
 import cv2
 import numpy as np
 
-from lagsplat.io._common import FrameTransform, jsonable, validate_range
+from lagsplat.io.common import FrameTransform, jsonable, validate_range
 from lagsplat.io.clip import HELD_OUT, TRAIN, Clip, ClipError, save_clip
 from lagsplat.io.download import sha256_file
 from lagsplat.io.images import list_image_files, read_image_folder
 from lagsplat.io.mcap_io import read_mcap
 from lagsplat.io.npz import read_npz
 from lagsplat.io.video import VIDEO_EXTENSIONS, read_video
+from lagsplat.synth import make_clip
 
 __all__ = ["ingest", "ingest_to_file", "source_format", "DEFAULT_TRAIN_FRACTION"]
 
@@ -183,8 +184,6 @@ def ingest(system_cfg: Any, source_path: str | Path | None = None) -> Clip:
     if not isinstance(source, Mapping):
         raise ClipError(f"system.source must be a mapping, got {source!r}")
     if source_path is None and "synth" in source:
-        from lagsplat.synth import make_clip  # lazy: written elsewhere, only needed for synthetic systems
-
         return make_clip(system_cfg).validate(f"synth:{cfg.get('name', '?')}")
     if source_path is None:
         source_path = source.get("path")

@@ -71,10 +71,11 @@ from typing import Any, Callable, Mapping
 import numpy as np
 import torch
 
-from lagsplat import metrics
+from lagsplat import metrics, timeseries
 from lagsplat.chart import Chart
 from lagsplat.dynamics.integrators import verlet_step
-from lagsplat.evaluate import _decode_mse, _entry
+from lagsplat.evaluate.common import decode_mse as decoded_image_mse
+from lagsplat.evaluate.common import metric_entry
 from lagsplat.io.clip import HELD_OUT, Clip, ClipError
 from lagsplat.train.config import dataclass_from_mapping
 
@@ -285,7 +286,7 @@ def peak_frequency(x: np.ndarray, dt: float, G: np.ndarray | None = None, min_cy
     ``Re F^T G Re F + Im F^T G Im F``; bins below ``min_cycles`` cycles per
     window zeroed; arg-max bin refined by a parabola through the log-power of
     the three bins, kept if strictly concave with offset ``<= 0.5`` bin.
-    This is :func:`lagsplat.metrics.spectral_peak_frequency` except at the
+    This is :func:`lagsplat.timeseries.spectral_peak_frequency` except at the
     cut: the reference zeroes the low bins *before* the refinement, so a peak
     in the first bin above the cut (bin 2 for ``min_cycles = 1.5``), whose
     lower neighbour is zeroed, is returned unrefined at the bin centre.
@@ -300,10 +301,10 @@ def peak_frequency(x: np.ndarray, dt: float, G: np.ndarray | None = None, min_cy
         Frequency in Hz.
 
     Raises:
-        ValueError: as :func:`lagsplat.metrics.spectral_peak_frequency`
+        ValueError: as :func:`lagsplat.timeseries.spectral_peak_frequency`
             (flat signal, too few samples, bad shapes).
     """
-    f = metrics.spectral_peak_frequency(x, dt, G, min_cycles)
+    f = timeseries.spectral_peak_frequency(x, dt, G, min_cycles)
     df = 1.0 / (len(x) * float(dt))
     k1 = math.ceil(float(min_cycles))  # lowest bin kept: its lower neighbour is always zeroed
     if k1 >= 1 and f < (k1 + 0.5) * df:
@@ -399,12 +400,12 @@ def multistep_mse(
     H = n_states(cfg.horizon_s, dt)
     skip = int(round(cfg.skip_s / dt))
     starts = mse_window_starts(n, H, skip, cfg.n_windows, cfg.seed)
-    z_init = metrics.gaussian_smooth(q_raw, cfg.sigma)
+    z_init = timeseries.gaussian_smooth(q_raw, cfg.sigma)
     q0 = z_init[starts]
-    v0 = metrics.forward_difference_velocity(np.stack([z_init[starts], z_init[starts + 1], z_init[starts + 2]]), dt)[0]
+    v0 = timeseries.forward_difference_velocity(np.stack([z_init[starts], z_init[starts + 1], z_init[starts + 2]]), dt)[0]
     P_w = None
     if P is not None and P.shape[1] > 0:
-        P_s = metrics.gaussian_smooth(P, cfg.sigma_pressure)
+        P_s = timeseries.gaussian_smooth(P, cfg.sigma_pressure)
         P_w = np.stack([P_s[s : s + H] for s in starts])
     pred = rollout_zoh(model, q0, v0, dt, H, P_w)
     finite = np.isfinite(pred).all(axis=(1, 2))
@@ -475,7 +476,7 @@ def frequency_windows(
             if metrics.g_rms_spread(seg, G) < cfg.min_amplitude * q_std or st + 2 >= n:
                 windows.append({**row, "status": "low_amplitude"})
                 continue
-            v0 = metrics.forward_difference_velocity(q_enc[st : st + 3], dt)[:1]
+            v0 = timeseries.forward_difference_velocity(q_enc[st : st + 3], dt)[:1]
             P0 = None if P_smooth.shape[1] == 0 else P_smooth[st : st + 1]
             sim = rollout_zoh(model, q_enc[st : st + 1], v0, dt, w, P0)[0]
             if not np.isfinite(sim).all() or float(np.linalg.norm(sim, axis=1).max()) > thr:
@@ -546,7 +547,7 @@ def evaluate_krauss(
 
     Args:
         clip: the ingested clip (validation frames and raw pressures ``clip.u``).
-        ae: the frozen autoencoder (:class:`~lagsplat.train.stage1.AutoEncoder`).
+        ae: the frozen autoencoder (:class:`~lagsplat.models.autoencoder.AutoEncoder`).
         chart: its chart (whitened encodings ``q``, per-frame AE error ``ae_mse``, ``G_bar``).
         model: the trained Lagrangian.
         cfg: protocol settings.
@@ -579,7 +580,7 @@ def evaluate_krauss(
         )
 
     def decode_mse(q: np.ndarray, fr: np.ndarray) -> np.ndarray:
-        return _decode_mse(ae, chart, q, fr, cfg.render_batch)
+        return decoded_image_mse(ae, chart, q, fr, cfg.render_batch)
 
     # ---- §9.1
     ms = multistep_mse(q_raw, frames, P, model, decode_mse, dt, cfg)
@@ -588,9 +589,9 @@ def evaluate_krauss(
 
     # ---- §9.2
     k = leading_duplicates(frames) if cfg.trim_duplicates else 0
-    q_enc = metrics.gaussian_smooth(q_raw[k:], cfg.sigma)
+    q_enc = timeseries.gaussian_smooth(q_raw[k:], cfg.sigma)
     P_raw = P[k:]
-    P_s = metrics.gaussian_smooth(P_raw, cfg.sigma_pressure) if P.shape[1] else P_raw
+    P_s = timeseries.gaussian_smooth(P_raw, cfg.sigma_pressure) if P.shape[1] else P_raw
     G = metrics.normalise_trace(chart.G_bar)
     fq = frequency_windows(q_enc, P_raw, P_s, G, model, dt, cfg)
 
@@ -599,7 +600,7 @@ def evaluate_krauss(
     cyc: dict[str, Any] = {"eps_q": float("nan"), "eps_I": float("nan"), "eps_AE": float("nan"), "n_finite": 0}
     if n2 - H - 3 > skip and H >= 3:
         starts = metrics.window_starts(skip, n2 - H - 3, cfg.n_windows, cfg.seed)
-        v0 = metrics.forward_difference_velocity(np.stack([q_enc[starts], q_enc[starts + 1], q_enc[starts + 2]]), dt)[0]
+        v0 = timeseries.forward_difference_velocity(np.stack([q_enc[starts], q_enc[starts + 1], q_enc[starts + 2]]), dt)[0]
         P_w = np.stack([P_s[s : s + H] for s in starts]) if P.shape[1] else None
         pred = rollout_zoh(model, q_enc[starts], v0, dt, H, P_w)
         fin = np.isfinite(pred).all(axis=(1, 2))
@@ -616,42 +617,42 @@ def evaluate_krauss(
     fw = f"{len(ok)} window(s) in {len(fq['intervals'])} constant-pressure interval(s) of the validation clip"
     hc = f"{H} states = {cfg.cycle_periods:g} x {cfg.period_s} s, {cyc['n_finite']}/{cfg.n_windows} windows"
     out: dict[str, dict] = {
-        "mse_0p5s": _entry(_finite(ms["mse"]), "image MSE of decode(q_sim) against frames s..s+H-1 (state i <-> frame s+i, initial state included), mean over C x H x W, states and finite windows; pressure zero-order hold (Krauss et al. 2026 protocol, the reference code)", h91, "MSE, pixels in [0,1]"),
-        "mse_0p5s_sem": _entry(_finite(ms["sem"]), "standard error over windows of the per-window mean MSE (ddof 1)", h91, "MSE"),
-        "mse_0p5s_per_step": _entry([_finite(x) for x in ms["per_step"]], "per-state MSE averaged over the finite windows", h91, "MSE"),
-        "mse_window_starts": _entry([int(s) for s in ms["starts"]], "validation-frame indices of the rollout starts", h91, "frame"),
-        "n_diverged": _entry(int(cfg.n_windows - ms["n_finite"]), "MSE windows dropped as non-finite (or failed mass solve)", h91, "count"),
-        "ae_floor": _entry(ae_floor, "autoencoder floor: MSE(decode(z_raw[i]), frame i), unsmoothed encodings, frames linspace(480, n-1, 1000) of the validation clip", f"{cfg.ae_frames} frames", "MSE, pixels in [0,1]"),
-        "eps_freq": _entry(_finite(fq["eps_freq"]), "mean over windows of |f_sim - f_enc| / f_enc, spectral peak (Hann, log-parabolic) of the projection on G_bar's most visible eigenvector; free rollout with the pressure frozen at the window start (the reference code)", fw, "fraction"),
-        "eps_freq_aggregate": _entry(_finite(fq["eps_freq_agg"]), "same with the G_bar-aggregate spectrum", fw, "fraction"),
-        "f_enc_hz": _entry(_finite(fq["f_enc_hz"]), "free-oscillation frequency of the encoded video (mean over windows, top mode)", fw, "Hz"),
-        "f_sim_hz": _entry(_finite(fq["f_sim_hz"]), "free-oscillation frequency of the model's rollouts (mean over windows, top mode)", fw, "Hz"),
-        "freq_windows": _entry(
+        "mse_0p5s": metric_entry(_finite(ms["mse"]), "image MSE of decode(q_sim) against frames s..s+H-1 (state i <-> frame s+i, initial state included), mean over C x H x W, states and finite windows; pressure zero-order hold (Krauss et al. 2026 protocol, the reference code)", h91, "MSE, pixels in [0,1]"),
+        "mse_0p5s_sem": metric_entry(_finite(ms["sem"]), "standard error over windows of the per-window mean MSE (ddof 1)", h91, "MSE"),
+        "mse_0p5s_per_step": metric_entry([_finite(x) for x in ms["per_step"]], "per-state MSE averaged over the finite windows", h91, "MSE"),
+        "mse_window_starts": metric_entry([int(s) for s in ms["starts"]], "validation-frame indices of the rollout starts", h91, "frame"),
+        "n_diverged": metric_entry(int(cfg.n_windows - ms["n_finite"]), "MSE windows dropped as non-finite (or failed mass solve)", h91, "count"),
+        "ae_floor": metric_entry(ae_floor, "autoencoder floor: MSE(decode(z_raw[i]), frame i), unsmoothed encodings, frames linspace(480, n-1, 1000) of the validation clip", f"{cfg.ae_frames} frames", "MSE, pixels in [0,1]"),
+        "eps_freq": metric_entry(_finite(fq["eps_freq"]), "mean over windows of |f_sim - f_enc| / f_enc, spectral peak (Hann, log-parabolic) of the projection on G_bar's most visible eigenvector; free rollout with the pressure frozen at the window start (the reference code)", fw, "fraction"),
+        "eps_freq_aggregate": metric_entry(_finite(fq["eps_freq_agg"]), "same with the G_bar-aggregate spectrum", fw, "fraction"),
+        "f_enc_hz": metric_entry(_finite(fq["f_enc_hz"]), "free-oscillation frequency of the encoded video (mean over windows, top mode)", fw, "Hz"),
+        "f_sim_hz": metric_entry(_finite(fq["f_sim_hz"]), "free-oscillation frequency of the model's rollouts (mean over windows, top mode)", fw, "Hz"),
+        "freq_windows": metric_entry(
             [{kk: (vv if not isinstance(vv, float) else _finite(vv)) for kk, vv in w.items()} for w in fq["windows"]],
             "every analysed window: start frame (validation clip, after trimming), length, frequencies, G-RMS amplitude ratio sim/enc, status",
             fw,
             "",
         ),
-        "free_intervals": _entry([[int(a), int(b)] for a, b in fq["intervals"]], "constant-pressure intervals [a, b) found on the raw pressures (1 % per frame, 5 % total, >= 2 s), validation frames after trimming", "", "frame"),
-        "n_trimmed": _entry(k, "leading duplicated validation frames trimmed before §9.2", "", "frames"),
-        "eps_q": _entry(_finite(cyc["eps_q"]), "latent NRMSE sqrt(mean |q_sim - q_enc|^2_G) / G-RMS spread of q_enc, G = G_bar at trace d, measured smoothed pressure (the published cycle error)", hc, "1 = predicting the mean"),
-        "eps_I_cycle": _entry(_finite(cyc["eps_I"]), "image MSE of the cycle rollouts against the real frames", hc, "MSE"),
-        "eps_AE_cycle": _entry(_finite(cyc["eps_AE"]), "autoencoder floor on the same frames", hc, "MSE"),
-        "q_std": _entry(fq["q_std"], "G-RMS spread of the smoothed encoded validation trajectory", "", "latent units"),
+        "free_intervals": metric_entry([[int(a), int(b)] for a, b in fq["intervals"]], "constant-pressure intervals [a, b) found on the raw pressures (1 % per frame, 5 % total, >= 2 s), validation frames after trimming", "", "frame"),
+        "n_trimmed": metric_entry(k, "leading duplicated validation frames trimmed before §9.2", "", "frames"),
+        "eps_q": metric_entry(_finite(cyc["eps_q"]), "latent NRMSE sqrt(mean |q_sim - q_enc|^2_G) / G-RMS spread of q_enc, G = G_bar at trace d, measured smoothed pressure (the published cycle error)", hc, "1 = predicting the mean"),
+        "eps_I_cycle": metric_entry(_finite(cyc["eps_I"]), "image MSE of the cycle rollouts against the real frames", hc, "MSE"),
+        "eps_AE_cycle": metric_entry(_finite(cyc["eps_AE"]), "autoencoder floor on the same frames", hc, "MSE"),
+        "q_std": metric_entry(fq["q_std"], "G-RMS spread of the smoothed encoded validation trajectory", "", "latent units"),
     }
     if truth:
         f_true = _truth_frequency(truth)
         if f_true:
-            out["f_truth_hz"] = _entry(f_true, "simulator's free frequency of its slowest mode, f_n sqrt(1 - zeta^2), from the surrogate's sidecar JSON", "", "Hz")
-            out["eps_freq_truth"] = _entry(
+            out["f_truth_hz"] = metric_entry(f_true, "simulator's free frequency of its slowest mode, f_n sqrt(1 - zeta^2), from the surrogate's sidecar JSON", "", "Hz")
+            out["eps_freq_truth"] = metric_entry(
                 float(np.mean([abs(w["f_sim_top"] - f_true) / f_true for w in ok])) if ok else None,
                 "mean over the same windows of |f_sim - f_truth| / f_truth", fw, "fraction",
             )
-            out["eps_freq_enc_truth"] = _entry(
+            out["eps_freq_enc_truth"] = metric_entry(
                 float(np.mean([abs(w["f_enc_top"] - f_true) / f_true for w in ok])) if ok else None,
                 "mean over the same windows of |f_enc - f_truth| / f_truth: how well the encoded tail shows the simulator's frequency", fw, "fraction",
             )
         if "tail_start_frame" in truth:
             n_train = int(ho[0])
-            out["tail_start_truth"] = _entry(int(truth["tail_start_frame"]) - n_train - k, "simulator's depressurisation frame, in validation frames after trimming (compare free_intervals)", "", "frame")
+            out["tail_start_truth"] = metric_entry(int(truth["tail_start_frame"]) - n_train - k, "simulator's depressurisation frame, in validation frames after trimming (compare free_intervals)", "", "frame")
     return out

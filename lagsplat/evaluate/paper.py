@@ -8,7 +8,7 @@ Protocol (held-out segment, latents whitened and smoothed with a Gaussian of
 difference, as the reference code does):
 
 * ``eps_freq``: the free-oscillation frequency of a rollout against the one
-  the encoded video shows, both from :func:`lagsplat.metrics.spectral_peak_frequency`
+  the encoded video shows, both from :func:`lagsplat.timeseries.spectral_peak_frequency`
   on the projection onto the most visible direction of ``G_bar``. The
   held-out segment is tiled by windows of ``min(n, max(16, 8 periods))``
   frames; from each window start the model runs free for the window length.
@@ -18,7 +18,7 @@ difference, as the reference code does):
   same windows and steps; ``eps_AE`` the autoencoder floor on held-out frames;
   the table reports ``eps_I / eps_AE``.
 
-No rollout starts within :func:`lagsplat.metrics.smoothing_edge` frames of the
+No rollout starts within :func:`lagsplat.timeseries.smoothing_edge` frames of the
 segment's first frame (4 at ``sigma = 1``; fewer only if the segment is too
 short for it): the smoothing replicates that frame backwards, so a velocity
 read there is biased low (about half at a mid-swing start). A linear model's
@@ -30,17 +30,16 @@ there either: it skips the recording's first 8 s (the reference code).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
-import torch
 
-from lagsplat import metrics
+from lagsplat import metrics, timeseries
 from lagsplat.chart import Chart
 from lagsplat.dynamics.integrators import actuation_schedule, initial_state, rollout
 from lagsplat.io.clip import HELD_OUT, Clip, ClipError
 from lagsplat.models.lagrangian import Lagrangian
-from lagsplat.train.stage1 import AutoEncoder, frames_to_tensor
+from lagsplat.models.autoencoder import AutoEncoder
+from lagsplat.evaluate.common import decode_mse, metric_entry
 
 __all__ = ["EvalConfig", "evaluate"]
 
@@ -56,23 +55,6 @@ class EvalConfig:
     freq_window_periods: float = 8.0
     min_amplitude: float = 0.05
     render_batch: int = 64
-
-
-def _entry(value: Any, definition: str, horizon: str = "", units: str = "") -> dict:
-    v = float(value) if isinstance(value, (float, int, np.floating, np.integer)) else value
-    return {"value": v, "definition": definition, "horizon": horizon, "units": units}
-
-
-@torch.no_grad()
-def _decode_mse(ae: AutoEncoder, chart: Chart, q_pred: np.ndarray, frames: np.ndarray, batch: int) -> np.ndarray:
-    """Per-state image MSE of decoded ``q_pred [M,d]`` against uint8 ``frames [M,H,W,3]``."""
-    out = np.empty(len(q_pred))
-    for i in range(0, len(q_pred), batch):
-        z = chart.to_raw(torch.as_tensor(q_pred[i : i + batch], dtype=torch.float32))
-        rec = ae.decode(z)
-        x = frames_to_tensor(frames[i : i + batch])
-        out[i : i + batch] = ((rec - x) ** 2).mean(dim=(1, 2, 3)).numpy()
-    return out
 
 
 def evaluate(clip: Clip, ae: AutoEncoder, chart: Chart, model: Lagrangian, cfg: EvalConfig, source: str = "<clip>") -> dict:
@@ -101,12 +83,12 @@ def evaluate(clip: Clip, ae: AutoEncoder, chart: Chart, model: Lagrangian, cfg: 
     if not held:
         raise ClipError(f"{source}: the clip has no held-out frames to evaluate on")
     ho = max(held, key=len)
-    q_s = metrics.gaussian_smooth(chart.q[ho], cfg.sigma)
+    q_s = timeseries.gaussian_smooth(chart.q[ho], cfg.sigma)
     u_ho = chart.u[ho]  # measured actuation drives every rollout (paper Eq. 6); [n, 0] if none
     n = len(q_s)
     if n < 16:
         raise ClipError(f"{source}: held-out segment has {n} frames, too short to measure a frequency")
-    f_enc = metrics.spectral_peak_frequency(metrics.project(q_s, top), dt)
+    f_enc = timeseries.spectral_peak_frequency(metrics.project(q_s, top), dt)
     period = 1.0 / (f_enc * dt)  # frames
     H = int(round(cfg.n_periods * period))
     if n < H + 3:
@@ -129,12 +111,12 @@ def evaluate(clip: Clip, ae: AutoEncoder, chart: Chart, model: Lagrangian, cfg: 
         sim, _ = rollout(model, q0, v0, dt, w, u=actuation_schedule(u_ho[a : a + w][None], dt))
         sim = sim[0].numpy()
         if not np.isfinite(sim).all():
-            rows.append((metrics.spectral_peak_frequency(metrics.project(seg, top), dt), float("nan")))
+            rows.append((timeseries.spectral_peak_frequency(metrics.project(seg, top), dt), float("nan")))
             continue
         rows.append(
             (
-                metrics.spectral_peak_frequency(metrics.project(seg, top), dt),
-                metrics.spectral_peak_frequency(metrics.project(sim, top), dt),
+                timeseries.spectral_peak_frequency(metrics.project(seg, top), dt),
+                timeseries.spectral_peak_frequency(metrics.project(sim, top), dt),
             )
         )
     f_enc_w = np.array([r[0] for r in rows])
@@ -151,24 +133,24 @@ def evaluate(clip: Clip, ae: AutoEncoder, chart: Chart, model: Lagrangian, cfg: 
     finite = np.isfinite(pred).all(axis=(1, 2))
     eps_q = metrics.latent_nrmse(pred[finite], true[finite], G, q_std) if finite.any() else float("inf")
     frames = np.concatenate([clip.images[ho[s : s + H]] for s in starts[finite]])
-    mse = _decode_mse(ae, chart, pred[finite].reshape(-1, chart.d), frames, cfg.render_batch)
+    mse = decode_mse(ae, chart, pred[finite].reshape(-1, chart.d), frames, cfg.render_batch)
     eps_I = float(mse.mean())
     eps_AE = float(chart.ae_mse[ho].mean())
 
     horizon = f"{cfg.n_periods:g} natural periods = {H} frames = {H * dt:.3f} s, {int(finite.sum())}/{len(starts)} windows (seed {cfg.seed})"
     out: dict[str, dict] = {
-        "eps_freq": _entry(eps_freq, "mean over windows of |f_sim - f_enc| / f_enc; spectral peak (Hann, log-parabolic) of the projection on G_bar's top eigenvector; free rollout from each window start", f"{len(rows)} window(s) of {w} frames = {w * dt:.2f} s", "fraction"),
-        "f_sim_hz": _entry(float(np.nanmean(f_sim_w)), "frequency of the free rollouts (mean over frequency windows)", f"{w * dt:.2f} s", "Hz"),
-        "f_enc_hz": _entry(float(np.mean(f_enc_w)), "frequency of the encoded held-out video (mean over frequency windows)", f"{w * dt:.2f} s", "Hz"),
-        "f_enc_segment_hz": _entry(f_enc, "frequency of the whole encoded held-out segment; sets the two-period horizon", f"{n * dt:.2f} s", "Hz"),
-        "eps_q": _entry(eps_q, "latent NRMSE: sqrt(mean |q_sim - q_enc|^2_G) / G-RMS spread of q_enc, G = G_bar normalised to trace d", horizon, "1 = predicting the mean"),
-        "eps_I": _entry(eps_I, "image MSE of decode(q_sim) against the real frames, pixels in [0,1], training resolution", horizon, "MSE"),
-        "eps_AE": _entry(eps_AE, "autoencoder floor: MSE of decode(encode(frame)) on held-out frames", f"{n} held-out frames", "MSE"),
-        "eps_I_over_AE": _entry(eps_I / eps_AE, "eps_I / eps_AE", horizon, "ratio"),
-        "n_diverged": _entry(int((~finite).sum()), "rollouts that became non-finite (excluded, counted here)", horizon, "count"),
+        "eps_freq": metric_entry(eps_freq, "mean over windows of |f_sim - f_enc| / f_enc; spectral peak (Hann, log-parabolic) of the projection on G_bar's top eigenvector; free rollout from each window start", f"{len(rows)} window(s) of {w} frames = {w * dt:.2f} s", "fraction"),
+        "f_sim_hz": metric_entry(float(np.nanmean(f_sim_w)), "frequency of the free rollouts (mean over frequency windows)", f"{w * dt:.2f} s", "Hz"),
+        "f_enc_hz": metric_entry(float(np.mean(f_enc_w)), "frequency of the encoded held-out video (mean over frequency windows)", f"{w * dt:.2f} s", "Hz"),
+        "f_enc_segment_hz": metric_entry(f_enc, "frequency of the whole encoded held-out segment; sets the two-period horizon", f"{n * dt:.2f} s", "Hz"),
+        "eps_q": metric_entry(eps_q, "latent NRMSE: sqrt(mean |q_sim - q_enc|^2_G) / G-RMS spread of q_enc, G = G_bar normalised to trace d", horizon, "1 = predicting the mean"),
+        "eps_I": metric_entry(eps_I, "image MSE of decode(q_sim) against the real frames, pixels in [0,1], training resolution", horizon, "MSE"),
+        "eps_AE": metric_entry(eps_AE, "autoencoder floor: MSE of decode(encode(frame)) on held-out frames", f"{n} held-out frames", "MSE"),
+        "eps_I_over_AE": metric_entry(eps_I / eps_AE, "eps_I / eps_AE", horizon, "ratio"),
+        "n_diverged": metric_entry(int((~finite).sum()), "rollouts that became non-finite (excluded, counted here)", horizon, "count"),
     }
     if "continuity_jump_ratio" in chart.meta:
-        out["chart_jump_ratio"] = _entry(
+        out["chart_jump_ratio"] = metric_entry(
             chart.meta["continuity_jump_ratio"],
             "max |second difference| / median |first difference| of the encoded trajectory on G_bar's top direction; "
             "well below 1 for a smooth chart, >= 5 flags a folded or torn chart (lagsplat.chart.chart_continuity)",
@@ -176,25 +158,25 @@ def evaluate(clip: Clip, ae: AutoEncoder, chart: Chart, model: Lagrangian, cfg: 
             "ratio",
         )
     modes = model.modal_analysis()
-    out["f_modes_hz"] = _entry(
+    out["f_modes_hz"] = metric_entry(
         modes["f_hz"].tolist(),
         "natural frequencies of the model linearised at its rest state: |lambda| / 2 pi of the quadratic "
         "eigenproblem (lambda^2 M + lambda C + K) phi = 0, K = Hessian of V; chart-independent",
         "rest state",
         "Hz",
     )
-    out["zeta_modes"] = _entry(modes["zeta"].tolist(), "damping ratio -Re(lambda) / |lambda| of each mode (same eigenproblem)", "rest state", "1")
+    out["zeta_modes"] = metric_entry(modes["zeta"].tolist(), "damping ratio -Re(lambda) / |lambda| of each mode (same eigenproblem)", "rest state", "1")
     truth = clip.meta.get("truth", {})
     if "f_modes_hz" in truth and len(truth["f_modes_hz"]) == chart.d:
         f_t, z_t = np.sort(np.asarray(truth["f_modes_hz"], float)), np.asarray(truth["zeta_modes"], float)[np.argsort(truth["f_modes_hz"])]
-        out["eps_modes_freq"] = _entry(
+        out["eps_modes_freq"] = metric_entry(
             (np.abs(modes["f_hz"] - f_t) / f_t).tolist(), "|f_mode - f_mode_truth| / f_mode_truth per mode (sorted by frequency)", "rest state", "fraction"
         )
-        out["eps_modes_zeta"] = _entry(
+        out["eps_modes_zeta"] = metric_entry(
             (np.abs(modes["zeta"] - z_t) / z_t).tolist(), "|zeta_mode - zeta_mode_truth| / zeta_mode_truth per mode", "rest state", "fraction"
         )
     if "f_observed_hz" in truth:
         f_true = float(truth["f_observed_hz"])
-        out["f_truth_hz"] = _entry(f_true, "generator's true frequency on the held-out segment (lagsplat.synth)", "", "Hz")
-        out["eps_freq_truth"] = _entry(abs(np.nanmean(f_sim_w) - f_true) / f_true, "|f_sim - f_truth| / f_truth", "", "fraction")
+        out["f_truth_hz"] = metric_entry(f_true, "generator's true frequency on the held-out segment (lagsplat.synth)", "", "Hz")
+        out["eps_freq_truth"] = metric_entry(abs(np.nanmean(f_sim_w) - f_true) / f_true, "|f_sim - f_truth| / f_truth", "", "fraction")
     return out

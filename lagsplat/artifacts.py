@@ -1,0 +1,206 @@
+"""The artifact chain: where every file a run reads or writes lives, and how each is loaded.
+
+One system's run writes, under ``${results_dir}/<system>/`` (paper §3, the
+two-stage pipeline; ``docs/architecture.md``)::
+
+    clip.npz        ingest    frames, timestamps, actuation, split          (lagsplat.io.clip)
+    stage1.pt       stage1    encoder + conditioned-Gaussian decoder         (lagsplat.models.autoencoder)
+    chart.npz       chart     whitening, q, G_bar, AE floor                  (lagsplat.chart)
+    stage2.pt       stage2    latent Lagrangian                              (lagsplat.train.stage2)
+    metrics.json    evaluate  the protocol's metrics                         (lagsplat.evaluate)
+    figures/rollout.png, figures/forces.png, forces.json, diagnosis/...
+    config/<stage>.yaml       the resolved configuration of each stage
+
+``stage2.pt`` and everything after it belong to the *model directory*: the
+system folder, or ``variants/<name>/`` under it for an ablation on the same
+frozen chart. Every path can be overridden one by one (the configuration's
+``artifacts`` group; Snakemake passes its ``{input}`` and ``{output}`` that
+way), so a stage reads exactly the files its rule declares.
+
+This module is the only place that spells an artifact's file name.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, fields, replace
+from pathlib import Path
+from typing import Any, Mapping
+
+from lagsplat.chart import Chart, load_chart
+from lagsplat.io.clip import Clip, load_clip
+from lagsplat.models.autoencoder import AutoEncoder, load_stage1
+from lagsplat.train.stage2 import load_stage2
+
+__all__ = [
+    "Artifacts",
+    "table_path",
+    "seed_metrics_path",
+    "variant_metrics_path",
+    "DIAGNOSIS_FILES",
+    "DIAGNOSIS_FIGURES",
+]
+
+DIAGNOSIS_FILES = {"report_md": "report.md", "report_json": "report.json", "config": "config.yaml", "refit": "refit.pt"}
+"""What the diagnosis writes into its folder (``diagnosis/``): the report, its record, the resolved
+configuration and the refitted Stage-2 model (:mod:`lagsplat.diagnose.report`)."""
+
+DIAGNOSIS_FIGURES = {
+    "where_time": "where_time.png",
+    "where_state": "where_state.png",
+    "where_latent": "where_latent.png",
+    "where_image": "where_image.png",
+    "gap": "gap.png",
+}
+"""The diagnosis figures, inside ``diagnosis/figures/``: where the gap shows (:mod:`lagsplat.diagnose.where`)
+and the held-out gap before / after the refit."""
+
+
+@dataclass(frozen=True)
+class Artifacts:
+    """The artifact paths of one system's run (module docstring).
+
+    Attributes:
+        clip, stage1, chart: the frozen upstream artifacts (system folder).
+        stage2, metrics, rollout_figure, forces, forces_figure: the model's artifacts (model folder).
+        diagnosis: the diagnosis folder (``report.md``, ``report.json``, ``figures/``, ``refit.pt``).
+        system_dir, model_dir: the two folders.
+    """
+
+    system_dir: Path
+    model_dir: Path
+    clip: Path
+    stage1: Path
+    chart: Path
+    stage2: Path
+    metrics: Path
+    rollout_figure: Path
+    forces: Path
+    forces_figure: Path
+    diagnosis: Path
+
+    @classmethod
+    def at(cls, system_dir: str | Path, model_dir: str | Path | None = None) -> "Artifacts":
+        """The standard layout under ``system_dir`` (model artifacts in ``model_dir``, default the same folder)."""
+        s = Path(system_dir)
+        m = Path(model_dir) if model_dir is not None else s
+        return cls(
+            system_dir=s,
+            model_dir=m,
+            clip=s / "clip.npz",
+            stage1=s / "stage1.pt",
+            chart=s / "chart.npz",
+            stage2=m / "stage2.pt",
+            metrics=m / "metrics.json",
+            rollout_figure=m / "figures" / "rollout.png",
+            forces=m / "forces.json",
+            forces_figure=m / "figures" / "forces.png",
+            diagnosis=m / "diagnosis",
+        )
+
+    @classmethod
+    def for_run(cls, results_dir: str | Path, system: str, variant: str | None = None, overrides: Mapping[str, Any] | None = None) -> "Artifacts":
+        """The paths of system ``system`` under ``results_dir``; a ``variant`` moves the model artifacts to ``variants/<variant>/``.
+
+        Args:
+            overrides: artifact name -> path (the configuration's ``artifacts`` group);
+                ``None`` values keep the standard path.
+
+        Raises:
+            KeyError: naming an override that is not an artifact, and the known ones.
+        """
+        s = Path(results_dir) / system
+        a = cls.at(s, s / "variants" / str(variant) if variant else s)
+        given = {k: v for k, v in (overrides or {}).items() if v is not None}
+        known = cls.names()
+        bad = sorted(set(given) - set(known))
+        if bad:
+            raise KeyError(f"unknown artifacts {bad}; known: {known} (configuration group artifacts)")
+        return replace(a, **{k: Path(v) for k, v in given.items()})
+
+    @classmethod
+    def names(cls) -> list[str]:
+        """The names of the overridable artifacts (``artifacts.<name>=PATH``)."""
+        return [f.name for f in fields(cls) if not f.name.endswith("_dir")]
+
+    def config(self, stage: str) -> Path:
+        """The resolved configuration saved by ``stage``: ``config/<stage>.yaml`` beside its output."""
+        up = stage in ("ingest", "stage1", "chart")
+        return (self.system_dir if up else self.model_dir) / "config" / f"{stage}.yaml"
+
+    @property
+    def report_md(self) -> Path:
+        """The diagnosis report, ``diagnosis/report.md``."""
+        return self.diagnosis / DIAGNOSIS_FILES["report_md"]
+
+    @property
+    def report_json(self) -> Path:
+        """The diagnosis record, ``diagnosis/report.json``."""
+        return self.diagnosis / DIAGNOSIS_FILES["report_json"]
+
+    @property
+    def diagnosis_config(self) -> Path:
+        """The diagnosis stage's resolved configuration, ``diagnosis/config.yaml``."""
+        return self.diagnosis / DIAGNOSIS_FILES["config"]
+
+    @property
+    def diagnosis_figures(self) -> Path:
+        """The diagnosis figures, ``diagnosis/figures/``."""
+        return self.diagnosis / "figures"
+
+    # ----------------------------------------------------------------- loading
+    def load_clip(self) -> Clip:
+        """``clip.npz`` (:func:`lagsplat.io.clip.load_clip`; raises ``ClipError``/``FileNotFoundError`` naming the file)."""
+        return load_clip(self.clip)
+
+    def load_stage1(self) -> AutoEncoder:
+        """``stage1.pt`` (:func:`lagsplat.models.autoencoder.load_stage1`)."""
+        return load_stage1(self.stage1)
+
+    def load_chart(self) -> Chart:
+        """``chart.npz`` (:func:`lagsplat.chart.load_chart`)."""
+        return load_chart(self.chart)
+
+    def load_stage2(self) -> tuple[Any, dict]:
+        """``stage2.pt``: ``(Lagrangian in eval mode, checkpoint dict)`` (:func:`lagsplat.train.stage2.load_stage2`)."""
+        return load_stage2(self.stage2)
+
+    def load_metrics(self) -> dict | None:
+        """``metrics.json`` as a dict, or ``None`` when the model was not evaluated.
+
+        Raises:
+            ValueError: naming the file if it is not valid JSON.
+        """
+        if not self.metrics.exists():
+            return None
+        try:
+            return json.loads(self.metrics.read_text())
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"{self.metrics}: not valid JSON ({exc})") from exc
+
+    def require(self, *names: str) -> None:
+        """Fail early when an upstream artifact is missing.
+
+        Raises:
+            FileNotFoundError: naming the first missing file and the stage that writes it.
+        """
+        writer = {"clip": "ingest", "stage1": "stage1", "chart": "chart", "stage2": "stage2", "metrics": "evaluate"}
+        for n in names:
+            p = getattr(self, n)
+            if not Path(p).exists():
+                raise FileNotFoundError(f"{p}: not found; run the {writer.get(n, n)} stage first (python -m lagsplat {writer.get(n, n)} system=...)")
+
+
+def table_path(results_dir: str | Path, name: str, suffix: str = ".tex") -> Path:
+    """A table of results: ``${results_dir}/tables/<name><suffix>`` (``.tex``, ``.csv`` or ``.md``)."""
+    return Path(results_dir) / "tables" / f"{name}{suffix}"
+
+
+def seed_metrics_path(results_dir: str | Path, seeds_dir: str, seed: int, system: str) -> Path:
+    """``metrics.json`` of ``system`` trained with ``seed``: ``${results_dir}/<seeds_dir>/seed<k>/<system>/metrics.json``."""
+    return Artifacts.for_run(Path(results_dir) / str(seeds_dir) / f"seed{int(seed)}", system).metrics
+
+
+def variant_metrics_path(results_dir: str | Path, system: str, variant: str | None) -> Path:
+    """``metrics.json`` of ``system`` (of its ``variant`` when given)."""
+    return Artifacts.for_run(results_dir, system, variant).metrics

@@ -1,0 +1,74 @@
+"""Evaluation protocols: a trained model scored on the clip's held-out frames (paper §4.1, §4.4).
+
+Each protocol is a function ``(clip, ae, chart, model, settings, system,
+source) -> metrics`` registered in :data:`PROTOCOLS` under the name a system
+configuration gives as ``system.protocol``:
+
+* ``paper`` (also ``default``, the value when a system names none): the
+  paper's frequency error, latent NRMSE and image error over free rollouts
+  (:mod:`lagsplat.evaluate.paper`), settings from the ``evaluate`` group;
+* ``krauss``: the published soft-robot protocol (:mod:`lagsplat.evaluate.krauss`),
+  settings from the ``krauss_eval`` group, the simulator's truth from the
+  sidecar JSON named by ``system.truth``.
+
+The returned mapping is the ``metrics`` block of ``metrics.json`` (name ->
+``{value, definition, horizon, units}``, :func:`~lagsplat.evaluate.common.metric_entry`).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+from lagsplat.chart import Chart
+from lagsplat.evaluate.krauss import KraussEvalConfig, evaluate_krauss
+from lagsplat.evaluate.paper import EvalConfig, evaluate
+from lagsplat.io.clip import Clip
+from lagsplat.models.autoencoder import AutoEncoder
+
+__all__ = ["EvalConfig", "evaluate", "KraussEvalConfig", "evaluate_krauss", "PROTOCOLS", "protocol_for", "run_protocol"]
+
+Protocol = Callable[[Clip, AutoEncoder, Chart, Any, Mapping[str, Any], Mapping[str, Any], str], dict]
+
+
+def paper_protocol(clip: Clip, ae: AutoEncoder, chart: Chart, model: Any, settings: Mapping[str, Any], system: Mapping[str, Any], source: str) -> dict:
+    """The paper's protocol (:func:`lagsplat.evaluate.paper.evaluate`); ``settings``: the ``evaluate`` group."""
+    return evaluate(clip, ae, chart, model, EvalConfig(**dict(settings or {})), source=source)
+
+
+def krauss_protocol(clip: Clip, ae: AutoEncoder, chart: Chart, model: Any, settings: Mapping[str, Any], system: Mapping[str, Any], source: str) -> dict:
+    """The soft-robot protocol (:func:`lagsplat.evaluate.krauss.evaluate_krauss`); ``settings``: the ``krauss_eval`` group.
+
+    Raises:
+        FileNotFoundError: if ``system.truth`` names a sidecar that does not exist.
+    """
+    truth_path = system.get("truth")
+    if truth_path and not Path(truth_path).exists():
+        raise FileNotFoundError(f"{truth_path}: simulator truth sidecar (system.truth) not found")
+    truth = json.loads(Path(truth_path).read_text()) if truth_path else None
+    return evaluate_krauss(clip, ae, chart, model, KraussEvalConfig.from_mapping(settings or None), source=source, truth=truth)
+
+
+PROTOCOLS: dict[str, Protocol] = {"paper": paper_protocol, "default": paper_protocol, "krauss": krauss_protocol}
+"""Protocol name (``system.protocol``) -> protocol function."""
+
+SETTINGS_GROUP = {"paper": "evaluate", "default": "evaluate", "krauss": "krauss_eval"}
+"""Protocol name -> the configuration group holding its settings."""
+
+
+def protocol_for(system: Mapping[str, Any]) -> str:
+    """The protocol a system configuration names (``system.protocol``; ``default`` when unset).
+
+    Raises:
+        KeyError: naming the unknown protocol and the known ones.
+    """
+    name = str(system.get("protocol") or "default")
+    if name not in PROTOCOLS:
+        raise KeyError(f"unknown evaluation protocol system.protocol={name!r}; known: {sorted(PROTOCOLS)}")
+    return name
+
+
+def run_protocol(name: str, clip: Clip, ae: AutoEncoder, chart: Chart, model: Any, settings: Mapping[str, Any], system: Mapping[str, Any], source: str) -> dict:
+    """Score ``model`` by protocol ``name`` (:data:`PROTOCOLS`); returns the ``metrics`` block of ``metrics.json``."""
+    return PROTOCOLS[name](clip, ae, chart, model, settings, system, source)

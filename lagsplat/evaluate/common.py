@@ -1,0 +1,57 @@
+"""What the evaluation protocols share: the ``metrics.json`` entry and the decoded-image error (paper §4.1)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+from skimage.metrics import peak_signal_noise_ratio, structural_similarity
+
+from lagsplat.chart import Chart
+from lagsplat.models.autoencoder import AutoEncoder, frames_to_tensor
+
+__all__ = ["metric_entry", "decode_mse", "decoded_psnr_ssim"]
+
+
+def metric_entry(value: Any, definition: str, horizon: str = "", units: str = "") -> dict:
+    """One entry of ``metrics.json``: ``{value, definition, horizon, units}``; NumPy scalars become floats."""
+    v = float(value) if isinstance(value, (float, int, np.floating, np.integer)) else value
+    return {"value": v, "definition": definition, "horizon": horizon, "units": units}
+
+
+@torch.no_grad()
+def decode_mse(ae: AutoEncoder, chart: Chart, q_pred: np.ndarray, frames: np.ndarray, batch: int) -> np.ndarray:
+    """Per-state image MSE of decoded ``q_pred [M,d]`` against uint8 ``frames [M,H,W,3]``."""
+    out = np.empty(len(q_pred))
+    for i in range(0, len(q_pred), batch):
+        z = chart.to_raw(torch.as_tensor(q_pred[i : i + batch], dtype=torch.float32))
+        rec = ae.decode(z)
+        x = frames_to_tensor(frames[i : i + batch])
+        out[i : i + batch] = ((rec - x) ** 2).mean(dim=(1, 2, 3)).numpy()
+    return out
+
+
+@torch.no_grad()
+def decoded_psnr_ssim(ae: AutoEncoder, chart: Chart, q_pred: np.ndarray, frames: np.ndarray, batch: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per-state PSNR (dB) and SSIM of decoded ``q_pred [M,d]`` against uint8 ``frames [M,H,W,3]``.
+
+    scikit-image's ``peak_signal_noise_ratio`` and ``structural_similarity``
+    (Gaussian-free 7 x 7 window, colour channels averaged, ``data_range`` 1)
+    on pixels in [0, 1] at the training resolution: the image-quality numbers
+    the field reports next to the MSE (paper §4.1 reports the MSE ratio).
+    A frame decoded exactly gives ``inf`` dB.
+
+    Returns:
+        ``(psnr [M], ssim [M])``, float64.
+    """
+    psnr, ssim = np.empty(len(q_pred)), np.empty(len(q_pred))
+    for i in range(0, len(q_pred), batch):
+        z = chart.to_raw(torch.as_tensor(q_pred[i : i + batch], dtype=torch.float32))
+        rec = ae.decode(z).permute(0, 2, 3, 1).double().numpy()
+        x = frames[i : i + batch].astype(np.float64) / 255.0
+        for j in range(len(rec)):
+            psnr[i + j] = peak_signal_noise_ratio(x[j], rec[j], data_range=1.0)
+            win = min(7, *x.shape[1:3]) | 1  # odd, at most the image side
+            ssim[i + j] = structural_similarity(x[j], rec[j], data_range=1.0, channel_axis=-1, win_size=win)
+    return psnr, ssim
