@@ -26,6 +26,13 @@
 import yaml
 from pathlib import Path
 
+from snakemake.utils import validate
+
+from lagsplat.artifacts import Artifacts
+
+# a bad --config key or value stops here, before any job, naming it (workflow/schemas/config.schema.yaml)
+validate(config, "workflow/schemas/config.schema.yaml")
+
 RAW = config.get("raw_dir", "data/raw")
 RESULTS = config.get("results_dir", "results")
 OVR = config.get("overrides", "")
@@ -63,13 +70,21 @@ for _p in sorted(Path("conf/system").glob("*.yaml")):
             RAW_FILES[_e["file"]] = _p.stem
 
 
-def cli(stage):
-    return f"python -m lagsplat {stage} system={{wildcards.system}} raw_dir={RAW} results_dir={RESULTS} threads={{threads}} {OVR}"
+# Artifact paths as Snakemake patterns, from the one module that names them (lagsplat.artifacts):
+# ART.clip == "results/{system}/clip.npz", VAR.stage2 == "results/{system}/variants/{variant}/stage2.pt".
+ART = Artifacts.at(f"{RESULTS}/{{system}}")
+VAR = Artifacts.at(f"{RESULTS}/{{system}}", f"{RESULTS}/{{system}}/variants/{{variant}}")
 
 
-# A stage's output goes to its log and to the screen: the training stages print a progress line
-# every ~30 s (no terminal is attached under Snakemake); `set -o pipefail` keeps the stage's exit status.
-SHOW_LOG = " 2>&1 | tee {log}"
+def cli(stage, inputs=(), outputs=(), extra=""):
+    """The shell command of a per-system rule: the CLI stage reads exactly the rule's named ``{input}`` and
+    writes its ``{output}`` (``artifacts.<name>=PATH``), and writes its own log (``log={log}``) while its
+    output also reaches the screen (Stage 1 and Stage 2 print a progress line every ~30 s)."""
+    paths = [f"artifacts.{n}={{input.{n}}}" for n in inputs] + [f"artifacts.{n}={{output.{n}}}" for n in outputs]
+    return (
+        f"python -m lagsplat {stage} system={{wildcards.system}} raw_dir={RAW} results_dir={RESULTS} threads={{threads}} "
+        + " ".join(paths) + f" log={{log}} {extra} {OVR}"
+    )
 
 
 # A system is one folder name (conf/system/<name>.yaml): never a path, so results/<a>/<b>/metrics.json

@@ -87,6 +87,7 @@ import numpy as np
 import torch
 from _common import score_verdicts
 
+from lagsplat.artifacts import Artifacts  # noqa: E402
 from lagsplat.chart import build_chart, load_chart, save_chart
 from lagsplat.diagnose.refit import GAP_METRICS, RefitConfig
 from lagsplat.diagnose.report import DiagnoseConfig, diagnose_system
@@ -103,9 +104,9 @@ from lagsplat.train.stage2 import Stage2Config, load_stage2, save_stage2, train_
 BUDGETS = {
     "cheap": {"size": 32, "stage1": {"n_gaussians": 256, "steps": 800, "sigma_xy": 0.05, "recycle_warmup": 250, "recycle_every": 125}, "n_metric_samples": 16,
               "refine_iters": 8, "stage2": {"epochs": 200}, "refit_epochs": 150, "n_image_frames": 16},
-    "standard": {"size": 64, "stage1": {"n_gaussians": 512, "steps": 1500}, "n_metric_samples": 32, "refine_iters": 8, "stage2": {"epochs": 100},
+    "standard": {"size": 64, "stage1": {"n_gaussians": 512, "steps": 1500, "sigma_xy": 0.05}, "n_metric_samples": 32, "refine_iters": 8, "stage2": {"epochs": 100},
                  "refit_epochs": 100, "n_image_frames": 32},
-    "full": {"size": 64, "stage1": {}, "n_metric_samples": 64, "refine_iters": 0, "stage2": {"epochs": 100}, "refit_epochs": 100, "n_image_frames": 48},
+    "full": {"size": 64, "stage1": {"sigma_xy": 0.05}, "n_metric_samples": 64, "refine_iters": 0, "stage2": {"epochs": 100}, "refit_epochs": 100, "n_image_frames": 48},
 }  # fmt: skip
 
 #: Keys of ``clip.meta`` the pipeline may see (everything else, label and truth included, is withheld).
@@ -146,58 +147,60 @@ def run_clip(entry: dict, budget: str, root: Path, seed: int, force: bool, dof_r
         timing[name] = round(time.perf_counter() - t0, 1)
         write_json(tpath, timing)
 
+    a = Artifacts.at(d)
+
     def make_clip() -> None:
         clip, label = blind_clip(entry, b["size"])
         write_json(d / "label.json", label)
-        save_clip(d / "clip.npz", clip)
+        save_clip(a.clip, clip)
 
-    stage("clip", d / "clip.npz", make_clip)
+    stage("clip", a.clip, make_clip)
     s1 = Stage1Config.from_mapping({**_stage1_defaults(), **b["stage1"]})
     s2 = Stage2Config.from_mapping(b["stage2"])
 
     def do_stage1() -> None:
-        ae, hist = train_stage1(load_clip(d / "clip.npz"), s1, 1, seed=seed, progress=False)
-        save_stage1(d / "stage1.pt", ae, asdict(s1), hist, 1)
+        ae, hist = train_stage1(load_clip(a.clip), s1, 1, seed=seed, progress=False)
+        save_stage1(a.stage1, ae, asdict(s1), hist, 1)
 
     def do_chart() -> None:
-        save_chart(d / "chart.npz", build_chart(load_stage1(d / "stage1.pt"), load_clip(d / "clip.npz"), b["n_metric_samples"], 0.01, seed, b["refine_iters"]))
+        save_chart(a.chart, build_chart(load_stage1(a.stage1), load_clip(a.clip), b["n_metric_samples"], 0.01, seed, b["refine_iters"]))
 
     def do_stage2() -> None:
-        model, hist = train_stage2(load_chart(d / "chart.npz"), s2, seed=seed, progress=False)
-        save_stage2(d / "stage2.pt", model, s2, hist)
+        model, hist = train_stage2(load_chart(a.chart), s2, seed=seed, progress=False)
+        save_stage2(a.stage2, model, s2, hist)
 
     def do_evaluate() -> None:
-        clip, chart = load_clip(d / "clip.npz"), load_chart(d / "chart.npz")
-        model, ck = load_stage2(d / "stage2.pt")
-        m = evaluate(clip, load_stage1(d / "stage1.pt"), chart, model, EvalConfig(), source=str(d / "clip.npz"))
-        write_json(d / "metrics.json", {"system": entry["name"], "title": entry["name"], "metrics": m, "stage2": asdict(s2),
+        clip, chart = load_clip(a.clip), load_chart(a.chart)
+        model, ck = load_stage2(a.stage2)
+        m = evaluate(clip, load_stage1(a.stage1), chart, model, EvalConfig(), source=str(a.clip))
+        write_json(a.metrics, {"system": entry["name"], "title": entry["name"], "metrics": m, "stage2": asdict(s2),
                                         "stage2_selected_epoch": ck["history"].get("selected_epoch")})  # fmt: skip
 
     def do_diagnose() -> None:
         cfg = DiagnoseConfig(where=WhereConfig(n_image_frames=b["n_image_frames"]), refit=RefitConfig(epochs=b["refit_epochs"], seed=seed))
-        diagnose_system(d, cfg=cfg, eval_cfg=EvalConfig(), title=entry["name"])
+        diagnose_system(a, cfg=cfg, eval_cfg=EvalConfig(), title=entry["name"])
 
-    stage("stage1", d / "stage1.pt", do_stage1)
-    stage("chart", d / "chart.npz", do_chart)
-    stage("stage2", d / "stage2.pt", do_stage2)
-    stage("evaluate", d / "metrics.json", do_evaluate)
-    stage("diagnose", d / "diagnosis" / "report.json", do_diagnose)
-    if dof_refit and json.loads((d / "diagnosis" / "report.json").read_text())["verdict"] == "missing_dof":
-        stage("dof_refit", d / "d2" / "stage2.pt", lambda: refit_missing_dof(d, s1, s2, b, seed))
+    stage("stage1", a.stage1, do_stage1)
+    stage("chart", a.chart, do_chart)
+    stage("stage2", a.stage2, do_stage2)
+    stage("evaluate", a.metrics, do_evaluate)
+    stage("diagnose", a.report_json, do_diagnose)
+    if dof_refit and json.loads((a.report_json).read_text())["verdict"] == "missing_dof":
+        stage("dof_refit", Artifacts.at(d / "d2").stage2, lambda: refit_missing_dof(d, s1, s2, b, seed))
         stage("dof_gap", d / "d2" / "gap.json", lambda: score_missing_dof(d))  # --rediagnose scores it again
     return timing
 
 
 def refit_missing_dof(d: Path, s1: Stage1Config, s2: Stage2Config, b: dict, seed: int) -> None:
     """The remedy of a missing degree of freedom: Stage 1, chart and Stage 2 again with ``d = 2``, under ``<clip>/d2/``."""
-    d2 = d / "d2"
-    clip = load_clip(d / "clip.npz")
+    a, a2 = Artifacts.at(d), Artifacts.at(d / "d2")
+    clip = load_clip(a.clip)
     ae, hist = train_stage1(clip, s1, 2, seed=seed, progress=False)
-    save_stage1(d2 / "stage1.pt", ae, asdict(s1), hist, 2)
+    save_stage1(a2.stage1, ae, asdict(s1), hist, 2)
     chart = build_chart(ae, clip, b["n_metric_samples"], 0.01, seed, b["refine_iters"])
-    save_chart(d2 / "chart.npz", chart)
+    save_chart(a2.chart, chart)
     model, h2 = train_stage2(chart, s2, seed=seed, progress=False)
-    save_stage2(d2 / "stage2.pt", model, s2, h2)
+    save_stage2(a2.stage2, model, s2, h2)
 
 
 def score_missing_dof(d: Path) -> None:
@@ -209,12 +212,13 @@ def score_missing_dof(d: Path) -> None:
     (normalised, hence comparable in scale), ``eps_q`` and ``eps_freq`` over
     the lower chart-noise floor of the two (``common_noise_floor``).
     """
-    from lagsplat.diagnose.refit import common_noise_floor, gap_reduction, held_out_gap
+    from lagsplat.diagnose.gap import common_noise_floor, gap_reduction, held_out_gap
 
     d2 = d / "d2"
-    model, _ = load_stage2(d2 / "stage2.pt")
-    after = held_out_gap(load_chart(d2 / "chart.npz"), model, load_clip(d / "clip.npz"), load_stage1(d2 / "stage1.pt"), EvalConfig(), str(d2))
-    before, after = over_common_floor(json.loads((d / "diagnosis" / "report.json").read_text())["gap"]["before"], after)
+    a, a2 = Artifacts.at(d), Artifacts.at(d2)
+    model, _ = a2.load_stage2()
+    after = held_out_gap(a2.load_chart(), model, a.load_clip(), a2.load_stage1(), EvalConfig(), str(d2))
+    before, after = over_common_floor(json.loads((a.report_json).read_text())["gap"]["before"], after)
     before, after = common_noise_floor(before, after)
     write_json(d2 / "gap.json", {"before": before, "after": after, "reduction": gap_reduction(before, after), "d": 2})
 
@@ -241,9 +245,10 @@ def over_common_floor(before: dict, after: dict) -> tuple[dict, dict]:
 def score(entry: dict, budget: str, root: Path, timing: dict) -> dict:
     """One result row: truth (read here only), verdict, evidence and held-out gap."""
     d = root / budget / entry["name"]
+    a = Artifacts.at(d)
     truth = json.loads((d / "label.json").read_text())["label"]
-    rep = json.loads((d / "diagnosis" / "report.json").read_text())
-    metrics = json.loads((d / "metrics.json").read_text())["metrics"]
+    rep = json.loads(a.report_json.read_text())
+    metrics = a.load_metrics()["metrics"]
     gap = rep["gap"]
     eff = rep["diagnosis"]["effects"]
     top = rep["diagnosis"]["ranking"][:3]

@@ -69,13 +69,11 @@ import numpy as np
 import torch
 from scipy.optimize import brentq
 
-from lagsplat.chart import load_chart
-from lagsplat.io.clip import TRAIN, load_clip
+from lagsplat.artifacts import Artifacts  # noqa: E402
+from lagsplat.io.clip import TRAIN
 from lagsplat.force import ForceTransport, calibrate_kappa
 from lagsplat.force_checks import ForceCheckConfig
 from lagsplat.synth.pendulum import PIVOT_Y, ROD_LENGTH
-from lagsplat.models.autoencoder import load_stage1
-from lagsplat.train.stage2 import load_stage2
 
 
 def true_angle(F: np.ndarray, r: float) -> float:
@@ -244,10 +242,9 @@ def per_force(args: argparse.Namespace, runs: list[list[Row]]) -> None:
 
 def force_truth(d: Path, args: argparse.Namespace) -> list[Row]:
     """Print the table and summary of one trained model; return its rows (the first is the calibration)."""
-    ae = load_stage1(d / "stage1.pt")
-    chart = load_chart(d / "chart.npz")
-    clip = load_clip(d / "clip.npz")
-    model, _ = load_stage2(d / "stage2.pt")
+    a = Artifacts.at(d)
+    ae, chart, clip = a.load_stage1(), a.load_chart(), a.load_clip()
+    model, _ = a.load_stage2()
     sigma, tau, source = brush_settings(d, args)
     tr = ForceTransport.from_autoencoder(ae, chart, brush=args.brush, min_transmittance=tau)
     theta_of_q, fit_rms_deg = chart_readout(chart, clip)

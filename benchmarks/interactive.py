@@ -78,16 +78,16 @@ def _doubled(ae, jitter_px: float = 0.3, seed: int = 0):
 
 def _sessions(args):
     """``[(name, Session)]`` of the configurations measured."""
-    from lagsplat.chart import load_chart
-    from lagsplat.models.autoencoder import load_stage1
-    from lagsplat.train.stage2 import load_stage2
     from lagsplat.viewer.session import Session
     from lagsplat.viewer.synthetic import synthetic_pendulum
 
     out = []
-    if all((args.toy / f).exists() for f in ("stage1.pt", "chart.npz", "stage2.pt")):
-        ae, chart = load_stage1(args.toy / "stage1.pt"), load_chart(args.toy / "chart.npz")
-        model, _ = load_stage2(args.toy / "stage2.pt")
+    from lagsplat.artifacts import Artifacts
+
+    a = Artifacts.at(args.toy)
+    if all(p.exists() for p in (a.stage1, a.chart, a.stage2)):
+        ae, chart = a.load_stage1(), a.load_chart()
+        model, _ = a.load_stage2()
         out.append(("toy", Session(ae, chart, model)))
         out.append(("toy", Session(ae, chart, model, render_scale=2.0)))
         out.append(("toy x2", Session(_doubled(ae), chart, model, render_scale=2.0)))

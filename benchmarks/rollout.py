@@ -11,7 +11,7 @@ paper's widths (ICNN / dissipation MLP ``--hidden``, default 64 64; i-ResNet 2
 blocks of width 64 for ``--potential invex``), float32, ``init_energy_scales(2 pi,
 0.01)`` (1 Hz, floor damping ratio 1 %), released from 1 unit off the rest state.
 
-Also times the issue-4 target: a ``--seconds`` (1000 s) free rollout at
+Also times a long free rollout (formerly a timing in the unit tests): ``--seconds`` (1000 s) at
 ``--rate`` (30 Hz) at d = 1 on the compiled path. numba's compilation is timed
 separately (a first 1-step call; ``--warm-cache`` keeps numba's on-disk cache,
 otherwise a fresh temporary cache directory forces a real compilation), then

@@ -83,6 +83,10 @@ def compose(overrides: list[str]) -> DictConfig:
     from hydra import compose as hcompose
     from hydra import initialize_config_dir
 
+    from lagsplat.config_schema import register_schemas
+
+    register_schemas()
+
     with initialize_config_dir(config_dir=str(find_conf_dir()), version_base=None):
         return hcompose(config_name="config", overrides=overrides)
 
@@ -508,8 +512,10 @@ def run_logged(stage: str, cfg: DictConfig) -> None:
         return
     Path(log_path).parent.mkdir(parents=True, exist_ok=True)
     with open(log_path, "w", encoding="utf-8") as log:
+        log.write(f"lagsplat {stage} system={cfg.system.name}: started {time.strftime('%Y-%m-%d %H:%M:%S')}\n")
         out, err = sys.stdout, sys.stderr
         sys.stdout, sys.stderr = _Tee(out, log), _Tee(err, log)
+        t0 = time.perf_counter()
         try:
             STAGES[stage](cfg)
         except BaseException as exc:
@@ -517,6 +523,7 @@ def run_logged(stage: str, cfg: DictConfig) -> None:
             raise
         finally:
             sys.stdout, sys.stderr = out, err
+        log.write(f"lagsplat {stage} system={cfg.system.name}: done in {time.perf_counter() - t0:.1f} s\n")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -536,7 +543,14 @@ def main(argv: list[str] | None = None) -> int:
     from lagsplat.io.download import DownloadError
 
     try:
+        from lagsplat.config_schema import ConfigError, validate_config
+
         cfg = apply_variant(compose(overrides))
+        try:
+            validate_config(cfg)  # a bad value stops here, before any work, naming key and value
+        except ConfigError as exc:
+            print(f"lagsplat {stage}: configuration error: {exc}", file=sys.stderr)
+            return 1
         if "device" in cfg:  # a bad or unavailable device fails here, before any work
             from lagsplat.train.device import resolve_device
 

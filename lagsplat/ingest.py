@@ -61,10 +61,43 @@ from lagsplat.io.npz import read_npz
 from lagsplat.io.video import VIDEO_EXTENSIONS, read_video
 from lagsplat.synth import make_clip
 
-__all__ = ["ingest", "ingest_to_file", "source_format", "DEFAULT_TRAIN_FRACTION"]
+__all__ = ["ingest", "ingest_to_file", "source_format", "check_length", "DEFAULT_TRAIN_FRACTION", "MIN_SEGMENT_FRAMES"]
 
 DEFAULT_TRAIN_FRACTION = 0.8
 """Training share when ``split.train_fraction`` is not configured (the reference protocol's 80 %)."""
+
+
+MIN_SEGMENT_FRAMES = 20
+"""Frames the longest training segment and the longest held-out segment each need at least.
+
+A lower bound that ingest can check before any training: Stage 2 draws its
+windows of ``3 k + 3`` frames from training segments (``k = stage2.stride``,
+paper Eq. 8), and the evaluation starts its rollouts past the smoothing's edge
+and reads windows of at least 16 held-out frames (paper §4.1); two natural
+periods of held-out video, which the evaluation needs too, are checked once
+the chart gives the frequency."""
+
+
+def check_length(clip: Clip, src: str) -> Clip:
+    """Reject a clip too short for the pipeline, before any training.
+
+    Raises:
+        ClipError: one line naming ``src``, the frames found and the frames needed
+            (:data:`MIN_SEGMENT_FRAMES` in the longest training and held-out segments).
+    """
+    seg = {}
+    for name, code in (("training", TRAIN), ("held-out", HELD_OUT)):
+        runs = clip.segments(code)
+        seg[name] = max((len(r) for r in runs), default=0)
+    if min(seg.values()) < MIN_SEGMENT_FRAMES:
+        frac = seg["training"] / max(seg["training"] + seg["held-out"], 1)
+        need = MIN_SEGMENT_FRAMES / max(min(frac, 1 - frac), 1e-9)
+        raise ClipError(
+            f"{src}: too short: {clip.n_frames} frames give {seg['training']} training and {seg['held-out']} held-out frames "
+            f"in a row; Stage 2 and the evaluation need at least {MIN_SEGMENT_FRAMES} of each "
+            f"(about {int(np.ceil(need))} frames at this split)"
+        )
+    return clip
 
 
 def _plain(cfg: Any) -> dict[str, Any]:
@@ -302,6 +335,10 @@ def ingest_to_file(system_cfg: Any, out_path: str | Path, source_path: str | Pat
         ``out_path`` as a Path. Nothing is written if ingest fails.
 
     Raises:
-        ClipError: as :func:`ingest`.
+        ClipError: as :func:`ingest`, and (:func:`check_length`) for a clip too short
+            for Stage 2 and the evaluation.
     """
-    return save_clip(out_path, ingest(system_cfg, source_path=source_path))
+    clip = ingest(system_cfg, source_path=source_path)
+    name = (system_cfg.get("name") if hasattr(system_cfg, "get") else None) or "?"
+    src = str(source_path or ((system_cfg.get("source") or {}).get("path") if hasattr(system_cfg, "get") else None) or f"system '{name}'")
+    return save_clip(out_path, check_length(clip, src))

@@ -5,7 +5,7 @@ where rollouts start) is computed here, with the signal helpers of
 :mod:`lagsplat.timeseries` (smoothing, velocities, spectral peak), so that the
 encoder trajectory and the simulated trajectory always go through the *same*
 code path (paper, Section "Experiments / Protocol", paragraph "Metrics";
-reference evaluation protocol, notes section 9).
+reference evaluation protocol).
 
 Conventions
 -----------
@@ -61,7 +61,7 @@ def top_direction(G: Any) -> np.ndarray:
     """Unit eigenvector of the largest eigenvalue of the symmetrised ``G``.
 
     The "most visible" latent direction onto which the cited frequency error
-    is projected (reference evaluation protocol, notes section 9.2). The sign
+    is projected (reference evaluation protocol). The sign
     is fixed so that the component of largest magnitude is positive (the
     first such component on ties), making the result deterministic.
 
@@ -89,7 +89,7 @@ def normalise_trace(G: Any, d: int | None = None) -> np.ndarray:
     """Symmetrise ``G`` and scale it to trace ``d``: ``G_sym * d / trace(G)``.
 
     The aggregation metric of the reference protocol is the visibility metric
-    scaled to trace ``d`` with no ridge (notes section 9.2, "Aggregation
+    scaled to trace ``d`` with no ridge ("Aggregation
     metric"), so a G-norm of an isotropic error equals its Euclidean norm on
     average.
 
@@ -146,7 +146,7 @@ def g_rms_spread(q: Any, G: Any) -> float:
     """G-RMS amplitude of a trajectory about its mean.
 
     ``q_std = sqrt( mean_t (q_t - q_bar)^T G (q_t - q_bar) )`` (reference
-    evaluation protocol, notes section 9.2 "Scales"); the denominator of
+    evaluation protocol); the denominator of
     :func:`latent_nrmse`.
 
     Args:
@@ -172,8 +172,7 @@ def latent_nrmse(q_pred: Any, q_true: Any, G: Any, q_std: float) -> float:
     ``NRMSE = sqrt( mean_{windows, steps} Delta^T G Delta ) / q_std`` with
     ``Delta = q_pred - q_true``. This equals the reference's
     ``sqrt(mse_lat * d) / q_std`` with ``mse_lat = mean Delta^T G Delta / d``
-    (paper Section 4.1 "Metrics"; reference evaluation protocol, notes
-    section 9.2 "Cycle error and NRMSE"). With ``q_std`` from
+    (paper Section 4.1 "Metrics"; the reference evaluation protocol). With ``q_std`` from
     :func:`g_rms_spread`, 1.0 means no better than predicting the mean and 0
     is a perfect prediction. The value is invariant under a change of chart
     ``q -> P q`` when ``G -> P^-T G P^-1``.
@@ -219,7 +218,7 @@ def relative_error(value: float, reference: float) -> float:
     """Relative error ``|value - reference| / |reference|``.
 
     The frequency error of the paper is ``relative_error(f_sim, f_enc)``
-    (reference evaluation protocol, notes section 9.2 "Cited number").
+    (reference evaluation protocol).
 
     Raises:
         ValueError: if either argument is not finite or ``reference == 0``.
@@ -240,8 +239,7 @@ def window_starts(lo: int, hi: int, n_windows: int = 50, seed: int = 0) -> np.nd
     """Random rollout start indices, as the published protocol draws them.
 
     ``np.random.default_rng(seed).integers(lo, hi, n_windows)``: uniform in
-    ``[lo, hi)``, *with replacement* (reference evaluation protocol, notes
-    sections 9.1 and 9.2).
+    ``[lo, hi)``, *with replacement* (the reference evaluation protocol).
 
     Args:
         lo: smallest allowed start (inclusive).
@@ -267,7 +265,7 @@ def image_mse(pred: Any, target: Any) -> float:
     """Mean squared error between two images (or image stacks) in ``[0, 1]``.
 
     The mean runs over every element (frames, channels, rows, columns), as the
-    reference's per-step MSE over C x H x W (notes section 9.1).
+    reference's per-step MSE over C x H x W.
 
     Args:
         pred: float array in ``[0, 1]``, any shape.

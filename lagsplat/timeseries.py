@@ -103,8 +103,7 @@ def spectral_peak_frequency(
 
     The estimator of the paper's free-oscillation frequency error, applied
     identically to the encoded trajectory and to a simulated rollout (paper
-    Section 4.1 "Metrics"; reference evaluation protocol, notes section 9.2
-    "Frequency estimator"):
+    Section 4.1 "Metrics"; the reference evaluation protocol):
 
     1. subtract the time mean;
     2. multiply by a Hann window of length ``n`` (``np.hanning(n)``);
@@ -206,7 +205,7 @@ def forward_difference_velocity(q: Any, dt: float) -> np.ndarray:
 
     ``v_s = (-3 q_s + 4 q_{s+1} - q_{s+2}) / (2 dt)`` for ``s = 0 .. n-3``: the
     initial velocity of every evaluation rollout (reference evaluation
-    protocol, notes sections 9.1 and 9.2). Exact for quadratics in time.
+    protocol). Exact for quadratics in time.
 
     Args:
         q: ``[n, ...]`` trajectory, time on axis 0 (typically ``[n, d]``), ``n >= 3``.
@@ -232,7 +231,7 @@ def central_difference_velocity(q: Any, dt: float, k: int = 1) -> tuple[np.ndarr
 
     ``v_s = (q_{s+k} - q_{s-k}) / (2 k dt)`` for every ``s`` with both
     neighbours inside the trajectory, i.e. ``s = k .. n-1-k`` (the velocity
-    target of the LNN training windows, notes section 8.6).
+    target of the LNN training windows).
 
     Args:
         q: ``[n, ...]`` trajectory, time on axis 0, ``n >= 2k + 1``.
@@ -265,7 +264,7 @@ def gaussian_smooth(q: Any, sigma_frames: float) -> np.ndarray:
 
     ``scipy.ndimage.gaussian_filter1d(q, sigma_frames, axis=0, mode="nearest")``;
     the reference smooths encoded latents and pressures with ``sigma = 1``
-    frame before setting up rollouts (notes sections 9.1 and 9.2). The filter
+    frame before setting up rollouts. The filter
     is non-causal.
 
     Args:

@@ -23,3 +23,24 @@ def one_torch_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(n)
+
+
+def _tree(root):
+    """``{relative path: (size, mtime_ns)}`` of every file under ``root``."""
+    from pathlib import Path
+
+    root = Path(root)
+    return {str(p.relative_to(root)): (p.stat().st_size, p.stat().st_mtime_ns) for p in root.rglob("*") if p.is_file()} if root.is_dir() else {}
+
+
+@pytest.fixture(scope="session", autouse=True)
+def results_untouched():
+    """Tests never write into the user's ``results/``: the session fails if any file there appeared or changed."""
+    from pathlib import Path
+
+    results = Path(__file__).resolve().parents[1] / "results"
+    before = _tree(results)
+    yield
+    after = _tree(results)
+    changed = sorted(k for k in after if before.get(k) != after[k]) + sorted(set(before) - set(after))
+    assert not changed, f"tests wrote into {results}: {changed[:10]}"

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from lagsplat.diagnose.refit import gap_reduction
+from lagsplat.diagnose.gap import gap_reduction
 
 
 @pytest.fixture(scope="module")

@@ -22,26 +22,12 @@ import torch
 
 from lagsplat.chart import Chart, save_chart
 from lagsplat.diagnose import diagnose_chart
-from lagsplat.diagnose.refit import (
-    RefitConfig,
-    add_control,
-    choose_by_refit,
-    common_noise_floor,
-    RefitModel,
-    energy_check,
-    envelope_decay,
-    gap_reduction,
-    held_out_gap,
-    load_refit,
-    model_chart,
-    noise_floor,
-    refit,
-    refit_spec,
-    save_refit,
-)
+from lagsplat.diagnose.refit import RefitConfig, add_control, choose_by_refit, RefitModel, load_refit, model_chart, refit, refit_spec, save_refit
+from lagsplat.diagnose.gap import common_noise_floor, energy_check, envelope_decay, gap_reduction, held_out_gap, noise_floor
 from lagsplat.diagnose.report import DiagnoseConfig, diagnose_artifacts, held_out_check, render_markdown
 from lagsplat.diagnose.terms import CoulombFriction, EndStop
-from lagsplat.diagnose.where import REGIONS, WhereConfig, localise, split_code, time_localisation
+from lagsplat.diagnose.localise import localise
+from lagsplat.diagnose.where import REGIONS, WhereConfig, split_code, time_localisation
 from lagsplat.dynamics.integrators import rollout
 from lagsplat.io.clip import HELD_OUT, TRAIN, Clip
 from lagsplat.synth.effects import simulate_effect

@@ -111,16 +111,13 @@ def test_float32_model_rolls_out_in_float32() -> None:
     _close(vf, vt, 1e-4)
 
 
-def test_1000_s_rollout_at_30_hz_is_fast() -> None:
-    """A 1000 s free rollout at d = 1 in under 5 s (default widths (64, 64))."""
-    import time
+def test_1000_s_rollout_at_30_hz_settles() -> None:
+    """A 1000 s free rollout at d = 1 (default widths (64, 64)) stays finite and settles at rest.
 
+    Its speed is measured by ``python benchmarks/rollout.py`` (a timing is no unit-test assertion)."""
     model = _model(1, "scalar", "convex", seed=0, hidden=(64, 64))
     q0, v0 = _state(model, 1, seed=0)
-    rollout(model, q0, v0, H, 3)  # compile / load the numba cache
-    t = time.perf_counter()
     q, _ = rollout(model, q0, v0, H, 30_001)
-    assert time.perf_counter() - t < 5.0
     assert torch.isfinite(q).all()
     assert float((q[0, -1] - model.q_rest.detach()).abs().max()) < 1e-6  # settled at rest after 1000 s
 

@@ -29,6 +29,7 @@ from lagsplat.io import (
     zero_order_hold,
 )
 from lagsplat.ingest import ingest, ingest_to_file
+from lagsplat.io.clip import save_clip
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 needs_real = pytest.mark.skipif(not REAL.is_dir(), reason="real clips (../shared/data/real) not available")
@@ -555,7 +556,13 @@ def test_ingest_to_file_roundtrip_with_omegaconf(mp4, tmp_path):
 
     cfg = OmegaConf.create({"name": "sq", "source": {"path": "unused.mp4", "fps": 25.0},
                             "split": {"train_fraction": 0.75}})
-    out = ingest_to_file(cfg, tmp_path / "out" / "clip.npz", source_path=mp4)
+    with pytest.raises(ClipError, match="too short: 20 frames give 15 training and 5 held-out"):
+        ingest_to_file(cfg, tmp_path / "out" / "clip.npz", source_path=mp4)  # too short for the pipeline
+    from lagsplat.ingest import ingest
+
+    clip = ingest(cfg, source_path=mp4)  # the reader and the split, without the pipeline's length floor
+    assert clip.n_frames == 20 and len(clip.train_idx) == 15 and len(clip.held_out_idx) == 5
+    out = save_clip(tmp_path / "out" / "clip.npz", clip)
     clip = load_clip(out)
     assert clip.n_frames == 20 and len(clip.train_idx) == 15 and len(clip.held_out_idx) == 5
     assert clip.meta["system"] == "sq" and clip.meta["timing"]["rule"] == "config_fps"
@@ -637,3 +644,44 @@ def test_atomic_artifacts_follow_the_users_umask(tmp_path):
     finally:
         os.umask(old)
     assert json.loads((tmp_path / "b.json").read_text()) == {"x": 1}
+
+
+def test_a_clip_too_short_for_the_pipeline_stops_at_ingest(tmp_path):
+    """A 10-frame clip used to pass ingest, Stage 1 and the chart and fail only in Stage 2 naming no file."""
+    from lagsplat.ingest import MIN_SEGMENT_FRAMES, ingest_to_file
+
+    frames = np.zeros((10, 8, 8, 3), np.uint8)
+    frames[:, 2:4, :, 0] = 255
+    src = tmp_path / "short.npz"
+    np.savez(src, images=frames, t=np.arange(10) / 30.0)
+    cfg = {"name": "short", "source": {"path": str(src)}}
+    with pytest.raises(ClipError) as e:
+        ingest_to_file(cfg, tmp_path / "clip.npz")
+    msg = str(e.value)
+    assert "short.npz" in msg and "10 frames" in msg and f"at least {MIN_SEGMENT_FRAMES}" in msg
+    assert not (tmp_path / "clip.npz").exists()
+    long = np.repeat(frames, 6, axis=0)  # 60 frames: 48 training, 12 held out at the default 0.8 split
+    np.savez(src, images=long, t=np.arange(60) / 30.0)
+    with pytest.raises(ClipError, match="12 held-out"):
+        ingest_to_file(cfg, tmp_path / "clip.npz")
+    cfg["split"] = {"train_fraction": 0.6}
+    assert ingest_to_file(cfg, tmp_path / "clip.npz").exists()
+
+
+@needs_real
+def test_a_truncated_webm_warns_naming_the_file(tmp_path):
+    """A .webm cut to 900 kB used to ingest silently as half of its frames."""
+    import warnings
+
+    from lagsplat.io.video import TruncatedVideoWarning, matroska_ends_early
+
+    full = REAL / "oscillating_cart.webm"
+    cut = tmp_path / "cut.webm"
+    cut.write_bytes(full.read_bytes()[:900_000])
+    with pytest.warns(TruncatedVideoWarning, match=r"cut\.webm.*cut short.*frames decoded"):
+        frames, _, _ = read_video(cut, fps=30.0)
+    assert 100 < len(frames) < 200
+    assert matroska_ends_early(full) == (False, 242)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", TruncatedVideoWarning)
+        assert len(read_video(full, fps=30.0)[0]) == 242

@@ -148,6 +148,10 @@ def test_snakemake_end_to_end_on_the_tiny_toy(tmp_path):
     for key in ("eps_freq", "eps_q", "eps_I", "eps_AE", "eps_I_over_AE", "f_sim_hz", "f_enc_hz", "f_truth_hz"):
         entry = m["metrics"][key]
         assert math.isfinite(entry["value"]) and entry["definition"], key
+    # scikit-image's PSNR / SSIM of the same rollout frames: consistent with the image MSE (PSNR of the mean MSE
+    # bounds the mean PSNR from below, Jensen), SSIM in (0, 1]
+    psnr, ssim, eps_I = (m["metrics"][k]["value"] for k in ("psnr_db", "ssim", "eps_I"))
+    assert 10 * math.log10(1 / eps_I) - 0.01 <= psnr < 10 * math.log10(1 / eps_I) + 10 and 0 < ssim <= 1
     # the encoded video oscillates at the generator's frequency even in this tiny run
     assert abs(m["metrics"]["f_enc_hz"]["value"] - m["metrics"]["f_truth_hz"]["value"]) / m["metrics"]["f_truth_hz"]["value"] < 0.05
     tex = (res / "tables" / "smoke.tex").read_text()
@@ -179,6 +183,18 @@ def test_snakemake_end_to_end_on_the_tiny_toy(tmp_path):
         assert r["linearity"]["f_lat_rel_err"] < 1e-9 and r["kernel"]["rel"] < 1e-6
         assert r["background"]["on_object_median_dq"] > 0
     assert len(fj["lever"]["r_px"]) == len(fj["lever"]["f_lat"]) > 2 and (sysdir / "figures" / "forces.png").exists()
+    # every job wrote its own log (the rule passes {log} to the CLI)
+    for stage in ("ingest", "stage1", "chart", "stage2", "evaluate", "figures", "forces"):
+        text = (res / "logs" / "toy_tiny" / f"{stage}.log").read_text()
+        assert f"lagsplat {stage} system=toy_tiny: started" in text and "done in" in text, stage
+    # the rollout figure of a run whose protocol writes no f_enc_segment_hz (the soft-robot protocol's
+    # metrics.json has only f_enc_hz; this used to raise KeyError), through artifact overrides
+    from lagsplat.artifacts import Artifacts
+    from lagsplat.viz.rollout import rollout_figure
+
+    alt = Artifacts.for_run(res, "toy_tiny", overrides={"metrics": tmp_path / "krauss_like.json", "rollout_figure": tmp_path / "fig.png"})
+    alt.metrics.write_text(json.dumps(dict(m, metrics={k: v for k, v in m["metrics"].items() if k != "f_enc_segment_hz"})))
+    assert rollout_figure(alt, title="soft-robot-like metrics") == alt.rollout_figure and alt.rollout_figure.stat().st_size > 10_000
 
 
 def test_data_kind_of_each_system():

@@ -32,7 +32,7 @@ def test_static_prior_stills_the_background_and_keeps_the_reconstruction() -> No
     clip = make_pendulum_clip(size=(32, 32), duration_s=6.0, seed=0)
     static = static_pixels(clip.images[clip.train_idx], margin=1.0)
     assert static is not None and 50 < int(static.sum()) < 32 * 32 - 50  # both static and changing pixels
-    base = dict(n_gaussians=256, steps=250, recycle_warmup=100, recycle_every=50, threads=1)
+    base = dict(n_gaussians=256, steps=250, recycle_warmup=100, recycle_every=50, threads=1, sigma_xy=0.05)
     ae0, _ = train_stage1(clip, Stage1Config(**base), d=1, seed=0, progress=False)
     ae1, _ = train_stage1(clip, Stage1Config(**base, w_static=1e-2), d=1, seed=0, progress=False)
     m0, mse0 = _static_motion_and_mse(ae0, clip, static)

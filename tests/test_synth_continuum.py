@@ -87,7 +87,7 @@ def test_linearised_frequencies_match_the_simulated_tail(n):
     np.testing.assert_allclose(modal.zeta[:2], robot.zeta, rtol=1e-6)
     assert np.all(np.diff(modal.f_natural_hz) > 0)
     sched = cr.PressureSchedule.random(n, cr.DEFAULT_DURATION_S, seed=0)
-    states, _ = cr._simulate(robot, sched, cr._n_frames(cr.DEFAULT_DURATION_S))
+    states, _ = cr.simulate_frames(robot, sched, cr.n_frames_for(cr.DEFAULT_DURATION_S))
     start = math.ceil(sched.tail_start_s / cr.DT)
     tip = _tip(robot, states[start:, : robot.d])
     assert np.abs(tip.real).max() > 1e-3  # the release left it ringing
@@ -109,7 +109,7 @@ def test_pressure_difference_sign_sets_the_bending_direction(n):
         assert np.all(np.sign(q_eq[0::2]) == sign)
         assert np.all(q_eq[1::2] > robot.modal.q_rest[1::2])  # the sum extends
         # Dynamics under constant pressure settle there; the tip moves to that side.
-        states, _ = cr._simulate(robot, lambda t, P=P: np.tile(P, (len(t), 1)), 600)
+        states, _ = cr.simulate_frames(robot, lambda t, P=P: np.tile(P, (len(t), 1)), 600)
         np.testing.assert_allclose(states[-1, : robot.d], q_eq, atol=2e-2)
         assert np.sign(_tip(robot, states[-1, : robot.d]).real) == sign
         # In the picture, the lower half of the arm sits on that side of the centre.
@@ -122,7 +122,7 @@ def test_pressure_difference_sign_sets_the_bending_direction(n):
 
 def test_pressures_in_band_nonnegative_and_zero_in_head_rests_and_tail():
     sched = cr.PressureSchedule.random(2, 150.0, seed=5)
-    t = np.arange(cr._n_frames(150.0)) * cr.DT
+    t = np.arange(cr.n_frames_for(150.0)) * cr.DT
     P = sched(t)
     assert P.shape == (t.size, 4)
     assert P.min() >= 0.0 and P.max() <= sched.p_max
@@ -255,7 +255,9 @@ def test_failed_write_leaves_nothing_behind(tmp_path, monkeypatch):
         fh.write(b"PK partial")
         raise OSError("disk full")
 
-    monkeypatch.setattr(cr.np, "savez_compressed", broken)
+    import lagsplat.synth.continuum_robot.writer as writer
+
+    monkeypatch.setattr(writer.np, "savez_compressed", broken)
     with pytest.raises(OSError, match="disk full"):
         cr.write_robot_npz(path, 1, duration_s=20.0)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["robot.npz"]

@@ -11,7 +11,6 @@ the reason, when either is missing.
 from __future__ import annotations
 
 import json
-import shutil
 import urllib.request
 from pathlib import Path
 
@@ -266,6 +265,25 @@ def test_page_drag_moves_the_model_and_release_lets_it_settle(tmp_path):
         assert "Hz" in page.locator("#stats").inner_text()
         page.locator("#reset").click()
         page.wait_for_function("window.lagsplatState.dist_rest < 1e-4 && window.lagsplatState.grab === null", timeout=10_000)
-    out = ROOT / "results" / "viewer"
-    out.mkdir(parents=True, exist_ok=True)
-    shutil.copy(shot, out / "screenshot.png")  # for humans
+        # at 900 px width every status line wraps inside the page instead of being cut off
+        page.set_viewport_size({"width": 900, "height": 800})
+        for el in ("#stats", "#qline", "#status"):
+            fits = page.evaluate(f"(() => {{ const e = document.querySelector('{el}'); const r = e.getBoundingClientRect(); "
+                                 f"return e.scrollWidth <= e.clientWidth + 1 && r.right <= window.innerWidth; }})()")  # fmt: skip
+            assert fits, f"{el} is cut off at 900 px"
+        stats = page.locator("#stats").inner_text()
+        assert "ms per frame" in stats and "frames/s possible" in stats and "frames/s shown" in stats
+    assert shot.stat().st_size > 0  # kept in pytest's tmp_path for a human to look at; never in the user's results/
+
+
+def test_the_rollout_figure_states_its_key_metrics_in_plain_words() -> None:
+    """The figure's title line names the metrics it shows; entries absent from a protocol are left out."""
+    from lagsplat.viz.rollout import held_out_frequency, metrics_line
+
+    m = {"eps_freq": {"value": 0.0123}, "eps_q": {"value": 0.051}, "eps_I_over_AE": {"value": 2.5}, "f_enc_hz": {"value": 0.8}}
+    assert metrics_line(m) == "eps_freq 1.23%, eps_q 0.051, eps_I / eps_AE 2.50  (held-out frames)"
+    assert metrics_line({"mse_0p5s": {"value": 1.5e-3}, "eps_freq": {"value": None}}) == "MSE(0.5 s) 1.50e-03  (held-out frames)"
+    assert held_out_frequency(m) == 0.8  # the soft-robot protocol writes no f_enc_segment_hz
+    assert held_out_frequency({"f_enc_segment_hz": {"value": 0.7}, **m}) == 0.7
+    with pytest.raises(ValueError, match="f_enc_segment_hz or f_enc_hz"):
+        held_out_frequency({"eps_q": {"value": 0.1}})

@@ -561,6 +561,43 @@ def select_effect(
     # the chart-invariant signatures, read before the fits: a cubic stiffness must also show in the timing
     ev = signatures(res, model_freqs_hz=model_freqs_hz)
     res.meta["frequency_signature"] = ev["frequency"]
+    probs, prob_null, prob_model = _problems(res, wide, n_folds, block_s)
+    dirs = {k: directions(p.res) for k, p in probs.items()}
+    nuisance, null = _null_summary(res, wide, probs, prob_null)
+
+    accepted: list[CandidateFit] = []
+    ranking: list[CandidateFit] = []
+    remaining = list(effs)
+    for round_ in range(max(1, int(max_effects))):
+        fits = _fit_candidates(remaining, probs, prob_model, dirs, res.d - 1, thresholds)  # fit, ranked by Delta BIC
+        _rank(fits, probs, min_delta_bic, min_r2, min_cv_gain)  # cross-validate where it can matter, then decide
+        if round_ == 0:
+            ranking = fits
+        win = next((f for f in fits if f.significant), None)
+        if win is None:
+            break
+        accepted.append(win)
+        for prob in {id(p): p for p in (*probs.values(), prob_null)}.values():
+            prob.add_nuisance(win.design if prob is probs[get_effect(win.effect).in_class] else _design(prob, win))
+        remaining = [e for e in remaining if e.name != win.effect]
+        if not remaining:
+            break
+    _unexplained(null, prob_null, bool(accepted), unexplained_excess)
+    settings = {
+        "min_delta_bic": min_delta_bic, "min_r2": min_r2, "min_cv_gain": min_cv_gain, **thresholds, "max_effects": max_effects,
+        "n_folds": n_folds, "candidates": [e.name for e in effs], "sigma_frames": res.sigma, "spacing": res.spacing,
+        "n_samples": res.n, "n_segments": res.n_segments, "n_directions": len(dirs[True]),
+        "sigma_frames_out_of_class": wide.sigma, "spacing_out_of_class": wide.spacing, "n_samples_out_of_class": wide.n,
+    }  # fmt: skip
+    return Diagnosis(accepted[0].effect if accepted else "none", accepted, ranking, null, ev, nuisance, settings)
+
+
+def _problems(res: Residual, wide: Residual, n_folds: int, block_s: float | None) -> tuple[dict[bool, _Problem], _Problem, _Problem]:
+    """The regressions of :func:`select_effect`: ``({in_class: problem}, null problem, model problem)``.
+
+    Raises:
+        ValueError: if the residual has too few samples for the nuisance fit.
+    """
     folds = _folds(res, n_folds, block_s)
     X_lin = _linear_features(res)
     if res.n <= 2 * (X_lin.shape[1] + 9) + 4:
@@ -577,81 +614,74 @@ def select_effect(
         True: _Problem(res, folds, res.r + g_nl, X_lin, in_class_nuisance),
     }
     prob_model = _Problem(res, folds, g_nl, X_lin, in_class_nuisance)  # what the model itself carries of an in-class effect
-    dirs = {k: directions(p.res) for k, p in probs.items()}
-    extra_k = res.d - 1  # a direction in d dimensions has d - 1 free angles
+    return probs, prob_null, prob_model
+
+
+def _null_of(prob: _Problem) -> dict[str, Any]:
+    ssr = float(prob.r0 @ prob.r0)
+    return {"ssr": ssr, "bic": prob.bic(ssr, prob.pn), "k": prob.pn, "N": prob.N, "excess_over_noise": ssr / prob.N}
+
+
+def _null_summary(res: Residual, wide: Residual, probs: dict[bool, _Problem], pb: _Problem) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The fitted nuisance (linear corrections of the model) and the null hypothesis's fit statistics."""
     d = res.d
-
-    def null_of(prob: _Problem) -> dict[str, Any]:
-        ssr = float(prob.r0 @ prob.r0)
-        return {"ssr": ssr, "bic": prob.bic(ssr, prob.pn), "k": prob.pn, "N": prob.N, "excess_over_noise": ssr / prob.N}
-
-    pb = prob_null
     coef0 = np.linalg.lstsq(pb.Zn, pb.y, rcond=None)[0].reshape(d, pb.p0) / pb.w[:, None]
     nuisance = {"dK": (-coef0[:, :d]).tolist(), "dC": (-coef0[:, d : 2 * d]).tolist(), "f0": coef0[:, 2 * d].tolist(),
                 "dB": coef0[:, 2 * d + 1 : pb.p_lin].tolist(), "poly": coef0[:, pb.p_lin :].tolist()}  # fmt: skip
-    null = {**null_of(pb), "N_eff": pb.N / res.spacing, "linearised": null_of(probs[True]),
-            "out_of_class": {**null_of(probs[False]), "sigma_frames": wide.sigma, "N_eff": probs[False].N / wide.spacing}}  # fmt: skip
+    null = {**_null_of(pb), "N_eff": pb.N / res.spacing, "linearised": _null_of(probs[True]),
+            "out_of_class": {**_null_of(probs[False]), "sigma_frames": wide.sigma, "N_eff": probs[False].N / wide.spacing}}  # fmt: skip
+    return nuisance, null
 
-    accepted: list[CandidateFit] = []
-    ranking: list[CandidateFit] = []
-    remaining = list(effs)
-    for round_ in range(max(1, int(max_effects))):
-        ref = {k: (float(p.r0 @ p.r0), p.bic(float(p.r0 @ p.r0), p.pn)) for k, p in probs.items()}
-        fits = []
-        for eff in remaining:
-            prob = probs[eff.in_class]
-            fit = _fit_candidate(prob, eff, dirs[eff.in_class], extra_k, thresholds)
-            if fit is None:
-                continue
-            fit.delta_bic = ref[eff.in_class][1] - fit.bic
-            fit.r2 = 1.0 - fit.ssr / max(ref[eff.in_class][0], 1e-300)
-            if eff.in_class:
-                w_model, _, _ = prob_model.fit(fit.design, False)
-                fit.interpretation["model_carries"] = [float(v) for v in w_model]
-                fit.interpretation["model_share"] = [float(m / c) if c != 0 else float("nan") for m, c in zip(w_model, fit.coef)]
-            fits.append(fit)
-        fits.sort(key=lambda f: f.delta_bic, reverse=True)
-        cv_ref: dict[bool, float] = {}
-        for i, fit in enumerate(fits):  # CV where it can matter (the costly part): candidates passing the rest, and the top 3
-            if not (i < 3 or (fit.physical and fit.delta_bic >= min_delta_bic and fit.r2 >= min_r2)):
-                continue
-            eff = get_effect(fit.effect)
-            prob = probs[eff.in_class]
-            if eff.in_class not in cv_ref:
-                cv_ref[eff.in_class] = prob.cv_sse(None, False)
-            fit.cv_gain = 1.0 - prob.cv_sse(fit.design, eff.positive) / max(cv_ref[eff.in_class], 1e-300)
-        for fit in fits:
-            fit.significant = (
-                fit.physical and fit.practical
-                and fit.delta_bic >= min_delta_bic and fit.r2 >= min_r2 and fit.cv_gain >= min_cv_gain
-            )
-        if round_ == 0:
-            ranking = fits
-        win = next((f for f in fits if f.significant), None)
-        if win is None:
-            break
-        accepted.append(win)
-        for prob in {id(p): p for p in (*probs.values(), prob_null)}.values():
-            prob.add_nuisance(win.design if prob is probs[get_effect(win.effect).in_class] else _design(prob, win))
-        remaining = [e for e in remaining if e.name != win.effect]
-        if not remaining:
-            break
+
+def _fit_candidates(remaining: list, probs: dict[bool, _Problem], prob_model: _Problem, dirs: dict, extra_k: int, thresholds: dict) -> list[CandidateFit]:
+    """Fit each remaining effect to its regression; returns the fits sorted by decreasing Delta BIC."""
+    ref = {k: (float(p.r0 @ p.r0), p.bic(float(p.r0 @ p.r0), p.pn)) for k, p in probs.items()}
+    fits = []
+    for eff in remaining:
+        prob = probs[eff.in_class]
+        fit = _fit_candidate(prob, eff, dirs[eff.in_class], extra_k, thresholds)
+        if fit is None:
+            continue
+        fit.delta_bic = ref[eff.in_class][1] - fit.bic
+        fit.r2 = 1.0 - fit.ssr / max(ref[eff.in_class][0], 1e-300)
+        if eff.in_class:
+            w_model, _, _ = prob_model.fit(fit.design, False)
+            fit.interpretation["model_carries"] = [float(v) for v in w_model]
+            fit.interpretation["model_share"] = [float(m / c) if c != 0 else float("nan") for m, c in zip(w_model, fit.coef)]
+        fits.append(fit)
+    fits.sort(key=lambda f: f.delta_bic, reverse=True)
+    return fits
+
+
+def _rank(fits: list[CandidateFit], probs: dict[bool, _Problem], min_delta_bic: float, min_r2: float, min_cv_gain: float) -> None:
+    """Cross-validate where it can matter (the costly part: candidates passing the rest, and the top 3) and mark the significant fits."""
+    cv_ref: dict[bool, float] = {}
+    for i, fit in enumerate(fits):
+        if not (i < 3 or (fit.physical and fit.delta_bic >= min_delta_bic and fit.r2 >= min_r2)):
+            continue
+        eff = get_effect(fit.effect)
+        prob = probs[eff.in_class]
+        if eff.in_class not in cv_ref:
+            cv_ref[eff.in_class] = prob.cv_sse(None, False)
+        fit.cv_gain = 1.0 - prob.cv_sse(fit.design, eff.positive) / max(cv_ref[eff.in_class], 1e-300)
+    for fit in fits:
+        fit.significant = (
+            fit.physical and fit.practical
+            and fit.delta_bic >= min_delta_bic and fit.r2 >= min_r2 and fit.cv_gain >= min_cv_gain
+        )
+
+
+def _unexplained(null: dict[str, Any], pb: _Problem, any_accepted: bool, unexplained_excess: float) -> None:
+    """Record the residual left after the nuisance and the accepted effects, and warn when it stays far above the chart noise."""
     left = float(pb.r0 @ pb.r0) / pb.N  # after the nuisance and the accepted effects (sharp residual)
     null["excess_after_effects"] = left
     null["unexplained"] = bool(left > unexplained_excess)
     if null["unexplained"]:
         null["warning"] = (
-            f"after the model-class corrections{' and the effects found' if accepted else ''} the residual is still "
+            f"after the model-class corrections{' and the effects found' if any_accepted else ''} the residual is still "
             f"{math.sqrt(left):.1f}x the chart noise (rms) and no candidate explains it: the model misfits within its own "
             "class (e.g. a distorted chart: try stage2.mass=learned or a better Stage 1), or the effect is not in the library"
         )
-    settings = {
-        "min_delta_bic": min_delta_bic, "min_r2": min_r2, "min_cv_gain": min_cv_gain, **thresholds, "max_effects": max_effects,
-        "n_folds": n_folds, "candidates": [e.name for e in effs], "sigma_frames": res.sigma, "spacing": res.spacing,
-        "n_samples": res.n, "n_segments": res.n_segments, "n_directions": len(dirs[True]),
-        "sigma_frames_out_of_class": wide.sigma, "spacing_out_of_class": wide.spacing, "n_samples_out_of_class": wide.n,
-    }  # fmt: skip
-    return Diagnosis(accepted[0].effect if accepted else "none", accepted, ranking, null, ev, nuisance, settings)
 
 
 # ---------------------------------------------------------------------- evidence

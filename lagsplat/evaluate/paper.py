@@ -39,7 +39,7 @@ from lagsplat.dynamics.integrators import actuation_schedule, initial_state, rol
 from lagsplat.io.clip import HELD_OUT, Clip, ClipError
 from lagsplat.models.lagrangian import Lagrangian
 from lagsplat.models.autoencoder import AutoEncoder
-from lagsplat.evaluate.common import decode_mse, metric_entry
+from lagsplat.evaluate.common import decode_mse, decoded_psnr_ssim, metric_entry
 
 __all__ = ["EvalConfig", "evaluate"]
 
@@ -179,4 +179,19 @@ def evaluate(clip: Clip, ae: AutoEncoder, chart: Chart, model: Lagrangian, cfg: 
         f_true = float(truth["f_observed_hz"])
         out["f_truth_hz"] = metric_entry(f_true, "generator's true frequency on the held-out segment (lagsplat.synth)", "", "Hz")
         out["eps_freq_truth"] = metric_entry(abs(np.nanmean(f_sim_w) - f_true) / f_true, "|f_sim - f_truth| / f_truth", "", "fraction")
+    # the image-quality numbers the field reports beside the MSE ratio, on the same rollout windows (scikit-image)
+    psnr, ssim = decoded_psnr_ssim(ae, chart, pred[finite].reshape(-1, chart.d), frames, cfg.render_batch)
+    fin = np.isfinite(psnr)
+    out["psnr_db"] = metric_entry(
+        float(psnr[fin].mean()) if fin.any() else float("nan"),
+        "PSNR of decode(q_sim) against the real frames, pixels in [0,1] (skimage.metrics.peak_signal_noise_ratio), mean over states",
+        horizon,
+        "dB",
+    )
+    out["ssim"] = metric_entry(
+        float(ssim.mean()) if len(ssim) else float("nan"),
+        "SSIM of decode(q_sim) against the real frames (skimage.metrics.structural_similarity, 7 x 7 window, channel mean), mean over states",
+        horizon,
+        "1 = identical",
+    )
     return out

@@ -47,13 +47,70 @@ from lagsplat.io.common import FrameCollector, FrameTransform, check_range, cv_t
 from lagsplat.io.clip import ClipError
 from lagsplat.io.timing import resolve_timing
 
-__all__ = ["read_video", "VIDEO_EXTENSIONS"]
+__all__ = ["read_video", "VIDEO_EXTENSIONS", "TruncatedVideoWarning", "matroska_ends_early"]
 
 VIDEO_EXTENSIONS = (".mp4", ".webm", ".mov", ".avi", ".mkv", ".m4v")
 """File extensions (lower case) treated as video by :func:`lagsplat.ingest.ingest`."""
 
 _OPEN_TIMEOUT_MS = 30_000
 _MIN_DECODED_FRACTION = 0.9
+
+
+class TruncatedVideoWarning(UserWarning):
+    """Decoding ended before the end the container states: the file is probably cut short (a partial download or copy)."""
+
+
+def _ebml_vint(b, i: int, strip: bool = True) -> tuple[int, int, bool]:
+    first = b[i]
+    n, mask = 1, 0x80
+    while n <= 8 and not (first & mask):
+        n, mask = n + 1, mask >> 1
+    val = (first & (mask - 1)) if strip else first
+    for k in range(1, min(n, len(b) - i)):
+        val = (val << 8) | b[i + k]
+    return val, n, val == (1 << (7 * n)) - 1
+
+
+_MKV_DESCEND = (0x18538067, 0x1F43B675)  # Segment, Cluster: walk their children (their size may be unknown)
+_MKV_SIMPLE_BLOCK = 0xA3
+
+
+def matroska_ends_early(path: str | Path) -> tuple[bool, int] | None:
+    """Whether a Matroska / WebM file ends inside an element (cut short), and how many frame blocks it holds.
+
+    Walks the EBML structure (RFC 9559): elements of known size are skipped,
+    the Segment and Clusters are entered (browser recorders write them with
+    an unknown size, and state no duration and no frame count). A file whose
+    last element runs past its end was cut short.
+
+    Returns:
+        ``(ends_early, n_simple_blocks)``, or ``None`` when the structure cannot be walked
+        (not Matroska, or an element of unknown size other than Segment / Cluster).
+    """
+    import mmap
+
+    with open(path, "rb") as fh:
+        if Path(path).stat().st_size == 0:
+            return None
+        with mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as b:
+            L, i, blocks = len(b), 0, 0
+            if b[:4] != b"\x1a\x45\xdf\xa3":
+                return None
+            while i < L:
+                eid, n1, _ = _ebml_vint(b, i, strip=False)
+                if i + n1 >= L:
+                    return True, blocks
+                size, n2, unknown = _ebml_vint(b, i + n1)
+                if eid in _MKV_DESCEND:
+                    i += n1 + n2
+                    continue
+                if unknown:
+                    return None
+                if i + n1 + n2 + size > L:
+                    return True, blocks
+                blocks += eid == _MKV_SIMPLE_BLOCK
+                i += n1 + n2 + size
+            return False, blocks
 
 
 def _fourcc(cap: cv2.VideoCapture) -> str | None:
@@ -65,6 +122,24 @@ def _fourcc(cap: cv2.VideoCapture) -> str | None:
         return None
     s = code.to_bytes(4, "little").decode("ascii", errors="replace")
     return s if s.isprintable() else None
+
+
+def _warn_if_cut_short(path: Path, n: int, container_count: int | None) -> None:
+    """Warn (:class:`TruncatedVideoWarning`) when ``n`` decoded frames fall short of what the container states."""
+    import warnings
+
+    if container_count is not None and n < container_count - 2:
+        warnings.warn(f"{path}: decoding ended early: {n} frames decoded of the {container_count} the container states", TruncatedVideoWarning, stacklevel=3)
+        return
+    if path.suffix.lower() in (".webm", ".mkv"):
+        walked = matroska_ends_early(path)
+        if walked is not None and walked[0]:
+            warnings.warn(
+                f"{path}: the file is cut short (its last block runs past the end of the file): {n} frames decoded; "
+                "the rest of the recording is missing",
+                TruncatedVideoWarning,
+                stacklevel=3,
+            )
 
 
 def read_video(
@@ -110,6 +185,8 @@ def read_video(
 
     Warns:
         TimingWarning: see the timing rule.
+        TruncatedVideoWarning: decoding ended before what the container states
+            (a frame count, or for WebM / Matroska a last block running past the end of the file).
     """
     path = Path(path)
     src = str(path)
@@ -174,6 +251,7 @@ def read_video(
         raise ClipError(f"{src}: cannot decode video (no frame could be decoded)")
     if container_count is not None and n < _MIN_DECODED_FRACTION * container_count:
         raise ClipError(f"{src}: video is truncated or corrupt: decoded {n} of {container_count} frames")
+    _warn_if_cut_short(path, n, container_count)
     start, stop_ = check_range(src, start, stop, n)
 
     t_all, info = resolve_timing(

@@ -12,9 +12,7 @@ from lagsplat.models.decoder import ConditionedGaussians
 
 __all__ = [
     "anisotropy_penalty",
-    "kinematic_penalty",
     "reconstruction_loss",
-    "rigidity_penalty",
     "ssim",
     "static_motion_penalty",
 ]
@@ -132,33 +130,6 @@ def reconstruction_loss(
     return loss, {"l1": float(l1.detach()), "ssim": float(s.detach()), "aniso": float(an.detach())}
 
 
-def kinematic_penalty(decoder, z_std: Tensor) -> Tensor:
-    """Minimal-motion prior on the decoder's kinematics (Stage 1, optional).
-
-    ``sum_i alpha_i |J_i diag(z_std)|_F^2 / sum_i alpha_i``: the squared image
-    displacement (normalised image units) of each primitive over one standard
-    deviation of every latent coordinate, averaged with the opacities. The
-    Jacobians ``J_i = Sigma_sq Sigma_qq^-1`` (paper Eq. 2, 9) are fixed by the
-    images only where the texture under a primitive changes when it moves; on
-    flat regions the reconstruction loss leaves them free, and slow brightness
-    changes (exposure, reflections) can be explained by sliding primitives. A
-    small weight sets those unconstrained Jacobians to zero, so a force applied
-    on static background transports to nothing (paper §3.4, App. A.1), while
-    textured moving parts, whose motion the reconstruction pins, keep theirs.
-
-    Args:
-        decoder: :class:`~lagsplat.models.decoder.ConditionedGaussians`.
-        z_std: ``[d]`` spread of the raw latents (detached), the motion scale.
-
-    Returns:
-        Scalar tensor (dimensionless, normalised image units squared).
-    """
-    g = decoder.geometry()
-    Jz = g.J * z_std.reshape(1, 1, -1).clamp_min(1e-3)
-    w = g.alpha
-    return (w * Jz.pow(2).sum((1, 2))).sum() / w.sum().clamp_min(1e-12)
-
-
 def static_motion_penalty(motion: Tensor, static: Tensor) -> Tensor:
     """Matter shown on pixels that never change does not move (Stage 1, optional).
 
@@ -184,80 +155,3 @@ def static_motion_penalty(motion: Tensor, static: Tensor) -> Tensor:
     return motion.pow(2).sum(1)[:, static].mean()
 
 
-def rigidity_penalty(
-    decoder: ConditionedGaussians,
-    z_ref: Tensor,
-    z_std: Tensor,
-    height: int,
-    width: int,
-    length_px: float = 1.5,
-    color_sigma: float = 0.2,
-    k: int = 8,
-) -> Tensor:
-    """Neighbouring primitives keep their distance as the state moves (Stage 1, optional).
-
-    The infinitesimal form of local rigidity (the isometry and rigidity priors
-    of dynamic Gaussian splatting, Luiten et al., 3DV 2024, and of
-    as-rigid-as-possible deformation): two primitives ``i, j`` at pixel
-    positions ``x_i, x_j`` whose Jacobians (paper Eq. 9) move them apart or
-    together change their distance at the rate
-
-        e_ij = (x_i - x_j) . (J_i - J_j) diag(z_std) / length_px,
-
-    px per standard deviation of each latent coordinate for a pair
-    ``length_px`` apart (half the rate of change of their squared distance,
-    over ``length_px``; coincident primitives, whose direction is undefined,
-    add nothing). ``e_ij = 0`` for every pair exactly when the neighbourhood
-    moves rigidly (a translation and a rotation about any point, the Killing
-    condition), so, unlike a smoothness prior on ``J``, it leaves a rotating
-    body's lever arm (``J`` growing with the distance to the pivot) unbiased.
-    The reconstruction pins ``J_i`` where the texture under a primitive moves
-    by a pixel or more; where the motion is sub-pixel (near a pivot) the image
-    barely constrains it (+-50 % between neighbours at the checkered
-    pendulum's counter-arm). Measured on that pendulum at weight ``1e-2``
-    (docs/forces.md): the largest deviation of ``J`` from the lever arm along
-    the rod a median 8 % over 8 seeds (11 % without), the AE floor doubled,
-    the counter-arm still off by 12-20 %.
-
-    Pairs are each primitive's ``k`` nearest neighbours at the reference state,
-    weighted by ``exp(-d^2 / 2 length_px^2)`` times a colour affinity
-    ``exp(-|c_i - c_j|^2 / 2 color_sigma^2)`` (so a dark rod does not bind the
-    light background it moves over) times both rendered opacities. Positions,
-    colours and weights are detached: only the Jacobians receive gradient.
-
-    Args:
-        decoder: :class:`~lagsplat.models.decoder.ConditionedGaussians`.
-        z_ref: ``[d]`` raw latent state at which positions are read (the batch mean).
-        z_std: ``[d]`` spread of the raw latents (detached), the motion scale.
-        height, width: pixel size of the rendered images.
-        length_px: neighbour distance scale, px.
-        color_sigma: colour affinity scale, RGB in [0, 1].
-        k: neighbours per primitive.
-
-    Returns:
-        Scalar tensor, px^2: the weighted mean of ``e_ij^2`` summed over the
-        latent coordinates.
-
-    Raises:
-        ValueError: if ``length_px`` or ``color_sigma`` is not positive.
-    """
-    if not (length_px > 0 and color_sigma > 0):
-        raise ValueError(f"rigidity length_px and color_sigma must be positive, got {length_px}, {color_sigma}")
-    g = decoder.geometry()
-    J_px, _ = decoder.pixel_geometry(height, width, g)
-    M = J_px * z_std.reshape(1, 1, -1).clamp_min(1e-3)  # [K,2,d] px per latent std
-    with torch.no_grad():
-        means, gate, _ = decoder.condition(z_ref.reshape(1, -1), g)
-        x = means[0] * g.J.new_tensor([float(width), float(height)])  # [K,2] px
-        opac = g.alpha * gate[0]
-        kk = min(k, len(x) - 1)
-        if kk < 1:
-            return M.new_zeros(())
-        d2 = torch.cdist(x, x).pow(2)
-        d2.fill_diagonal_(float("inf"))
-        d2n, nb = torch.topk(d2, kk, dim=1, largest=False)  # [K,k]
-        dc2 = (g.colors[:, None, :] - g.colors[nb]).pow(2).sum(-1)
-        w = torch.exp(-0.5 * d2n / length_px**2 - 0.5 * dc2 / color_sigma**2) * opac[:, None] * opac[nb]
-        u = (x[:, None, :] - x[nb]) / length_px  # [K,k,2]
-    e = torch.einsum("kni,knid->knd", u, M[:, None] - M[nb])  # [K,k,d]
-    return (w * e.pow(2).sum(-1)).sum() / w.sum().clamp_min(1e-12)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Mapping
 
 import numpy as np
@@ -17,10 +17,10 @@ from lagsplat.motion import motion_masks
 from lagsplat.models.encoder import CpAEEncoder, nonlocal_filter_penalty
 from lagsplat.train.config import dataclass_from_mapping
 from lagsplat.train.device import resolve_device
-from lagsplat.train.losses import kinematic_penalty, reconstruction_loss, rigidity_penalty, static_motion_penalty
+from lagsplat.train.losses import reconstruction_loss, static_motion_penalty
 from lagsplat.train.progress import Progress
 
-__all__ = ["Stage1Config", "train_stage1", "static_pixels", "decay_state_coupling"]
+__all__ = ["Stage1Config", "train_stage1", "static_pixels"]
 
 
 @dataclass
@@ -29,14 +29,11 @@ class Stage1Config:
 
     Attributes mirror the paper's App. C: loss weights 0.08 L1 + 0.02 (1 - SSIM)
     + 0.01 anisotropy with a 7x7 SSIM window, Adam, recycling of primitives
-    whose opacity falls below ``alpha_dead``. Optional priors on the
-    decoder's kinematics, all off by default (the paper's loss):
-    ``w_kinematic`` (:func:`~lagsplat.train.losses.kinematic_penalty`),
-    ``j_decay`` (:func:`decay_state_coupling`), ``w_static`` with
-    ``static_margin`` (px; :func:`~lagsplat.train.losses.static_motion_penalty`
-    on :func:`static_pixels` of the training frames) and ``w_rigid`` with
-    ``rigid_length`` (px; :func:`~lagsplat.train.losses.rigidity_penalty` at
-    the batch's mean state).
+    whose opacity falls below ``alpha_dead``. One optional prior, off by
+    default (the paper's loss): ``w_static`` with ``static_margin`` (px;
+    :func:`~lagsplat.train.losses.static_motion_penalty` on
+    :func:`static_pixels` of the training frames): matter on never-changing
+    pixels does not move.
     """
 
     n_gaussians: int = 1024
@@ -48,15 +45,11 @@ class Stage1Config:
     w_ssim: float = 0.02
     w_aniso: float = 0.01
     w_nonlocal: float = 0.0
-    w_kinematic: float = 0.0
-    j_decay: float = 0.0
     w_static: float = 0.0
     static_margin: float = 1.0
-    w_rigid: float = 0.0
-    rigid_length: float = 1.5
     ssim_window: int = 7
     aniso_max_ratio: float = 5.0
-    sigma_xy: float = 0.05
+    sigma_xy: float = 0.03
     sigma_q_floor: float = 0.5
     alpha_dead: float = 0.02
     recycle_every: int = 250
@@ -67,7 +60,6 @@ class Stage1Config:
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     backend: str = "auto"
     threads: int = 0
-    extra: dict[str, Any] = field(default_factory=dict)
 
     @classmethod
     def from_mapping(cls, m: Mapping[str, Any]) -> "Stage1Config":
@@ -174,14 +166,8 @@ def train_stage1(
             )
             if cfg.w_nonlocal > 0:
                 loss = loss + cfg.w_nonlocal * nonlocal_filter_penalty(enc.large_kernels())
-            if cfg.w_kinematic > 0:
-                loss = loss + cfg.w_kinematic * kinematic_penalty(dec, z.detach().std(0))
             if static is not None:
                 loss = loss + cfg.w_static * static_motion_penalty(motion, static)
-            if cfg.w_rigid > 0:
-                zd = z.detach()
-                z_std = zd.std(0) if len(idx) > 1 else torch.ones(d, device=dev)
-                loss = loss + cfg.w_rigid * rigidity_penalty(dec, zd.mean(0), z_std, H, W, cfg.rigid_length)
         with record_function("stage1.backward"):
             opt.zero_grad(set_to_none=True)
             loss.backward()
@@ -189,8 +175,6 @@ def train_stage1(
             nn.utils.clip_grad_norm_(enc.parameters(), cfg.grad_clip, foreach=True)
             nn.utils.clip_grad_norm_(dec_params, cfg.grad_clip, foreach=True)
             opt.step()
-            if cfg.j_decay > 0:
-                decay_state_coupling(dec, cfg.lr_decoder * cfg.j_decay)
         lv = float(loss.detach())
         ema = lv if ema is None else 0.95 * ema + 0.05 * lv
         if step % 10 == 0:
@@ -230,34 +214,3 @@ def static_pixels(frames: np.ndarray, margin: float = 1.0) -> Tensor | None:
     except ValueError:
         return None
     return torch.from_numpy(static)
-
-
-@torch.no_grad()
-def decay_state_coupling(dec: ConditionedGaussians, rate: float) -> None:
-    """Decoupled decay of the decoder's state coupling, ``L_sq <- (1 - rate) L_sq`` (Stage 1, optional).
-
-    ``L_sq`` is the spatial-latent block of each primitive's Cholesky factor in
-    the space-state volume; it is the only free parameter of the constant
-    Jacobian ``J_i = L_sq L_qq^-1`` (Schur mean, paper Eq. 2 and Eq. 9) and
-    leaves the footprint ``Sigma_s|q = L_ss L_ss^T`` and the gate untouched.
-    Applied after each Adam step, outside the adaptive normalisation
-    (decoupled weight decay, Loshchilov & Hutter, ICLR 2019): Adam moves every
-    parameter by about the learning rate whatever its gradient's size, so a
-    primitive whose motion the images do not constrain (static background over
-    a smooth texture) random-walks its ``J_i`` away from the initial zero, and a
-    penalty added to the loss (``w_kinematic``) is normalised away with it. The
-    decay pulls such Jacobians back to zero, so a force on static background
-    transports to nothing (paper §4.5), while Jacobians the reconstruction pins
-    are restored by their own gradient at every step.
-
-    Args:
-        dec: the decoder being trained.
-        rate: per-step factor ``lr_decoder * j_decay`` (``stage1.j_decay``, per unit learning rate), in ``[0, 1)``.
-
-    Raises:
-        ValueError: if ``rate`` is not in ``[0, 1)``.
-    """
-    if not 0.0 <= rate < 1.0:
-        raise ValueError(f"state-coupling decay per step must be in [0, 1), got {rate}")
-    sq = (dec.tril_i >= dec.d) & (dec.tril_j < dec.d)
-    dec.L_raw[:, sq] *= 1.0 - rate

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import copy
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
@@ -59,14 +59,13 @@ class Stage2Config:
     w_q: float = 0.1
     w_v: float = 0.1
     lr: float = 1e-3
-    epochs: int = 60
+    epochs: int = 100
     batch: int = 32
     windows_per_epoch: int = 1000
     grad_clip: float = 100.0
     select_every: int = 5
     select_windows: int = 16
     select_periods: float = 4.0
-    extra: dict[str, Any] = field(default_factory=dict)
 
     @classmethod
     def from_mapping(cls, m: Mapping[str, Any]) -> "Stage2Config":

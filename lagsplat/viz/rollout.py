@@ -17,7 +17,18 @@ from lagsplat.dynamics.integrators import actuation_schedule, initial_state, rol
 from lagsplat.io.atomic import atomic_write  # noqa: E402
 from lagsplat.io.clip import HELD_OUT  # noqa: E402
 
-__all__ = ["rollout_figure", "held_out_frequency"]
+__all__ = ["rollout_figure", "held_out_frequency", "metrics_line"]
+
+
+def metrics_line(metrics: dict) -> str:
+    """The key metrics of a ``metrics.json`` block in one line, those present and finite (paper §4.1):
+    ``eps_freq`` (%), ``eps_q``, ``eps_I / eps_AE``, and the soft-robot protocol's ``mse_0p5s``."""
+    parts = []
+    for key, fmt in (("eps_freq", "eps_freq {:.2%}"), ("eps_q", "eps_q {:.3f}"), ("eps_I_over_AE", "eps_I / eps_AE {:.2f}"), ("mse_0p5s", "MSE(0.5 s) {:.2e}")):
+        v = (metrics.get(key) or {}).get("value")
+        if isinstance(v, (int, float)) and np.isfinite(v):
+            parts.append(fmt.format(v))
+    return ", ".join(parts) + ("  (held-out frames)" if parts else "")
 
 
 def held_out_frequency(metrics: dict) -> float:
@@ -108,12 +119,13 @@ def rollout_figure(artifacts: Artifacts | str | Path, title: str = "", provenanc
         ax.axvspan(chart.t[ho[0]], chart.t[ho[-1]], color="0.9", label="held out")
         ax.plot(t, enc_c[:, k], ".", ms=2.5, color="k", label="encoded")
         ax.plot(t, pred_c[:, k], "-", lw=1.2, color="tab:red", label="predicted (free rollout)")
-        ax.set_ylabel(f"q{k + 1}  ({100 * share[k]:.0f}% of tr G)")
+        ax.set_ylabel(f"q{k + 1}: mode {k + 1} of G_bar\n({100 * share[k]:.0f} % of the visibility)", fontsize=8)
+        ax.axvline(t[0], color="tab:red", lw=1.0, ls="--", label=f"rollout starts, t = {t[0]:.2f} s")
         for p in picks:
             ax.axvline(chart.t[p], color="tab:blue", lw=0.6, ls=":")
         if k == 0:
-            ax.legend(loc="upper right", fontsize=7, ncol=3)
-            ax.set_title(title)
+            ax.legend(loc="upper right", fontsize=7, ncol=4)
+            ax.set_title(title + ("\n" if title else "") + metrics_line(metrics), fontsize=9)
     ax.set_xlabel("time (s)")
     labels = ["real", "at encoded q", "at predicted q"]
     for r, imgs in enumerate([real, r_enc, r_pred]):

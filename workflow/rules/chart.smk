@@ -1,12 +1,12 @@
 rule chart:
     """Whitening, visibility metric G_bar, loss metric A, AE floor (paper §3.2)."""
     input:
-        f"{RESULTS}/{{system}}/clip.npz",
-        f"{RESULTS}/{{system}}/stage1.pt",
+        clip=str(ART.clip),
+        stage1=str(ART.stage1),
     output:
-        f"{RESULTS}/{{system}}/chart.npz",
+        chart=str(ART.chart),
     log:
         f"{RESULTS}/logs/{{system}}/chart.log",
     threads: 2
     shell:
-        cli("chart") + SHOW_LOG
+        cli("chart", ["clip", "stage1"], ["chart"])

@@ -18,9 +18,9 @@ rule ingest:
     input:
         lambda w: raw_input(w.system),
     output:
-        f"{RESULTS}/{{system}}/clip.npz",
+        clip=str(ART.clip),
     log:
         f"{RESULTS}/logs/{{system}}/ingest.log",
     threads: 1
     shell:
-        cli("ingest") + SHOW_LOG
+        cli("ingest", [], ["clip"])

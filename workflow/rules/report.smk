@@ -1,28 +1,35 @@
 rule figures:
     """Rollout figure (paper Fig. 3 protocol)."""
     input:
-        f"{RESULTS}/{{system}}/metrics.json",
+        clip=str(ART.clip),
+        stage1=str(ART.stage1),
+        chart=str(ART.chart),
+        stage2=str(ART.stage2),
+        metrics=str(ART.metrics),
     output:
-        f"{RESULTS}/{{system}}/figures/rollout.png",
+        rollout_figure=str(ART.rollout_figure),
     log:
         f"{RESULTS}/logs/{{system}}/figures.log",
     threads: 1
     shell:
-        cli("figures") + SHOW_LOG
+        cli("figures", ["clip", "stage1", "chart", "stage2", "metrics"], ["rollout_figure"])
 
 
 rule forces:
     """Force-transport checks and figure (paper §3.4, Fig. 7): background, linearity, kernel."""
     input:
-        f"{RESULTS}/{{system}}/stage2.pt",
+        clip=str(ART.clip),
+        stage1=str(ART.stage1),
+        chart=str(ART.chart),
+        stage2=str(ART.stage2),
     output:
-        f"{RESULTS}/{{system}}/forces.json",
-        f"{RESULTS}/{{system}}/figures/forces.png",
+        forces=str(ART.forces),
+        forces_figure=str(ART.forces_figure),
     log:
         f"{RESULTS}/logs/{{system}}/forces.log",
     threads: 1
     shell:
-        cli("forces") + SHOW_LOG
+        cli("forces", ["clip", "stage1", "chart", "stage2"], ["forces", "forces_figure"])
 
 
 rule table:

@@ -1,11 +1,11 @@
 rule stage1:
     """Joint encoder / conditioned-Gaussian decoder training (paper §3.2)."""
     input:
-        f"{RESULTS}/{{system}}/clip.npz",
+        clip=str(ART.clip),
     output:
-        f"{RESULTS}/{{system}}/stage1.pt",
+        stage1=str(ART.stage1),
     log:
         f"{RESULTS}/logs/{{system}}/stage1.log",
     threads: 2
     shell:
-        cli("stage1") + SHOW_LOG
+        cli("stage1", ["clip"], ["stage1"])
