@@ -103,6 +103,7 @@ include: "workflow/rules/krauss.smk"
 include: "workflow/rules/diagnose.smk"
 include: "workflow/rules/suite.smk"
 include: "workflow/rules/seeds.smk"
+include: "workflow/rules/realistic.smk"
 
 
 rule toy:

@@ -40,7 +40,8 @@ def decoded_psnr_ssim(ae: AutoEncoder, chart: Chart, q_pred: np.ndarray, frames:
     (Gaussian-free 7 x 7 window, colour channels averaged, ``data_range`` 1)
     on pixels in [0, 1] at the training resolution: the image-quality numbers
     the field reports next to the MSE (paper §4.1 reports the MSE ratio).
-    A frame decoded exactly gives ``inf`` dB.
+    A frame decoded exactly gives ``inf`` dB; SSIM is NaN on images under 3 px
+    a side (no window fits).
 
     Returns:
         ``(psnr [M], ssim [M])``, float64.
@@ -51,7 +52,9 @@ def decoded_psnr_ssim(ae: AutoEncoder, chart: Chart, q_pred: np.ndarray, frames:
         rec = ae.decode(z).permute(0, 2, 3, 1).double().numpy()
         x = frames[i : i + batch].astype(np.float64) / 255.0
         for j in range(len(rec)):
-            psnr[i + j] = peak_signal_noise_ratio(x[j], rec[j], data_range=1.0)
-            win = min(7, *x.shape[1:3]) | 1  # odd, at most the image side
-            ssim[i + j] = structural_similarity(x[j], rec[j], data_range=1.0, channel_axis=-1, win_size=win)
+            with np.errstate(divide="ignore"):  # an exact decode: inf dB, left out of the mean by the caller
+                psnr[i + j] = peak_signal_noise_ratio(x[j], rec[j], data_range=1.0)
+            side = min(x.shape[1:3])
+            win = min(7, side if side % 2 else side - 1)  # odd, at most the image side
+            ssim[i + j] = structural_similarity(x[j], rec[j], data_range=1.0, channel_axis=-1, win_size=win) if win >= 3 else np.nan
     return psnr, ssim

@@ -189,7 +189,7 @@ def evaluate(clip: Clip, ae: AutoEncoder, chart: Chart, model: Lagrangian, cfg: 
         "dB",
     )
     out["ssim"] = metric_entry(
-        float(ssim.mean()) if len(ssim) else float("nan"),
+        float(np.nanmean(ssim)) if np.isfinite(ssim).any() else float("nan"),
         "SSIM of decode(q_sim) against the real frames (skimage.metrics.structural_similarity, 7 x 7 window, channel mean), mean over states",
         horizon,
         "1 = identical",

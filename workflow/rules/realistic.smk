@@ -1,0 +1,32 @@
+# The realistic suite: clips of a pendulum, a spring cart, a torsion disk and a double pendulum rendered by
+# MuJoCo (an independent renderer) with a textured backdrop, moving shadows, distractors, a lighting
+# gradient, sensor noise and MP4 compression, with per-frame ground truth (lagsplat.synth.realistic).
+#
+#   snakemake -c2 realistic_suite                                   # every clip, into the cache folder
+#   snakemake -c2 realistic_suite --config realistic_dir=/scratch/clips
+#
+# Config key: realistic_dir (default data/cache/realistic; not committed). One job per clip, each logged.
+from lagsplat.synth.realistic import realistic_suite
+
+REALISTIC_DIR = str(config.get("realistic_dir", "data/cache/realistic"))
+REALISTIC_CLIPS = [e["name"] for e in realistic_suite()]
+
+
+rule realistic_clip:
+    """One clip of the realistic suite: <clip>.mp4 and its ground truth <clip>.truth.npz."""
+    output:
+        mp4=f"{REALISTIC_DIR}/{{clip}}.mp4",
+        truth=f"{REALISTIC_DIR}/{{clip}}.truth.npz",
+    log:
+        f"{RESULTS}/logs/realistic/{{clip}}.log",
+    wildcard_constraints:
+        clip="|".join(re.escape(c) for c in REALISTIC_CLIPS),
+    threads: 1
+    shell:
+        f"python -m lagsplat.synth.realistic --clip {{wildcards.clip}} --out {REALISTIC_DIR} > {{log}} 2>&1"
+
+
+rule realistic_suite:
+    """Every clip of the realistic suite."""
+    input:
+        [f"{REALISTIC_DIR}/{c}.mp4" for c in REALISTIC_CLIPS],
