@@ -1,6 +1,6 @@
 """Blind check of the sim-to-real gap diagnosis at the image level.
 
-Every clip of the blind suite (:func:`lagsplat.synth.effects.blind_suite`: a
+Every clip of the blind suite (:func:`lagsplat.synth.effect_clips.blind_suite`: a
 pendulum and a cart, each candidate effect ``--n-per-effect`` times, controls
 and actuated controls included) is rendered and run through the whole
 pipeline, as ``python -m lagsplat all`` + ``diagnose`` would on a video:
@@ -95,7 +95,7 @@ from lagsplat.diagnose.where import WhereConfig
 from lagsplat.evaluate import EvalConfig, evaluate
 from lagsplat.io.atomic import atomic_write, write_json
 from lagsplat.io.clip import Clip, load_clip, save_clip
-from lagsplat.synth.effects import blind_suite, make_effect_clip
+from lagsplat.synth.effect_clips import blind_suite, make_effect_clip
 from lagsplat.train.stage1 import Stage1Config, train_stage1
 from lagsplat.models.autoencoder import load_stage1, save_stage1
 from lagsplat.train.stage2 import Stage2Config, load_stage2, save_stage2, train_stage2

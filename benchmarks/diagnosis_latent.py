@@ -1,6 +1,6 @@
 """Blind check of the effect diagnosis at the latent level (no Stage 1).
 
-Every clip of the blind suite (:func:`lagsplat.synth.effects.blind_suite`: a
+Every clip of the blind suite (:func:`lagsplat.synth.effect_clips.blind_suite`: a
 pendulum and a cart, each effect twice, controls included) is simulated; its
 true 1-D coordinate ``meta["latent"]`` stands in for the encoded chart,
 linearly mapped (random seeded scale, sign and offset, then whitened on the
@@ -44,7 +44,8 @@ from lagsplat.chart import Chart
 from lagsplat.diagnose import diagnose_chart, fit_linear_oscillator
 from lagsplat.io.atomic import write_json
 from lagsplat.io.clip import TRAIN
-from lagsplat.synth.effects import blind_suite, simulate_effect
+from lagsplat.synth.effects import simulate_effect
+from lagsplat.synth.effect_clips import blind_suite
 from lagsplat.train.stage2 import Stage2Config, train_stage2
 
 

@@ -20,7 +20,7 @@ from pathlib import Path
 import pytest
 
 from lagsplat.diagnose.refit import GAP_METRICS
-from lagsplat.synth.effects import blind_suite
+from lagsplat.synth.effect_clips import blind_suite
 
 ROOT = Path(__file__).resolve().parents[1]
 SLURM_PLUGIN = importlib.util.find_spec("snakemake_executor_plugin_slurm") is not None

@@ -25,7 +25,7 @@ from lagsplat.synth.coupled_carts import (
     render_coupled_carts,
     simulate_coupled_carts,
 )
-from lagsplat.synth.effects import make_effect_clip
+from lagsplat.synth.effect_clips import make_effect_clip
 from lagsplat.synth.pendulum import make_pendulum_clip, render_pendulum, simulate_pendulum
 
 __all__ = [

@@ -61,30 +61,18 @@ from __future__ import annotations
 
 import math
 import zlib
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from lagsplat.io.clip import HELD_OUT, TRAIN, Clip
+from lagsplat.io.clip import HELD_OUT, TRAIN
 from lagsplat.synth._clip import check_timing
-from lagsplat.synth._render import (
-    SUPERSAMPLE,
-    Canvas,
-    background,
-    over,
-    parse_size,
-    render_frames,
-)
 from lagsplat.synth.coupled_carts import (
-    CART_HEIGHT,
-    CART_WIDTH,
     CoupledCarts,
-    render_coupled_carts,
 )
-from lagsplat.synth.pendulum import BOB_RADIUS, PIVOT_Y, ROD_LENGTH
 
 __all__ = [
     "EFFECTS",
@@ -92,9 +80,6 @@ __all__ = [
     "EffectRun",
     "sample_truth",
     "simulate_effect",
-    "render_effect",
-    "make_effect_clip",
-    "blind_suite",
 ]
 
 #: Effect labels (``"none"`` is the control), in the order of :mod:`lagsplat.diagnose.effects`.
@@ -117,20 +102,6 @@ NOMINAL_AMPLITUDE = {"pendulum": math.radians(20.0), "cart": 0.25}
 #: Largest excursion the pictures accept: rad, frame widths.
 MAX_EXCURSION = {"pendulum": math.radians(35.0), "cart": 0.35}
 
-_CART_RAIL_Y = 0.62  # single cart rail height, units of H
-_ROD_HALF_WIDTH = 0.018
-_PIVOT_RADIUS = 0.03
-_ROD_RGB = (0.25, 0.25, 0.28)
-_PIVOT_RGB = (0.15, 0.15, 0.17)
-_BOB_LEFT_RGB = (0.85, 0.20, 0.15)
-_BOB_RIGHT_RGB = (0.15, 0.35, 0.85)
-_CART_RGB = (0.86, 0.16, 0.12)
-_OUTLINE_RGB = (0.12, 0.12, 0.14)
-_WHEEL_RGB = (0.20, 0.20, 0.22)
-_RAIL_RGB = (0.35, 0.35, 0.37)
-_WALL_RGB = (0.45, 0.42, 0.38)
-_BUMPER_RGB = (0.10, 0.55, 0.25)
-_SLIDER_RGB = (0.30, 0.30, 0.34)
 
 
 @dataclass
@@ -165,7 +136,7 @@ class EffectRun:
     truth: dict[str, Any] = field(default_factory=dict)
 
 
-def _check_label(system: str, effect: str) -> None:
+def check_label(system: str, effect: str) -> None:
     if system not in SYSTEMS:
         raise ValueError(f"system must be one of {SYSTEMS}, got {system!r}")
     if effect not in EFFECTS:
@@ -194,7 +165,7 @@ def sample_truth(system: str, effect: str, seed: int = 0, actuated: bool | None 
     Raises:
         ValueError: on an unknown system / effect, or ``actuation_delay`` without actuation.
     """
-    _check_label(system, effect)
+    check_label(system, effect)
     act = effect == "actuation_delay" if actuated is None else bool(actuated)
     if effect == "actuation_delay" and not act:
         raise ValueError("the actuation_delay effect needs an actuated clip (actuated=True)")
@@ -481,167 +452,3 @@ def _two_carts(
         xs, vs = xs * MAX_EXCURSION["cart"] / big, vs * MAX_EXCURSION["cart"] / big
     truth.setdefault("effect_params", {})["f2_hz"] = float(sysc.f_modes_hz[1])
     return xs, vs
-
-
-# ---------------------------------------------------------------------- pictures
-def _pendulum_fg(theta: float, pivot_dx: float, W: int, H: int, s: int, slider: bool) -> np.ndarray:
-    """Pendulum at ``theta`` (rad) with the pivot shifted by ``pivot_dx`` (pixels); premultiplied RGBA."""
-    cv = Canvas(W, H, s)
-    px, py = W / 2.0 + pivot_dx, PIVOT_Y * H
-    if slider:
-        cv.rect(px - 0.07 * H, py - 0.05 * H, px + 0.07 * H, py + 0.05 * H, _SLIDER_RGB)
-    ux, uy = math.sin(theta), math.cos(theta)
-    L, r, hw = ROD_LENGTH * H, BOB_RADIUS * H, _ROD_HALF_WIDTH * H
-    bx, by = px + L * ux, py + L * uy
-    nx, ny = uy, -ux
-    cv.convex([(px + hw * nx, py + hw * ny), (bx + hw * nx, by + hw * ny), (bx - hw * nx, by - hw * ny), (px - hw * nx, py - hw * ny)], _ROD_RGB)
-    cv.disc(px, py, _PIVOT_RADIUS * H, _PIVOT_RGB)
-    cv.disc(bx, by, r, _BOB_LEFT_RGB)
-    phi = math.degrees(math.atan2(uy, ux))
-    cv.sector(bx, by, r, phi - 180.0, phi, _BOB_RIGHT_RGB)
-    return cv.reduce(W, H)
-
-
-def _pendulum_backdrop(W: int, H: int, s: int, seed: int, stop: float | None, side: float, rail: bool) -> np.ndarray:
-    cv = Canvas(W, H, s)
-    if rail:
-        cv.rect(0.1 * W, PIVOT_Y * H - 0.012 * H, 0.9 * W, PIVOT_Y * H + 0.012 * H, _RAIL_RGB)
-    if stop is not None:  # a post the bob's edge touches at theta = stop
-        L, r = ROD_LENGTH * H, BOB_RADIUS * H
-        cx = W / 2.0 + L * math.sin(stop) + side * r
-        cy = PIVOT_Y * H + L * math.cos(stop)
-        cv.rect(cx, cy - 0.12 * H, cx + side * 0.05 * W, cy + 0.12 * H, _BUMPER_RGB)
-    return np.clip(over(cv.reduce(W, H), background(W, H, seed)), 0.0, 1.0)
-
-
-def _cart_fg(x: float, W: int, H: int, s: int) -> np.ndarray:
-    """One cart (style of :mod:`~lagsplat.synth.coupled_carts`) at displacement ``x`` frame widths."""
-    cv = Canvas(W, H, s)
-    hw, bh, ol = 0.5 * CART_WIDTH * W, CART_HEIGHT * H, 0.025 * H
-    cx, y = (0.5 + float(x)) * W, _CART_RAIL_Y * H
-    wr = 0.045 * H
-    for sgn in (-1.0, 1.0):
-        cv.disc(cx + sgn * 0.27 * 2.0 * hw, y - wr, wr, _WHEEL_RGB)
-    top, bottom = y - 0.06 * H - bh, y - 0.06 * H
-    cv.rect(cx - hw, top, cx + hw, bottom, _OUTLINE_RGB)
-    cv.rect(cx - hw + ol, top + ol, cx + hw - ol, bottom - ol, _CART_RGB)
-    return cv.reduce(W, H)
-
-
-def _cart_backdrop(W: int, H: int, s: int, seed: int, stop: float | None, side: float) -> np.ndarray:
-    cv = Canvas(W, H, s)
-    ww, y = 0.035 * W, _CART_RAIL_Y * H
-    cv.rect(ww, y, W - ww, y + 0.025 * H, _RAIL_RGB)
-    cv.rect(0.0, y - 0.27 * H, ww, y + 0.025 * H, _WALL_RGB)
-    cv.rect(W - ww, y - 0.27 * H, W, y + 0.025 * H, _WALL_RGB)
-    if stop is not None:  # a bumper the cart's side touches at x = stop
-        cx = (0.5 + stop) * W + side * 0.5 * CART_WIDTH * W
-        cv.rect(cx, y - 0.2 * H, cx + side * 0.04 * W, y, _BUMPER_RGB)
-    return np.clip(over(cv.reduce(W, H), background(W, H, seed)), 0.0, 1.0)
-
-
-def render_effect(run: EffectRun, size: Sequence[int] = (64, 64), seed: int = 0, supersample: int = SUPERSAMPLE) -> np.ndarray:
-    """Render an :class:`EffectRun` as uint8 ``[T,H,W,3]`` RGB frames.
-
-    The end stop is drawn as a static green bumper; the missing DOF as a
-    moving pivot slider (pendulum) or a second cart (cart, drawn by
-    :func:`~lagsplat.synth.coupled_carts.render_coupled_carts`).
-
-    Raises:
-        ValueError: on a bad ``size`` or ``supersample``.
-    """
-    W, H = parse_size(size, 16)
-    s = int(supersample)
-    if s < 1:
-        raise ValueError(f"supersample must be >= 1, got {supersample!r}")
-    p = run.truth["effect_params"]
-    stop = p.get("x_stop") if run.effect == "end_stop" else None
-    side = float(p.get("side", 1.0))
-    if run.system == "cart" and run.effect == "missing_dof":
-        return render_coupled_carts(np.stack([run.x, run.second], 1), size=(W, H), seed=seed, supersample=s)
-    if run.system == "cart":
-        back = _cart_backdrop(W, H, s, seed, stop, side)
-        return render_frames(run.x, lambda xi: _cart_fg(float(xi), W, H, s), back)
-    moving = run.effect == "missing_dof"
-    back = _pendulum_backdrop(W, H, s, seed, stop, side, rail=moving)
-    L = ROD_LENGTH * H
-    states = np.stack([run.x, run.second * L], 1)
-    return render_frames(states, lambda st: _pendulum_fg(float(st[0]), float(st[1]), W, H, s, moving), back)
-
-
-def make_effect_clip(
-    system: str = "pendulum",
-    effect: str = "none",
-    seed: int = 0,
-    actuated: bool | None = None,
-    size: Sequence[int] = (64, 64),
-    fps: float = 30.0,
-    duration_s: float = 15.0,
-    n_episodes: int = 4,
-    held_out_episodes: int = 1,
-) -> Clip:
-    """A rendered clip of a simple system with one known effect (the blind-suite clip).
-
-    Arguments as :func:`simulate_effect`, plus ``size`` (``(W, H)`` pixels).
-    ``seed`` also seeds the background texture.
-
-    ``meta`` holds ``source`` (``"lagsplat.synth.effects"``), ``label`` (the
-    effect), ``system``, ``truth`` (:func:`sample_truth`, completed),
-    ``latent`` (per-frame 1-D coordinate), ``second`` (the missing DOF, or
-    zeros) and ``params`` (every argument).
-
-    Returns:
-        A validated :class:`~lagsplat.io.clip.Clip` with ``episode`` and, when
-        actuated, one actuation channel ``"u1"``.
-
-    Raises:
-        ValueError: as :func:`simulate_effect`.
-    """
-    run = simulate_effect(system, effect, seed, actuated, fps, duration_s, n_episodes, held_out_episodes)
-    W, H = parse_size(size, 16)
-    images = render_effect(run, (W, H), seed)
-    meta = {
-        "source": "lagsplat.synth.effects",
-        "label": effect,
-        "system": system,
-        "truth": run.truth,
-        "latent": [float(v) for v in run.latent],
-        "second": [float(v) for v in run.second],
-        "params": {
-            "system": system, "effect": effect, "seed": int(seed), "actuated": run.truth["actuated"], "size": [W, H],
-            "fps": float(fps), "duration_s": float(duration_s), "n_episodes": int(n_episodes),
-            "held_out_episodes": int(held_out_episodes),
-        },
-    }  # fmt: skip
-    u_names = ["u1"] if run.u.shape[1] else []
-    clip = Clip(images=images, t=run.t, u=run.u, u_names=u_names, split=run.split, meta=meta, episode=run.episode)
-    return clip.validate("lagsplat.synth.effects")
-
-
-def blind_suite(n_per_effect: int = 2, systems: Sequence[str] = SYSTEMS, actuated_controls: bool = True) -> list[dict[str, Any]]:
-    """The blind benchmark suite: ``n_per_effect`` clips per (system, effect), controls included.
-
-    Every effect on every system (``actuation_delay`` on actuated clips), and,
-    with ``actuated_controls``, ``n_per_effect`` actuated clips without effect
-    per system, so that a delay is never found where there is none.
-
-    Returns:
-        ``[{"name", "system", "effect", "seed", "actuated"}]``, each entry the
-        keyword arguments of :func:`make_effect_clip` / :func:`simulate_effect` plus a ``name``.
-
-    Raises:
-        ValueError: if ``n_per_effect < 1`` or a system is unknown.
-    """
-    if int(n_per_effect) < 1:
-        raise ValueError(f"n_per_effect must be >= 1, got {n_per_effect!r}")
-    out = []
-    for system in systems:
-        _check_label(system, "none")
-        for effect in EFFECTS:
-            for seed in range(int(n_per_effect)):
-                act = effect == "actuation_delay"
-                out.append({"name": f"{system}-{effect}-{seed}", "system": system, "effect": effect, "seed": seed, "actuated": act})
-        if actuated_controls:
-            for seed in range(int(n_per_effect)):
-                out.append({"name": f"{system}-none_actuated-{seed}", "system": system, "effect": "none", "seed": 100 + seed, "actuated": True})
-    return out

@@ -30,3 +30,37 @@ rule realistic_suite:
     """Every clip of the realistic suite."""
     input:
         [f"{REALISTIC_DIR}/{c}.mp4" for c in REALISTIC_CLIPS],
+
+
+REALISTIC_ROWS = f"{RESULTS}/benchmarks/realistic"
+
+
+rule realistic_row:
+    """The pipeline on one realistic clip, as a new user runs it (conf/system/realistic.yaml), scored against
+    the ground truth (benchmarks/realistic.py): a row with the frequency error, or the stage's one-line reason."""
+    input:
+        mp4=f"{REALISTIC_DIR}/{{clip}}.mp4",
+        truth=f"{REALISTIC_DIR}/{{clip}}.truth.npz",
+    output:
+        f"{REALISTIC_ROWS}/{{clip}}.json",
+    log:
+        f"{RESULTS}/logs/realistic_runs/{{clip}}.log",
+    wildcard_constraints:
+        clip="|".join(re.escape(c) for c in REALISTIC_CLIPS),
+    threads: 2
+    shell:
+        f"python benchmarks/realistic.py --clip {{wildcards.clip}} --clips {REALISTIC_DIR} --results {RESULTS}/realistic "
+        f"--threads {{threads}} --row {{output}} > {{log}} 2>&1"
+
+
+rule realistic_scores:
+    """The realistic suite's score: results/benchmarks/realistic.md and .json."""
+    input:
+        [f"{REALISTIC_ROWS}/{c}.json" for c in REALISTIC_CLIPS],
+    output:
+        md=f"{RESULTS}/benchmarks/realistic.md",
+        json=f"{RESULTS}/benchmarks/realistic.json",
+    log:
+        f"{RESULTS}/logs/benchmarks/realistic.log",
+    shell:
+        "python benchmarks/realistic.py --gather {input} --out {output.md} > {log} 2>&1"

@@ -15,7 +15,7 @@
 # accuracy, gap reductions) results/benchmarks/diagnosis_<budget>.md and .json.
 import re
 
-from lagsplat.synth.effects import blind_suite
+from lagsplat.synth.effect_clips import blind_suite
 
 SUITE_BUDGET = str(config.get("suite_budget", "cheap"))
 SUITE_N = int(config.get("suite_n_per_effect", 2))

@@ -1,0 +1,430 @@
+"""The soft-robot protocol's settings and pieces: index conventions, flat-pressure intervals, the spectral peak, zero-order-hold rollouts, the multi-step image error and the frequency windows (paper §4.4, Table 4; the driver is :func:`lagsplat.evaluate.krauss.evaluate_krauss`)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Callable, Mapping
+
+import numpy as np
+import torch
+
+from lagsplat import metrics, timeseries
+from lagsplat.dynamics.integrators import verlet_step
+from lagsplat.train.config import dataclass_from_mapping
+
+DT_KRAUSS = 1001 / 60000
+"""Frame interval of the published recordings, seconds (59.94 fps; the reference code)."""
+
+
+@dataclass
+class KraussEvalConfig:
+    """Settings of the published protocol (``krauss_eval`` group of ``conf/system/krauss_*.yaml``).
+
+    Defaults are the published values (the reference code); ``period_s`` is
+    the two-segment one (``--period-s 0.6870``).
+
+    Attributes:
+        horizon_s: multi-step MSE horizon, s (30 states at 59.94 fps).
+        n_windows: rollout starts for the MSE and the cycle error.
+        seed: seed of ``numpy.random.default_rng`` drawing them.
+        skip_s: static head skipped at the start of the validation clip, s (480 frames).
+        sigma: Gaussian smoothing of the encodings, frames.
+        sigma_pressure: Gaussian smoothing of the pressures, frames.
+        ae_frames: frames of the AE floor (``linspace`` over ``[skip, n-1]``).
+        flat_step_tol: a frame is flat if every chamber moved less than this
+            fraction of the pressure amplitude since the previous frame.
+        flat_total_tol: a flat run is discarded if its peak-to-peak exceeds
+            this fraction of the amplitude.
+        min_flat_s: shortest free-oscillation interval, s (120 frames).
+        max_intervals: intervals kept, longest first.
+        freq_window_periods: analysis window length in periods of ``f0``.
+        min_window: shortest analysis window, frames.
+        min_amplitude: windows with G-RMS amplitude below this fraction of
+            ``q_std`` are skipped.
+        diverge_factor: a rollout beyond ``diverge_factor * max |q_enc|`` is rejected.
+        cycle_periods, period_s: cycle-error horizon ``round(cycle_periods * period_s / dt)``.
+        trim_duplicates: trim leading duplicated frames before §9.2.
+        render_batch: decoder batch size.
+    """
+
+    horizon_s: float = 0.5
+    n_windows: int = 50
+    seed: int = 0
+    skip_s: float = 8.0
+    sigma: float = 1.0
+    sigma_pressure: float = 1.0
+    ae_frames: int = 1000
+    flat_step_tol: float = 0.01
+    flat_total_tol: float = 0.05
+    min_flat_s: float = 2.0
+    max_intervals: int = 20
+    freq_window_periods: float = 8.0
+    min_window: int = 16
+    min_amplitude: float = 0.05
+    diverge_factor: float = 2.0
+    cycle_periods: float = 2.0
+    period_s: float = 0.6870
+    trim_duplicates: bool = True
+    render_batch: int = 64
+
+    @classmethod
+    def from_mapping(cls, m: Mapping[str, Any] | None) -> "KraussEvalConfig":
+        """Build from a (Hydra) mapping; ``None`` gives the defaults; unknown keys raise ``KeyError``."""
+        return cls() if not m else dataclass_from_mapping(cls, m, "krauss_eval")
+
+
+# --------------------------------------------------------------------------- index conventions
+def n_states(horizon_s: float, dt: float) -> int:
+    """Number of states of a ``horizon_s`` horizon, initial state included: ``round(horizon_s / dt)``.
+
+    0.5 s at 59.94 fps gives ``round(29.97) = 30`` (the reference code).
+
+    Raises:
+        ValueError: if the result is below 3 (no forward-difference velocity).
+    """
+    n = int(round(float(horizon_s) / float(dt)))
+    if n < 3:
+        raise ValueError(f"horizon {horizon_s} s at dt = {dt} s gives {n} states; need at least 3")
+    return n
+
+
+def mse_window_starts(n: int, horizon: int, skip: int, n_windows: int = 50, seed: int = 0) -> np.ndarray:
+    """Start frames of the multi-step MSE: ``default_rng(seed).integers(skip, n - horizon, n_windows)``.
+
+    Uniform with replacement (duplicates possible, as published; the reference code).
+
+    Args:
+        n: frames in the validation clip.
+        horizon: states per rollout (30).
+        skip: static head (480).
+
+    Returns:
+        int64 ``[n_windows]``, every ``s`` with ``skip <= s < n - horizon``.
+
+    Raises:
+        ValueError: if ``n - horizon <= skip`` (validation clip too short).
+    """
+    if n - horizon <= skip:
+        raise ValueError(f"validation clip has {n} frames: need more than skip + horizon = {skip + horizon}")
+    return metrics.window_starts(skip, n - horizon, n_windows, seed)
+
+
+def ae_floor_frames(n: int, skip: int, count: int = 1000) -> np.ndarray:
+    """Frames of the AE floor: ``linspace(skip, n - 1, count)`` truncated to integers (the reference code).
+
+    Raises:
+        ValueError: if ``n - 1 < skip``.
+    """
+    if n - 1 < skip:
+        raise ValueError(f"validation clip has {n} frames, fewer than the {skip}-frame head")
+    return np.linspace(skip, n - 1, int(count)).astype(np.int64)
+
+
+def leading_duplicates(frames: np.ndarray, first: int = 6, ratio: float = 50.0) -> int:
+    """Number of leading duplicated frames to trim before the §9.2 criteria.
+
+    ``m_j = MSE(frame_{j+1}, frame_j)`` for the first ``first`` pairs; frames
+    are trimmed from the start while ``m_j < median(m) / ratio`` (the published
+    "Setup": "consecutive-frame MSE < median/50 among the first 6"; the exact
+    loop of the reference is not documented, this is our reading).
+
+    Args:
+        frames: uint8 or float ``[n, H, W, C]`` (or any ``[n, ...]``).
+
+    Returns:
+        ``k >= 0``: frames ``[k, n)`` are kept.
+    """
+    f = np.asarray(frames[: first + 1], np.float64)
+    if len(f) < 3:
+        return 0
+    m = ((f[1:] - f[:-1]) ** 2).reshape(len(f) - 1, -1).mean(1)
+    thr = float(np.median(m)) / ratio
+    k = 0
+    while k < len(m) and m[k] < thr:
+        k += 1
+    return k
+
+
+def flat_intervals(P_raw: np.ndarray, lo: int, min_len: int, step_tol: float = 0.01, total_tol: float = 0.05, max_intervals: int = 20) -> list[tuple[int, int]]:
+    """Constant-pressure (free-oscillation) intervals of a pressure record (the reference code).
+
+    On frames ``[lo, n)``: ``amp`` = max over chambers of the peak-to-peak of
+    ``P_raw[lo:]``; frame ``t`` is flat when ``max_c |P[t+1, c] - P[t, c]| <
+    step_tol * amp`` (the last frame is flat when the one before it is, so
+    a depressurised tail runs to the end of the clip; the reference's exact
+    edge convention is not documented, this is our reading); runs of at least ``min_len`` flat frames are kept unless their own
+    peak-to-peak (max over chambers) exceeds ``total_tol * amp``; at most
+    ``max_intervals``, longest first (earliest first among equal lengths).
+
+    Args:
+        P_raw: ``[n, n_c]`` raw (unsmoothed) pressures, any unit.
+        lo: first frame considered (480).
+        min_len: shortest run, frames (120).
+
+    Returns:
+        ``[(a, b), ...]`` half-open frame ranges ``[a, b)`` into ``P_raw``
+        (possibly empty). If ``P_raw[lo:]`` is constant (``amp = 0``, e.g. a
+        clip whose validation part after the head is all tail) the whole of
+        ``[lo, n)`` is one interval, where the reference's tolerance
+        ``0.01 * amp = 0`` would find none.
+
+    Raises:
+        ValueError: if ``P_raw`` is not ``[n, n_c]`` with ``n_c >= 1`` or ``lo`` is outside it.
+    """
+    P = np.asarray(P_raw, np.float64)
+    if P.ndim != 2 or P.shape[1] < 1:
+        raise ValueError(f"P_raw must be [n, n_chambers], got shape {P.shape}")
+    n = len(P)
+    if not 0 <= lo < n:
+        raise ValueError(f"lo = {lo} outside the {n}-frame pressure record")
+    seg = P[lo:]
+    amp = float((seg.max(0) - seg.min(0)).max())
+    if amp <= 0:  # constant over all of [lo, n): one run (the reference's 0-tolerance finds none)
+        return [(lo, n)] if n - lo >= min_len else []
+    step = np.abs(np.diff(seg, axis=0)).max(1)  # frame t -> t + 1
+    flat = np.append(step < step_tol * amp, step[-1:] < step_tol * amp if len(step) else [False])
+    runs, a = [], None
+    for i, f in enumerate(np.append(flat, False)):
+        if f and a is None:
+            a = i
+        elif not f and a is not None:
+            if i - a >= min_len:
+                r = seg[a:i]
+                if float((r.max(0) - r.min(0)).max()) <= total_tol * amp:
+                    runs.append((lo + a, lo + i))
+            a = None
+    runs.sort(key=lambda ab: (-(ab[1] - ab[0]), ab[0]))
+    return runs[: int(max_intervals)]
+
+
+def peak_frequency(x: np.ndarray, dt: float, G: np.ndarray | None = None, min_cycles: float = 1.5) -> float:
+    """Spectral peak frequency as the published estimator computes it, Hz (the reference code).
+
+    Mean removed, Hann window, real FFT; power ``|F|^2`` (1-D) or
+    ``Re F^T G Re F + Im F^T G Im F``; bins below ``min_cycles`` cycles per
+    window zeroed; arg-max bin refined by a parabola through the log-power of
+    the three bins, kept if strictly concave with offset ``<= 0.5`` bin.
+    This is :func:`lagsplat.timeseries.spectral_peak_frequency` except at the
+    cut: the reference zeroes the low bins *before* the refinement, so a peak
+    in the first bin above the cut (bin 2 for ``min_cycles = 1.5``), whose
+    lower neighbour is zeroed, is returned unrefined at the bin centre.
+
+    Args:
+        x: ``[n]`` or ``[n, d]`` samples (time on axis 0), ``n >= 8``.
+        dt: sampling interval, s.
+        G: ``[d, d]`` metric of the aggregate power, or ``None``.
+        min_cycles: low-frequency cut, cycles per window.
+
+    Returns:
+        Frequency in Hz.
+
+    Raises:
+        ValueError: as :func:`lagsplat.timeseries.spectral_peak_frequency`
+            (flat signal, too few samples, bad shapes).
+    """
+    f = timeseries.spectral_peak_frequency(x, dt, G, min_cycles)
+    df = 1.0 / (len(x) * float(dt))
+    k1 = math.ceil(float(min_cycles))  # lowest bin kept: its lower neighbour is always zeroed
+    if k1 >= 1 and f < (k1 + 0.5) * df:
+        return k1 * df
+    return f
+
+
+# --------------------------------------------------------------------------- rollouts
+@torch.no_grad()
+def rollout_zoh(model: Any, q0: np.ndarray, v0: np.ndarray, dt: float, n_states_: int, P: np.ndarray | None) -> np.ndarray:
+    """Velocity-Verlet rollouts with the pressure held over each step (the reference code).
+
+    Step ``i -> i+1`` evaluates both accelerations with ``P[:, i]``. A window
+    whose step fails (non-finite state or a ``LinAlgError`` in the mass solve)
+    is NaN from that step on and is not stepped any further.
+
+    Args:
+        model: exposes ``acceleration(q, qdot, f_ext, u=...)`` (a :class:`~lagsplat.models.lagrangian.Lagrangian`).
+        q0, v0: ``[B, d]`` initial state (latent units, per second).
+        dt: step, s.
+        n_states_: states returned, the initial one included.
+        P: ``[B, n_states_ - 1 (or more), n_u]`` pressure per step, ``[B, n_u]``
+            frozen for the whole rollout, or ``None`` (no actuation).
+
+    Returns:
+        float64 ``[B, n_states_, d]``.
+    """
+    q = torch.as_tensor(np.asarray(q0), dtype=torch.float32)
+    v = torch.as_tensor(np.asarray(v0), dtype=torch.float32)
+    B, d = q.shape
+    out = np.full((B, n_states_, d), np.nan)
+    out[:, 0] = q.numpy()
+    alive = np.ones(B, bool)
+    Pt = None if P is None or np.asarray(P).shape[-1] == 0 else torch.as_tensor(np.asarray(P), dtype=torch.float32)
+
+    def u_at(i: int, idx: np.ndarray):
+        if Pt is None:
+            return None
+        return Pt[idx] if Pt.ndim == 2 else Pt[idx, i]
+
+    for i in range(n_states_ - 1):
+        idx = np.flatnonzero(alive)
+        if len(idx) == 0:
+            break
+        try:
+            q1, v1 = verlet_step(model, q[idx], v[idx], dt, u=u_at(i, idx))
+        except torch.linalg.LinAlgError:
+            q1, v1 = torch.full((len(idx), d), float("nan")), torch.full((len(idx), d), float("nan"))
+            for j, b in enumerate(idx):  # find the failing window(s); the others go on
+                try:
+                    q1[j : j + 1], v1[j : j + 1] = verlet_step(model, q[b : b + 1], v[b : b + 1], dt, u=u_at(i, np.array([b])))
+                except torch.linalg.LinAlgError:
+                    pass
+        ok = torch.isfinite(q1).all(1) & torch.isfinite(v1).all(1)
+        q[idx], v[idx] = q1.detach(), v1.detach()
+        out[idx, i + 1] = q1.numpy()
+        dead = idx[~ok.numpy()]
+        out[dead, i + 1 :] = np.nan
+        alive[dead] = False
+    return out
+
+
+def multistep_mse(
+    q_raw: np.ndarray,
+    frames: np.ndarray,
+    P: np.ndarray | None,
+    model: Any,
+    decode_mse: Callable[[np.ndarray, np.ndarray], np.ndarray],
+    dt: float,
+    cfg: KraussEvalConfig,
+) -> dict[str, Any]:
+    """The multi-step image MSE of §9.1 on one validation clip.
+
+    Args:
+        q_raw: ``[n, d]`` unsmoothed whitened encodings of the validation frames.
+        frames: ``[n, H, W, 3]`` uint8 validation frames.
+        P: ``[n, n_u]`` raw pressures (smoothed here), or ``None``.
+        model: the Lagrangian (eval mode).
+        decode_mse: ``(q [M, d], frames [M, H, W, 3]) -> per-state MSE [M]``
+            (decode, clamp to [0, 1], mean over C x H x W).
+        dt: frame interval, s.
+        cfg: protocol settings.
+
+    Returns:
+        Mapping with ``mse`` (the reported mean), ``per_step [H]``, ``sem``
+        (standard error over windows, ``ddof = 1``), ``starts [N]``,
+        ``horizon``, ``n_finite``, ``skip``.
+
+    Raises:
+        ValueError: if the clip is too short for the protocol.
+    """
+    n = len(q_raw)
+    H = n_states(cfg.horizon_s, dt)
+    skip = int(round(cfg.skip_s / dt))
+    starts = mse_window_starts(n, H, skip, cfg.n_windows, cfg.seed)
+    z_init = timeseries.gaussian_smooth(q_raw, cfg.sigma)
+    q0 = z_init[starts]
+    v0 = timeseries.forward_difference_velocity(np.stack([z_init[starts], z_init[starts + 1], z_init[starts + 2]]), dt)[0]
+    P_w = None
+    if P is not None and P.shape[1] > 0:
+        P_s = timeseries.gaussian_smooth(P, cfg.sigma_pressure)
+        P_w = np.stack([P_s[s : s + H] for s in starts])
+    pred = rollout_zoh(model, q0, v0, dt, H, P_w)
+    finite = np.isfinite(pred).all(axis=(1, 2))
+    if not finite.any():
+        return {"mse": float("inf"), "per_step": [], "sem": float("nan"), "starts": starts, "horizon": H, "n_finite": 0, "skip": skip}
+    tgt = np.concatenate([frames[s : s + H] for s in starts[finite]])
+    per = decode_mse(pred[finite].reshape(-1, pred.shape[-1]), tgt).reshape(-1, H)
+    per_window = per.mean(1)
+    sem = float(per_window.std(ddof=1) / math.sqrt(len(per_window))) if len(per_window) > 1 else float("nan")
+    return {
+        "mse": float(per.mean(0).mean()),
+        "per_step": per.mean(0).tolist(),
+        "sem": sem,
+        "starts": starts,
+        "horizon": H,
+        "n_finite": int(finite.sum()),
+        "skip": skip,
+    }
+
+
+def frequency_windows(
+    q_enc: np.ndarray,
+    P_raw: np.ndarray,
+    P_smooth: np.ndarray,
+    G: np.ndarray,
+    model: Any,
+    dt: float,
+    cfg: KraussEvalConfig,
+) -> dict[str, Any]:
+    """Free-oscillation frequency of the encoded video and of the model, per window (§9.2).
+
+    Args:
+        q_enc: ``[n, d]`` smoothed whitened encodings (duplicates already trimmed).
+        P_raw: ``[n, n_c]`` raw pressures (interval detection).
+        P_smooth: ``[n, n_c]`` smoothed pressures (forcing, frozen at each window start).
+        G: ``[d, d]`` ``G_bar`` scaled to trace ``d``, no ridge.
+        model: the Lagrangian.
+        dt: frame interval, s.
+        cfg: protocol settings.
+
+    Returns:
+        Mapping with ``intervals`` (``[(a, b)]`` frame ranges), ``windows``
+        (one dict per analysed window: ``start``, ``length``, ``f_enc_top``,
+        ``f_sim_top``, ``f_enc_agg``, ``f_sim_agg``, ``amp_ratio``, ``status``
+        = ``"ok" | "diverged" | "low_amplitude" | "flat"``), ``q_std``,
+        ``diverge_norm``, and the means ``eps_freq`` (top mode, the cited
+        number), ``eps_freq_agg``, ``f_enc_hz``, ``f_sim_hz`` over the ``ok``
+        windows (NaN when there is none).
+    """
+    n = len(q_enc)
+    lo = int(round(cfg.skip_s / dt))
+    top = metrics.top_direction(G)
+    q_std = metrics.g_rms_spread(q_enc, G)
+    thr = cfg.diverge_factor * float(np.linalg.norm(q_enc, axis=1).max())
+    min_len = int(round(cfg.min_flat_s / dt))
+    intervals = flat_intervals(P_raw, lo, min_len, cfg.flat_step_tol, cfg.flat_total_tol, cfg.max_intervals) if lo < n else []
+    windows: list[dict[str, Any]] = []
+    for a, b in intervals:
+        try:
+            f0 = peak_frequency(q_enc[a:b], dt, G)
+        except ValueError:
+            windows.append({"start": a, "length": b - a, "status": "flat"})
+            continue
+        w = int(min(b - a, max(cfg.min_window, round(cfg.freq_window_periods / (f0 * dt)))))
+        for st in range(a, b - w + 1, w):
+            seg = q_enc[st : st + w]
+            row: dict[str, Any] = {"start": st, "length": w, "interval": [a, b], "f0_interval_hz": f0}
+            if metrics.g_rms_spread(seg, G) < cfg.min_amplitude * q_std or st + 2 >= n:
+                windows.append({**row, "status": "low_amplitude"})
+                continue
+            v0 = timeseries.forward_difference_velocity(q_enc[st : st + 3], dt)[:1]
+            P0 = None if P_smooth.shape[1] == 0 else P_smooth[st : st + 1]
+            sim = rollout_zoh(model, q_enc[st : st + 1], v0, dt, w, P0)[0]
+            if not np.isfinite(sim).all() or float(np.linalg.norm(sim, axis=1).max()) > thr:
+                windows.append({**row, "status": "diverged"})
+                continue
+            try:
+                row.update(
+                    f_enc_top=peak_frequency(metrics.project(seg, top), dt),
+                    f_sim_top=peak_frequency(metrics.project(sim, top), dt),
+                    f_enc_agg=peak_frequency(seg, dt, G),
+                    f_sim_agg=peak_frequency(sim, dt, G),
+                    amp_ratio=metrics.g_rms_spread(sim, G) / max(metrics.g_rms_spread(seg, G), 1e-300),
+                    status="ok",
+                )
+            except ValueError:  # the rollout came to rest: no peak above the cut
+                row["status"] = "flat"
+            windows.append(row)
+    ok = [r for r in windows if r["status"] == "ok"]
+
+    def mean(key_sim: str, key_enc: str) -> float:
+        return float(np.mean([abs(r[key_sim] - r[key_enc]) / r[key_enc] for r in ok])) if ok else float("nan")
+
+    return {
+        "intervals": intervals,
+        "windows": windows,
+        "q_std": q_std,
+        "diverge_norm": thr,
+        "eps_freq": mean("f_sim_top", "f_enc_top"),
+        "eps_freq_agg": mean("f_sim_agg", "f_enc_agg"),
+        "f_enc_hz": float(np.mean([r["f_enc_top"] for r in ok])) if ok else float("nan"),
+        "f_sim_hz": float(np.mean([r["f_sim_top"] for r in ok])) if ok else float("nan"),
+    }
