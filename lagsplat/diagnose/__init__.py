@@ -29,7 +29,8 @@ from lagsplat.diagnose.residual import (
     residual_force,
     residual_from_chart,
 )
-from lagsplat.diagnose.select import CandidateFit, Diagnosis, select_effect, signatures
+from lagsplat.diagnose.select import CandidateFit, Diagnosis, select_effect
+from lagsplat.diagnose.signatures import signatures
 from lagsplat.diagnose.terms import (
     AugmentedLagrangian,
     EffectTerm,

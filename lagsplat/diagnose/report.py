@@ -53,12 +53,12 @@ from lagsplat.diagnose.refit import (
     refit,
     save_refit,
 )
-from lagsplat.diagnose.select import plain_value
 from lagsplat.diagnose.where import WhereConfig, split_code
 from lagsplat.diagnose.where_plots import plot_where
 from lagsplat.dynamics.integrators import actuation_schedule, initial_state, rollout
 from lagsplat.io.atomic import atomic_write, write_json
 from lagsplat.io.clip import HELD_OUT
+from lagsplat.io.common import jsonable
 
 __all__ = ["DiagnoseConfig", "diagnose_system", "diagnose_artifacts", "render_markdown", "write_report", "plot_gap", "reliability", "held_out_check"]
 
@@ -346,7 +346,7 @@ def diagnose_artifacts(
         "config": cfg.to_dict(),
         "timings": timings,
     }  # fmt: skip
-    report = plain_value(report)
+    report = jsonable(report)
     write_report(report, out)
     return report
 

@@ -109,10 +109,12 @@ from typing import Any
 import numpy as np
 from scipy.optimize import nnls
 
-from lagsplat.diagnose.effects import EFFECTS, Effect, get_effect, residual_peaks
+from lagsplat.diagnose.effects import EFFECTS, Effect, get_effect
 from lagsplat.diagnose.residual import Residual
+from lagsplat.diagnose.signatures import directions, signatures
+from lagsplat.io.common import jsonable
 
-__all__ = ["CandidateFit", "Diagnosis", "select_effect", "signatures", "directions"]
+__all__ = ["CandidateFit", "Diagnosis", "select_effect"]
 
 
 @dataclass
@@ -160,7 +162,7 @@ class CandidateFit:
         """JSON-serialisable record (without the per-sample force)."""
         return {
             "effect": self.effect,
-            "params": plain_value(self.params),
+            "params": jsonable(self.params),
             "direction": [float(v) for v in self.direction],
             "coefficients": {n: {"value": float(c), "se": float(s)} for n, c, s in zip(self.names, self.coef, self.se)},
             "ssr": float(self.ssr),
@@ -172,7 +174,7 @@ class CandidateFit:
             "physical": bool(self.physical),
             "practical": bool(self.practical),
             "significant": bool(self.significant),
-            "interpretation": plain_value(self.interpretation),
+            "interpretation": jsonable(self.interpretation),
         }
 
 
@@ -214,10 +216,10 @@ class Diagnosis:
             "winner": self.winner,
             "effects": [f.to_dict() for f in self.effects],
             "ranking": [f.to_dict() for f in self.ranking],
-            "null": plain_value(self.null),
-            "evidence": plain_value(self.evidence),
-            "nuisance": plain_value(self.nuisance),
-            "settings": plain_value(self.settings),
+            "null": jsonable(self.null),
+            "evidence": jsonable(self.evidence),
+            "nuisance": jsonable(self.nuisance),
+            "settings": jsonable(self.settings),
         }
 
     def summary(self) -> str:
@@ -238,38 +240,6 @@ class Diagnosis:
         if ev.get("spectrum", {}).get("unexplained_peaks_hz"):
             lines.append("residual peaks the model lacks (Hz): " + ", ".join(f"{p:.3g}" for p in ev["spectrum"]["unexplained_peaks_hz"]))
         return "\n".join(lines)
-
-
-def plain_value(x: Any) -> Any:
-    """``x`` with NumPy scalars and arrays turned into Python numbers and lists, recursively (for JSON)."""
-    if isinstance(x, dict):
-        return {str(k): plain_value(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [plain_value(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return plain_value(x.tolist())
-    if isinstance(x, (np.floating, float)):
-        return float(x) if math.isfinite(float(x)) else None  # strict JSON has no NaN / inf
-    if isinstance(x, (np.integer, int)) and not isinstance(x, bool):
-        return int(x)
-    if isinstance(x, np.bool_):
-        return bool(x)
-    return x
-
-
-def directions(res: Residual, n_angles: int = 12) -> list[np.ndarray]:
-    """Latent directions a candidate is tried along (unit ``[d]`` vectors).
-
-    ``d = 1``: ``[1]``; ``d = 2``: ``n_angles`` angles over a half turn;
-    ``d >= 3``: the eigenvectors of ``G_bar`` and of the residual covariance, and the axes.
-    """
-    d = res.d
-    if d == 1:
-        return [np.ones(1)]
-    if d == 2:
-        return [np.array([math.cos(a), math.sin(a)]) for a in np.arange(n_angles) * math.pi / n_angles]
-    out = list(np.linalg.eigh(0.5 * (res.G + res.G.T))[1].T) + list(np.linalg.eigh(np.cov(res.r.T))[1].T) + list(np.eye(d))
-    return [v / np.linalg.norm(v) for v in out]
 
 
 # ---------------------------------------------------------------------- least squares
@@ -682,140 +652,3 @@ def _unexplained(null: dict[str, Any], pb: _Problem, any_accepted: bool, unexpla
             f"{math.sqrt(left):.1f}x the chart noise (rms) and no candidate explains it: the model misfits within its own "
             "class (e.g. a distorted chart: try stage2.mass=learned or a better Stage 1), or the effect is not in the library"
         )
-
-
-# ---------------------------------------------------------------------- evidence
-def _extrema(p: np.ndarray, t: np.ndarray, min_gap: int) -> tuple[np.ndarray, np.ndarray]:
-    """Times and absolute values of the alternating extrema (turning points) of a centred oscillation."""
-    from scipy.signal import find_peaks
-
-    i_max, _ = find_peaks(p, distance=max(1, min_gap))
-    i_min, _ = find_peaks(-p, distance=max(1, min_gap))
-    idx = np.sort(np.concatenate([i_max, i_min]))
-    return t[idx], np.abs(p[idx])
-
-
-def _envelope(res: Residual, p: np.ndarray) -> dict[str, Any]:
-    """Fit linear, exponential and hyperbolic envelopes (shared rate, one intercept per segment) to the turning-point amplitudes."""
-    f = res.f_dominant_hz
-    gap = int(0.35 / (f * res.dt)) if math.isfinite(f) and f > 0 else 5
-    T, A, S = [], [], []
-    for k, idx in enumerate(res.segment_slices()):
-        pk = p[idx] - np.median(p[idx])
-        tk, ak = _extrema(pk, res.t[idx], gap)
-        keep = ak > 3 * float(np.max(res.noise_q))
-        if keep.sum() >= 3:
-            T.append(tk[keep] - tk[keep][0])
-            A.append(ak[keep])
-            S.append(np.full(int(keep.sum()), k))
-    if not T:
-        return {"n_turning_points": 0, "best": None}
-    t, a, s = np.concatenate(T), np.concatenate(A), np.concatenate(S)
-    segs = np.unique(s)
-    D = (s[:, None] == segs[None]).astype(float)
-
-    def lin(y: np.ndarray, wgt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        X = np.concatenate([D, t[:, None]], 1)
-        sw = np.sqrt(wgt)
-        c = np.linalg.lstsq(X * sw[:, None], y * sw, rcond=None)[0]
-        return c, X @ c
-
-    out: dict[str, Any] = {"n_turning_points": int(len(a))}
-    c, fit = lin(a, np.ones_like(a))
-    out["linear"] = {"rate_per_s": float(-c[-1]), "sse": float(np.sum((a - fit) ** 2))}
-    c, fit = lin(np.log(a), a**2)
-    out["exponential"] = {"rate_per_s": float(-c[-1]), "sse": float(np.sum((a - np.exp(fit)) ** 2))}
-    c, fit = lin(1.0 / a, a**4)
-    with np.errstate(divide="ignore"):
-        out["hyperbolic"] = {"rate_per_unit_s": float(c[-1]), "sse": float(np.sum((a - 1.0 / np.where(fit > 0, fit, np.nan)) ** 2))}
-    forms = {k: out[k]["sse"] for k in ("linear", "exponential", "hyperbolic") if math.isfinite(out[k]["sse"])}
-    if forms:
-        best = min(forms, key=forms.get)  # type: ignore[arg-type]
-        out["best"] = best
-        out["sse_ratio_to_best"] = {k: float(v / max(forms[best], 1e-300)) for k, v in forms.items()}
-    else:
-        out["best"] = None
-    return out
-
-
-def _frequency(res: Residual, p: np.ndarray) -> dict[str, Any]:
-    """Period-by-period frequency regressed on amplitude^2 and time (Duffing shift vs drift)."""
-    F, A2, TT = [], [], []
-    for idx in res.segment_slices():
-        pk = p[idx] - np.median(p[idx])
-        tk = res.t[idx]
-        sgn = np.signbit(pk)
-        cross = np.flatnonzero(sgn[1:] != sgn[:-1])
-        if len(cross) < 3:
-            continue
-        tc = tk[cross] - pk[cross] * (tk[cross + 1] - tk[cross]) / (pk[cross + 1] - pk[cross])
-        # full periods between crossings in the same direction: an offset of the centre shifts
-        # alternate half periods in opposite directions and cancels here
-        for a, b, i0, i1 in zip(tc[:-2], tc[2:], cross[:-2], cross[2:]):
-            amp = float(np.max(np.abs(pk[i0 : i1 + 2])))
-            if amp <= 3 * float(np.max(res.noise_q)) or b <= a:
-                continue
-            F.append(1.0 / (b - a))
-            A2.append(amp * amp)
-            TT.append(0.5 * (a + b))
-    if len(F) < 6:
-        return {"n_periods": len(F)}
-    F, A2, TT = map(np.asarray, (F, A2, TT))
-    X = np.stack([np.ones_like(F), A2 - A2.mean(), TT - TT.mean()], 1)
-    c, *_ = np.linalg.lstsq(X, F, rcond=None)
-    r = F - X @ c
-    s2 = float(r @ r) / max(len(F) - 3, 1)
-    se = np.sqrt(2.0 * np.maximum(np.diag(s2 * np.linalg.pinv(X.T @ X)), 0.0))  # x sqrt(2): consecutive periods overlap by half
-    return {
-        "n_periods": int(len(F)), "f_mean_hz": float(c[0]),
-        "slope_amp2": float(c[1]), "slope_amp2_se": float(se[1]), "z_amp2": float(c[1] / max(se[1], 1e-300)),
-        "relative_shift_at_max_amplitude": float(c[1] * A2.max() / c[0]),
-        "slope_time": float(c[2]), "slope_time_se": float(se[2]), "z_time": float(c[2] / max(se[2], 1e-300)),
-        "relative_change_over_span": float(c[2] * np.ptp(TT) / c[0]),
-    }  # fmt: skip
-
-
-def signatures(res: Residual, model_freqs_hz: Sequence[float] | None = None, direction: np.ndarray | None = None) -> dict[str, Any]:
-    """The physical signatures of an unmodelled effect, read off the trajectory and residual.
-
-    Along ``direction`` (default the most visible one, top eigenvector of ``G``):
-
-    * ``envelope``: turning-point amplitudes fitted with a linear (dry
-      friction), exponential (viscous) and hyperbolic (quadratic drag) decay,
-      one rate shared by all segments; ``best`` and the SSE ratios.
-    * ``frequency``: frequency of each period (between zero crossings in the same
-      direction, so an offset cancels) regressed on ``amplitude^2``
-      (Duffing shift: > 0 hardening, < 0 softening or a pendulum) and on time
-      (drift), slopes with standard errors and z-scores.
-    * ``spectrum``: strongest peaks of the residual's power spectrum, and those
-      not within 5 % of a model frequency or its 2nd / 3rd harmonic (a force
-      or a mode the model lacks).
-    * ``asymmetry``: ratio of the largest excursions on either side of the
-      median (a one-sided stop clips one side).
-
-    Args:
-        res: the residual.
-        model_freqs_hz: the model's modal frequencies (default: the trajectory's dominant one).
-        direction: ``[d]`` unit direction.
-
-    Returns:
-        A JSON-serialisable dict.
-    """
-    e = np.asarray(direction, np.float64) if direction is not None else None
-    p = res.project(e)
-    from lagsplat import metrics
-
-    e_top = metrics.top_direction(res.G) if e is None else e
-    out: dict[str, Any] = {"envelope": _envelope(res, p), "frequency": _frequency(res, p)}
-    peaks = residual_peaks(res.r @ e_top, res.segment, res.dt, 4)
-    ref = list(model_freqs_hz) if model_freqs_hz is not None else [res.f_dominant_hz]
-    ref = [f for f in ref if math.isfinite(f) and f > 0]
-
-    def explained(f: float) -> bool:
-        return any(abs(f - h * m) <= 0.05 * h * m for m in ref for h in (1, 2, 3))
-
-    out["spectrum"] = {"residual_peaks_hz": peaks, "model_freqs_hz": ref, "unexplained_peaks_hz": [f for f in peaks if not explained(f)]}
-    pc = p - np.median(p)
-    hi, lo = float(np.quantile(pc, 0.995)), float(-np.quantile(pc, 0.005))
-    out["asymmetry"] = {"upper": hi, "lower": lo, "ratio": float(max(hi, lo) / max(min(hi, lo), 1e-300))}
-    return out
