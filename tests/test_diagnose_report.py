@@ -22,12 +22,18 @@ import torch
 
 from lagsplat.chart import Chart, save_chart
 from lagsplat.diagnose import diagnose_chart
-from lagsplat.diagnose.refit import RefitConfig, add_control, choose_by_refit, RefitModel, load_refit, model_chart, refit, refit_spec, save_refit
+from lagsplat.diagnose.refit import RefitConfig, add_control, refit
+from lagsplat.diagnose.refit_choice import choose_by_refit
+from lagsplat.diagnose.refit_io import load_refit, save_refit
+from lagsplat.diagnose.refit_terms import RefitModel, model_chart, refit_spec
 from lagsplat.diagnose.gap import common_noise_floor, energy_check, envelope_decay, gap_reduction, held_out_gap, noise_floor
-from lagsplat.diagnose.report import DiagnoseConfig, diagnose_artifacts, held_out_check, render_markdown
-from lagsplat.diagnose.terms import CoulombFriction, EndStop
+from lagsplat.diagnose.markdown import render_markdown
+from lagsplat.diagnose.report import DiagnoseConfig, diagnose_artifacts
+from lagsplat.diagnose.report_checks import held_out_check
+from lagsplat.diagnose.effect_terms import CoulombFriction, EndStop
 from lagsplat.diagnose.localise import localise
-from lagsplat.diagnose.where import REGIONS, WhereConfig, split_code, time_localisation
+from lagsplat.diagnose.where import REGIONS, WhereConfig, split_code
+from lagsplat.diagnose.where_time import time_localisation
 from lagsplat.dynamics.integrators import rollout
 from lagsplat.io.clip import HELD_OUT, TRAIN, Clip
 from lagsplat.synth.effects import simulate_effect
@@ -142,7 +148,7 @@ def test_where_rejects_unknown_split_and_short_charts() -> None:
         split_code("validation")
     assert split_code("train") == TRAIN and split_code("held_out") == HELD_OUT and split_code("all") is None
     _, chart, model, _ = _pushed_pendulum()
-    from lagsplat.diagnose.where import time_localisation
+    from lagsplat.diagnose.where_time import time_localisation
 
     short = Chart(**{**chart.__dict__, "q": chart.q[:8], "t": chart.t[:8], "split": chart.split[:8], "ae_mse": chart.ae_mse[:8], "episode": None, "u": None})
     with pytest.raises(ValueError, match="11 frames"):
@@ -325,7 +331,7 @@ def test_the_winner_is_confirmed_by_its_refit_or_replaced_by_a_rival_whose_refit
         chosen, rows, made = choose_by_refit(chart, model, cfg, diag, between, rc)
         assert chosen is diag and made.spec.effects == ["coulomb"] and [r["effect"] for r in rows] == ["coulomb"]
         # for the replacement branch the friction's refit must fail where the rival's passes: make it follow worse
-        import lagsplat.diagnose.refit as refit_module
+        import lagsplat.diagnose.refit_choice as refit_module  # the module whose refit choose_by_refit calls
 
         real = refit_module.refit
 

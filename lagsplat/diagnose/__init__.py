@@ -21,22 +21,19 @@ from __future__ import annotations
 
 from typing import Any
 
-from lagsplat.diagnose.effects import EFFECTS, Effect, effect_names, get_effect
-from lagsplat.diagnose.residual import (
-    LinearOscillator,
-    Residual,
-    fit_linear_oscillator,
-    residual_force,
-    residual_from_chart,
-)
-from lagsplat.diagnose.select import CandidateFit, Diagnosis, select_effect
+from lagsplat.diagnose.diagnosis import CandidateFit, Diagnosis
+from lagsplat.diagnose.effect_base import Effect
+from lagsplat.diagnose.effect_terms import EffectTerm, term_from_spec
+from lagsplat.diagnose.effects import EFFECTS, effect_names, get_effect
+from lagsplat.diagnose.oscillator import LinearOscillator, fit_linear_oscillator
+from lagsplat.diagnose.residual import residual_force, residual_from_chart
+from lagsplat.diagnose.residual_data import Residual
+from lagsplat.diagnose.select import select_effect
 from lagsplat.diagnose.signatures import signatures
 from lagsplat.diagnose.terms import (
     AugmentedLagrangian,
-    EffectTerm,
     build_term,
     delay_actuation,
-    term_from_spec,
     with_time_channel,
 )
 

@@ -213,7 +213,7 @@ def noise_floor(chart: Any, model: nn.Module, eval_cfg: Any | None = None, n_dra
         lagsplat.io.clip.ClipError: if the chart has no held-out segment long enough (as :func:`lagsplat.evaluate.evaluate`).
         ValueError: if ``n_draws < 1``.
     """
-    from lagsplat.diagnose.residual import chart_noise
+    from lagsplat.diagnose.filters import chart_noise
     from lagsplat.evaluate import EvalConfig
 
     if int(n_draws) < 1:

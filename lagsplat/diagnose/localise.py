@@ -1,4 +1,4 @@
-"""Where the gap shows in the image, and all four localisations together (:func:`localise`; time, state and latent directions in :mod:`lagsplat.diagnose.where`)."""
+"""Where the gap shows in the image, and all four localisations together (:func:`localise`; time in :mod:`lagsplat.diagnose.where_time`, state and latent directions in :mod:`lagsplat.diagnose.where`)."""
 
 from __future__ import annotations
 
@@ -11,12 +11,11 @@ import torch
 from lagsplat.diagnose.where import (
     LatentLocalisation,
     StateLocalisation,
-    TimeLocalisation,
     WhereConfig,
     latent_localisation,
     state_localisation,
-    time_localisation,
 )
+from lagsplat.diagnose.where_time import TimeLocalisation, time_localisation
 from lagsplat.io.clip import TRAIN
 
 

@@ -42,13 +42,9 @@ def fmt_pct(x: Any) -> str:
     return "n/a" if x is None else f"{100 * x:+.0f} %"
 
 
-def verdict_section(rep: Mapping[str, Any]) -> list[str]:
-    """The title, the verdict with its reliability, the accepted effects and the model-choice line."""
-    dg = rep["diagnosis"]
-    L: list[str] = [f"# Sim-to-real gap diagnosis: {rep.get('title') or rep.get('system')}", ""]
-    verdict = rep["verdict_text"]
-    L += [f"**Verdict: {verdict}.**", ""]
-    rel = rep.get("reliability")
+def _reliability_lines(rel: Mapping[str, Any] | None) -> list[str]:
+    """The warnings of :func:`~lagsplat.diagnose.report_checks.reliability` above the evidence (none when all checks pass)."""
+    L: list[str] = []
     if rel and not rel["reliable"]:
         L += ["**Unreliable**: the chart does not support a diagnosis (" + "; ".join(rel["reasons"]) + "). "
               "Improve Stage 1 first; the verdict below is what the residual says, not a finding.", ""]  # fmt: skip
@@ -56,6 +52,30 @@ def verdict_section(rep: Mapping[str, Any]) -> list[str]:
         L += ["Caution: " + "; ".join(rel["cautions"]) + ". The identified model misses much of the training motion: a strong "
               "unmodelled effect, a Stage-2 failure or a distorted chart (the evidence below cannot tell these apart "
               "unless a candidate explains the residual).", ""]  # fmt: skip
+    return L
+
+
+def _choice_line(choice: list[Mapping[str, Any]], base: float | None) -> str:
+    """How the refits decided between significant candidates (:func:`~lagsplat.diagnose.refit_choice.choose_by_refit`)."""
+    rows = ", ".join(f"{c['effect']} {fmt_value(c['train_rollout_nrmse'], '.3f')}" for c in choice)
+    won, first = next(c for c in choice if c["chosen"]), choice[0]
+    if won is not first:
+        how = f"is not confirmed (its refit follows the training video worse than the identified model), {won['effect']} is taken instead"
+    elif first["beats_identified"]:
+        how = "is confirmed"
+    else:
+        how = "stands (no candidate's refit follows the training video better than the identified model)"
+    return (f"- several candidates are significant; the Delta-BIC winner {first['effect']} {how}, by the training-rollout NRMSE "
+            f"of the model refit with {'it' if len(choice) == 1 else 'each'} (paper §3.3; identified model {fmt_value(base, '.3f')}): {rows}.")  # fmt: skip
+
+
+def verdict_section(rep: Mapping[str, Any]) -> list[str]:
+    """The title, the verdict with its reliability, the accepted effects and the model-choice line."""
+    dg = rep["diagnosis"]
+    L: list[str] = [f"# Sim-to-real gap diagnosis: {rep.get('title') or rep.get('system')}", ""]
+    verdict = rep["verdict_text"]
+    L += [f"**Verdict: {verdict}.**", ""]
+    L += _reliability_lines(rep.get("reliability"))
     null = dg["null"]
     if rep["verdict"] == "none":
         L.append(
@@ -72,17 +92,7 @@ def verdict_section(rep: Mapping[str, Any]) -> list[str]:
         L.append(f"- warning: {null['warning']}")
     choice = (rep.get("refit") or {}).get("choice")
     if choice:
-        rows = ", ".join(f"{c['effect']} {fmt_value(c['train_rollout_nrmse'], '.3f')}" for c in choice)
-        won, first = next(c for c in choice if c["chosen"]), choice[0]
-        base = rep["refit"].get("baseline_train_rollout_nrmse")
-        if won is not first:
-            how = f"is not confirmed (its refit follows the training video worse than the identified model), {won['effect']} is taken instead"
-        elif first["beats_identified"]:
-            how = "is confirmed"
-        else:
-            how = "stands (no candidate's refit follows the training video better than the identified model)"
-        L.append(f"- several candidates are significant; the Delta-BIC winner {first['effect']} {how}, by the training-rollout NRMSE "
-                 f"of the model refit with {'it' if len(choice) == 1 else 'each'} (paper §3.3; identified model {fmt_value(base, '.3f')}): {rows}.")  # fmt: skip
+        L.append(_choice_line(choice, rep["refit"].get("baseline_train_rollout_nrmse")))
     check = (rep.get("gap") or {}).get("held_out_check")
     if check:
         L.append(f"- held-out check: {check['text']}.")
@@ -126,50 +136,73 @@ def evidence_section(rep: Mapping[str, Any]) -> list[str]:
     return L
 
 
+def _where_time(tl: Mapping[str, Any], rep: Mapping[str, Any]) -> list[str]:
+    """The time aspect: flagged shares, medians and the worst windows (:class:`~lagsplat.diagnose.where_time.TimeLocalisation`)."""
+    L: list[str] = []
+    L.append(f"**Time** ({fmt_value(tl['duration_s'], '.1f')} s of {rep['frames']['diagnosis_split']} frames, {tl['rollout_horizon_frames']}-frame free rollouts): "
+             f"rollout error above {rep['config']['where']['floor_factor']:g}x the AE floor on {fmt_pct(tl['share_flagged_rollout'])[1:]} of the frames, "
+             f"one-step residual above {rep['config']['where']['floor_factor']:g}x the chart noise on {fmt_pct(tl['share_flagged_residual'])[1:]}, both on {fmt_pct(tl['share_flagged_both'])[1:]}; "
+             f"median rollout error / floor {fmt_value(tl['median_rollout_over_floor'], '.2f')}, median residual z^2 {fmt_value(tl['median_residual_z2'], '.2f')}.")  # fmt: skip
+    if tl["windows"]:
+        L += ["", "| window (s) | frames | peak rollout error / floor | mean residual z^2 |", "|---|---|---|---|"]
+        for win in tl["windows"][:8]:
+            L.append(f"| {win['t_start_s']:.2f} - {win['t_end_s']:.2f} | {win['n_frames']} | {fmt_value(win['peak_rollout_over_floor'], '.1f')} | {fmt_value(win['mean_residual_z2'], '.1f')} |")
+        if len(tl["windows"]) > 8:
+            L.append(f"| ... {len(tl['windows']) - 8} more | | | |")
+    else:
+        L.append("No window where both exceed their floor.")
+    return L
+
+
+def _where_state(st: Mapping[str, Any]) -> list[str]:
+    """The phase-portrait regions (:class:`~lagsplat.diagnose.where.StateLocalisation`)."""
+    L: list[str] = []
+    L += ["", f"**State** (phase portrait; most enriched: **{st['most_enriched'].replace('_', ' ')}**):", "",
+          "| region | share of samples | share of residual | enrichment | mean z^2 |", "|---|---|---|---|---|"]  # fmt: skip
+    for name, r in st["regions"].items():
+        L.append(f"| {name.replace('_', ' ')} | {fmt_value(r['sample_share'], '.2f')} | {fmt_value(r['residual_share'], '.2f')} | {fmt_value(r['enrichment'], '.2f')} | {fmt_value(r['mean_z2'], '.2f')} |")
+    return L
+
+
+def _where_latent(lt: Mapping[str, Any]) -> list[str]:
+    """The eigen-directions of ``G_bar`` (:class:`~lagsplat.diagnose.where.LatentLocalisation`)."""
+    L: list[str] = []
+    L += ["", "**Latent directions** (eigenvectors of G_bar, most visible first):", "",
+          "| direction | eigenvalue | visibility share | residual share | residual share (G_bar-weighted) | residual / noise | rollout-gap share (G_bar-weighted) |",
+          "|---|---|---|---|---|---|---|"]  # fmt: skip
+    for k, r in enumerate(lt["directions"]):
+        L.append(f"| e{k + 1} | {fmt_value(r['eigenvalue'])} | {fmt_value(r['visibility_share'], '.2f')} | {fmt_value(r['residual_share'], '.2f')} | "
+                 f"{fmt_value(r['residual_share_G'], '.2f')} | {fmt_value(r['residual_over_noise'], '.2f')} | {fmt_value(r['rollout_share_G'], '.2f')} |")  # fmt: skip
+    return L
+
+
+def _where_image(im: Mapping[str, Any]) -> list[str]:
+    """The image excess and the Gaussians it falls on (:class:`~lagsplat.diagnose.localise.ImageLocalisation`)."""
+    L: list[str] = []
+    L += ["", f"**Image** ({im['n_frames']} rendered rollout frames): rollout image error {fmt_value(im['eps_rollout'])} against the AE floor "
+          f"{fmt_value(im['eps_ae'])} on the same frames (excess {fmt_pct(im['excess_over_ae'])}). The positive excess falls "
+          f"{fmt_pct(im['share_moving_gaussians'])[1:]} on moving Gaussians ({im['n_moving']} of {im['n_gaussians']}; they carry "
+          f"{fmt_pct(im['moving_coverage'])[1:]} of the rendered colour, enrichment {fmt_value(im['moving_enrichment'], '.1f')}x), "
+          f"{fmt_pct(im['share_static_gaussians'])[1:]} on static ones and {fmt_pct(im['share_background'])[1:]} on the background; "
+          f"hottest pixel (x, y) = {tuple(im['hottest_pixel_xy'])}.", "",
+          "| Gaussian | share | position (px) | motion (px per unit q) |", "|---|---|---|---|"]  # fmt: skip
+    for g in im["top_gaussians"][:8]:
+        L.append(f"| #{g['index']} | {fmt_value(g['share'], '.3f')} | ({g['position_px'][0]:.1f}, {g['position_px'][1]:.1f}) | {fmt_value(g['motion_px'], '.2f')} |")
+    return L
+
+
 def where_section(rep: Mapping[str, Any]) -> list[str]:
     """Where the gap shows: time windows, phase-portrait regions, latent directions, image."""
-    L: list[str] = []
     w = rep["where"]
-    L += ["", "## Where it shows", ""]
-    tl = w.get("time")
-    if tl:
-        L.append(f"**Time** ({fmt_value(tl['duration_s'], '.1f')} s of {rep['frames']['diagnosis_split']} frames, {tl['rollout_horizon_frames']}-frame free rollouts): "
-                 f"rollout error above {rep['config']['where']['floor_factor']:g}x the AE floor on {fmt_pct(tl['share_flagged_rollout'])[1:]} of the frames, "
-                 f"one-step residual above {rep['config']['where']['floor_factor']:g}x the chart noise on {fmt_pct(tl['share_flagged_residual'])[1:]}, both on {fmt_pct(tl['share_flagged_both'])[1:]}; "
-                 f"median rollout error / floor {fmt_value(tl['median_rollout_over_floor'], '.2f')}, median residual z^2 {fmt_value(tl['median_residual_z2'], '.2f')}.")  # fmt: skip
-        if tl["windows"]:
-            L += ["", "| window (s) | frames | peak rollout error / floor | mean residual z^2 |", "|---|---|---|---|"]
-            for win in tl["windows"][:8]:
-                L.append(f"| {win['t_start_s']:.2f} - {win['t_end_s']:.2f} | {win['n_frames']} | {fmt_value(win['peak_rollout_over_floor'], '.1f')} | {fmt_value(win['mean_residual_z2'], '.1f')} |")
-            if len(tl["windows"]) > 8:
-                L.append(f"| ... {len(tl['windows']) - 8} more | | | |")
-        else:
-            L.append("No window where both exceed their floor.")
-    st = w.get("state")
-    if st:
-        L += ["", f"**State** (phase portrait; most enriched: **{st['most_enriched'].replace('_', ' ')}**):", "",
-              "| region | share of samples | share of residual | enrichment | mean z^2 |", "|---|---|---|---|---|"]  # fmt: skip
-        for name, r in st["regions"].items():
-            L.append(f"| {name.replace('_', ' ')} | {fmt_value(r['sample_share'], '.2f')} | {fmt_value(r['residual_share'], '.2f')} | {fmt_value(r['enrichment'], '.2f')} | {fmt_value(r['mean_z2'], '.2f')} |")
-    lt = w.get("latent")
-    if lt:
-        L += ["", "**Latent directions** (eigenvectors of G_bar, most visible first):", "",
-              "| direction | eigenvalue | visibility share | residual share | residual share (G_bar-weighted) | residual / noise | rollout-gap share (G_bar-weighted) |",
-              "|---|---|---|---|---|---|---|"]  # fmt: skip
-        for k, r in enumerate(lt["directions"]):
-            L.append(f"| e{k + 1} | {fmt_value(r['eigenvalue'])} | {fmt_value(r['visibility_share'], '.2f')} | {fmt_value(r['residual_share'], '.2f')} | "
-                     f"{fmt_value(r['residual_share_G'], '.2f')} | {fmt_value(r['residual_over_noise'], '.2f')} | {fmt_value(r['rollout_share_G'], '.2f')} |")  # fmt: skip
-    im = w.get("image")
-    if im:
-        L += ["", f"**Image** ({im['n_frames']} rendered rollout frames): rollout image error {fmt_value(im['eps_rollout'])} against the AE floor "
-              f"{fmt_value(im['eps_ae'])} on the same frames (excess {fmt_pct(im['excess_over_ae'])}). The positive excess falls "
-              f"{fmt_pct(im['share_moving_gaussians'])[1:]} on moving Gaussians ({im['n_moving']} of {im['n_gaussians']}; they carry "
-              f"{fmt_pct(im['moving_coverage'])[1:]} of the rendered colour, enrichment {fmt_value(im['moving_enrichment'], '.1f')}x), "
-              f"{fmt_pct(im['share_static_gaussians'])[1:]} on static ones and {fmt_pct(im['share_background'])[1:]} on the background; "
-              f"hottest pixel (x, y) = {tuple(im['hottest_pixel_xy'])}.", "",
-              "| Gaussian | share | position (px) | motion (px per unit q) |", "|---|---|---|---|"]  # fmt: skip
-        for g in im["top_gaussians"][:8]:
-            L.append(f"| #{g['index']} | {fmt_value(g['share'], '.3f')} | ({g['position_px'][0]:.1f}, {g['position_px'][1]:.1f}) | {fmt_value(g['motion_px'], '.2f')} |")
+    L: list[str] = ["", "## Where it shows", ""]
+    if w.get("time"):
+        L += _where_time(w["time"], rep)
+    if w.get("state"):
+        L += _where_state(w["state"])
+    if w.get("latent"):
+        L += _where_latent(w["latent"])
+    if w.get("image"):
+        L += _where_image(w["image"])
     for n in w.get("notes", []):
         L.append(f"- note: {n}")
     return L

@@ -16,7 +16,7 @@ significant" is the nuisance fit alone). Two regressions share the work:
 * **out-of-class** candidates (friction, drag, periodic force, drift, delay,
   missing DOF), which no setting of the Lagrangian can produce, are fitted to
   the residual of the *fitted model*, smoothed 1.5x wider than the in-class
-  one (:attr:`Residual.wide <lagsplat.diagnose.residual.Residual.wide>`, see
+  one (:attr:`Residual.wide <lagsplat.diagnose.residual_data.Residual.wide>`, see
   "Band of the out-of-class regression" below). The nuisance is linear in the state,
   ``r ~ dK q + dC qdot + f_0 (+ dB u)`` (free ``[d,d]`` matrices, one offset),
   plus the in-class corrections a convex potential, a position-dependent
@@ -25,15 +25,15 @@ significant" is the nuisance fit alone). Two regressions share the work:
   so that a model learned slightly wrong within its own class (or a chart
   that is a nonlinear function of the physical coordinate) is not taken for
   an effect it lacks;
-* **in-class** candidates (:attr:`~lagsplat.diagnose.effects.Effect.in_class`:
+* **in-class** candidates (:attr:`~lagsplat.diagnose.effect_base.Effect.in_class`:
   cubic stiffness, end stop), which a convex potential can partly absorb, are
   fitted to the residual of the model's *linearisation* on the data (its
   force minus its least-squares fit by the linear nuisance, added back to
   ``r``), with the linear and inertia nuisance: the effect is then seen in full,
   whether the model absorbed part of it or mis-learned it. They must also
-  reach a physical size (:meth:`~lagsplat.diagnose.effects.Effect.practical`).
+  reach a physical size (:meth:`~lagsplat.diagnose.effect_base.Effect.practical`).
 
-Residuals are weighted by the per-coordinate noise level (:attr:`Residual.noise_r`).
+Residuals are weighted by the per-coordinate noise level (:attr:`Residual.noise_r <lagsplat.diagnose.residual_data.Residual.noise_r>`).
 
 Band of the out-of-class regression
 -----------------------------------
@@ -91,361 +91,40 @@ to the nuisance (greedy forward selection).
 
 Evidence
 --------
-:func:`signatures` reads the physical signatures off the trajectory: the
+:func:`~lagsplat.diagnose.signatures.signatures` reads the physical signatures off the trajectory: the
 envelope of the free decay (linear: dry friction; exponential: viscous;
 hyperbolic: quadratic drag), the dependence of the period-by-period frequency on
 amplitude (Duffing: hardening / softening, end stop) and on time (drift), and
 the residual's spectral peaks against the model's modal frequencies (periodic
 force, missing degree of freedom).
+
+Steps
+-----
+:func:`select_effect` runs them in order: the regressions
+(:mod:`lagsplat.diagnose.regression`), then per round the *fit*
+(:func:`~lagsplat.diagnose.candidates.fit_candidates`), the *rank*
+(:func:`rank_candidates`: order by ``Delta BIC``, cross-validate where it can
+matter) and the *decide* step (:func:`decide`: the significance rule); the
+result is a :class:`~lagsplat.diagnose.diagnosis.Diagnosis`.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.optimize import nnls
 
-from lagsplat.diagnose.effects import EFFECTS, Effect, get_effect
-from lagsplat.diagnose.residual import Residual
+from lagsplat.diagnose.candidates import candidate_design, fit_candidates
+from lagsplat.diagnose.diagnosis import CandidateFit, Diagnosis
+from lagsplat.diagnose.effect_base import Effect
+from lagsplat.diagnose.effects import EFFECTS, get_effect
+from lagsplat.diagnose.regression import Regression, blocked_folds, linear_features
+from lagsplat.diagnose.residual_data import Residual
 from lagsplat.diagnose.signatures import directions, signatures
-from lagsplat.io.common import jsonable
 
-__all__ = ["CandidateFit", "Diagnosis", "select_effect"]
-
-
-@dataclass
-class CandidateFit:
-    """One candidate fitted at its best nonlinear parameters.
-
-    Attributes:
-        effect: candidate name (``"none"`` for the null fit).
-        params: chosen nonlinear parameters.
-        direction: ``[d]`` unit latent direction the effect acts along.
-        names: coefficient names; ``coef``, ``se``: ``[p]`` values and standard errors
-            (generalized-force units of the model).
-        ssr: weighted sum of squared residuals (noise units); ``k``: parameter count.
-        bic: information criterion; ``delta_bic``: ``BIC_null - bic`` (higher is better).
-        r2: share of the null residual explained; ``cv_gain``: blocked-CV gain over the null.
-        physical: sign constraints satisfied (and the fit is not degenerate).
-        significant: passes the significance rule (see module docstring).
-        practical: large enough physically (:meth:`Effect.practical`; always true for out-of-class effects).
-        force: ``[n,d]`` fitted effect force on the residual samples (not serialised).
-        design: ``[n d, p]`` the candidate's stacked, noise-weighted regression columns on the residual
-            it was fitted to (the wide one for out-of-class candidates; not serialised).
-        interpretation: physical reading (:meth:`Effect.interpret`).
-    """
-
-    effect: str
-    params: dict[str, Any]
-    direction: np.ndarray
-    names: list[str]
-    coef: np.ndarray
-    se: np.ndarray
-    ssr: float
-    k: int
-    bic: float
-    delta_bic: float = 0.0
-    r2: float = 0.0
-    cv_gain: float = 0.0
-    physical: bool = True
-    significant: bool = False
-    practical: bool = True
-    force: np.ndarray | None = field(default=None, repr=False)
-    design: np.ndarray | None = field(default=None, repr=False)
-    interpretation: dict[str, Any] = field(default_factory=dict)
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-serialisable record (without the per-sample force)."""
-        return {
-            "effect": self.effect,
-            "params": jsonable(self.params),
-            "direction": [float(v) for v in self.direction],
-            "coefficients": {n: {"value": float(c), "se": float(s)} for n, c, s in zip(self.names, self.coef, self.se)},
-            "ssr": float(self.ssr),
-            "k": int(self.k),
-            "bic": float(self.bic),
-            "delta_bic": float(self.delta_bic),
-            "r2": float(self.r2),
-            "cv_gain": float(self.cv_gain),
-            "physical": bool(self.physical),
-            "practical": bool(self.practical),
-            "significant": bool(self.significant),
-            "interpretation": jsonable(self.interpretation),
-        }
-
-
-@dataclass
-class Diagnosis:
-    """The verdict of :func:`select_effect`.
-
-    Attributes:
-        winner: name of the first accepted effect, or ``"none"`` (nothing significant).
-        effects: accepted effects in the order found (greedy forward selection).
-        ranking: every candidate of the first round, best ``delta_bic`` first.
-        null: the nuisance-only fit on the (sharp) residual (``ssr``, ``bic``,
-            ``excess_over_noise`` = SSR / N: about 1 when the residual is consistent
-            with the chart noise; ``excess_after_effects``, ``unexplained`` and
-            ``warning`` for what the accepted effects leave; ``linearised``: the null of
-            the in-class regression; ``out_of_class``: the null of the out-of-class
-            regression on the wide residual, with its ``sigma_frames``).
-        evidence: :func:`signatures`.
-        nuisance: the model-class corrections of the null fit (``dK``, ``dC``, ``f0``).
-        settings: thresholds and counts used.
-    """
-
-    winner: str
-    effects: list[CandidateFit]
-    ranking: list[CandidateFit]
-    null: dict[str, Any]
-    evidence: dict[str, Any]
-    nuisance: dict[str, Any]
-    settings: dict[str, Any]
-
-    @property
-    def labels(self) -> list[str]:
-        """Names of the accepted effects (empty when nothing is significant)."""
-        return [f.effect for f in self.effects]
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-serialisable record (for ``report.json``)."""
-        return {
-            "winner": self.winner,
-            "effects": [f.to_dict() for f in self.effects],
-            "ranking": [f.to_dict() for f in self.ranking],
-            "null": jsonable(self.null),
-            "evidence": jsonable(self.evidence),
-            "nuisance": jsonable(self.nuisance),
-            "settings": jsonable(self.settings),
-        }
-
-    def summary(self) -> str:
-        """A few lines of text: the verdict, the ranking and the evidence."""
-        lines = [f"verdict: {self.winner if self.winner != 'none' else 'nothing significant'}"]
-        for f in self.effects:
-            lines.append(f"  {f.effect}: dBIC = {f.delta_bic:.1f}, R2 = {f.r2:.2f}, CV gain = {f.cv_gain:.2f}; {f.interpretation.get('text', '')}")
-        lines.append(f"residual / noise (null) = {self.null['excess_over_noise']:.2f}")
-        if self.null.get("warning"):
-            lines.append("warning: " + self.null["warning"])
-        lines.append("ranking: " + ", ".join(f"{f.effect} ({f.delta_bic:.1f}{'' if f.physical else ', unphysical'})" for f in self.ranking))
-        ev = self.evidence
-        if "envelope" in ev and ev["envelope"].get("best"):
-            lines.append(f"envelope decay: best {ev['envelope']['best']}")
-        if "frequency" in ev and "slope_amp2" in ev["frequency"]:
-            fr = ev["frequency"]
-            lines.append(f"frequency vs amplitude^2: z = {fr['z_amp2']:.1f}; vs time: z = {fr['z_time']:.1f}")
-        if ev.get("spectrum", {}).get("unexplained_peaks_hz"):
-            lines.append("residual peaks the model lacks (Hz): " + ", ".join(f"{p:.3g}" for p in ev["spectrum"]["unexplained_peaks_hz"]))
-        return "\n".join(lines)
-
-
-# ---------------------------------------------------------------------- least squares
-def _linear_features(res: Residual) -> np.ndarray:
-    """Model-class nuisance ``[n, 2d + 1 + n_u]``: the smoothed ``q, qdot, 1, u``.
-
-    A linear force commutes with the smoothing (``G * (K q) = K (G * q)``), so these
-    columns are exactly how an error of the model's linear terms shows in ``r``.
-    """
-    return np.concatenate([res.q, res.qdot, np.ones((res.n, 1)), res.u], 1)
-
-
-def _poly_features(res: Residual, parts: tuple[str, ...] = ("potential", "inertia", "input")) -> np.ndarray:
-    """In-class corrections of the fitted model.
-
-    * monomials of degree 2 and 3 of the centred ``q`` (all for ``d <= 3``, else
-      per coordinate): the potential a convex ``V`` can still bend to;
-    * ``qdot_i qdot_j`` and ``(q_k - q_bar_k) qdot_i qdot_j``: the Coriolis /
-      centrifugal forces ``-(dM/dq) qdot qdot`` of a position-dependent inertia
-      (paper §3.3, "Inertia"), which is also what a chart that is a nonlinear
-      function of the physical coordinate produces;
-    * with actuation, ``u_j (q_i - q_bar_i)``: the position dependence of the input map ``b(q)`` (paper Eq. 6).
-    """
-    from itertools import combinations_with_replacement
-
-    d = res.d
-    mu = res.q.mean(0)
-    small = d <= 3
-    combos = [c for k in (2, 3) for c in combinations_with_replacement(range(d), k)] if small else [(i,) * k for k in (2, 3) for i in range(d)]
-    pairs = list(combinations_with_replacement(range(d), 2)) if small else [(i, i) for i in range(d)]
-
-    def phi(st):
-        x = st.q - mu
-        v = st.qdot
-        cols = [np.prod(x[:, list(c)], axis=1) for c in combos] if "potential" in parts else []
-        if "inertia" in parts:
-            vv = [v[:, i] * v[:, j] for i, j in pairs]
-            cols += vv
-            cols += [x[:, k] * w for w in vv for k in range(d)] if small else [x[:, i] * v[:, i] ** 2 for i in range(d)]
-        if "input" in parts:
-            cols += [st.u[:, j] * x[:, i] for j in range(st.u.shape[1]) for i in range(d)]
-        return np.stack(cols, 1) if cols else np.zeros((len(st.t), 0))
-
-    return res.features(phi)
-
-
-class _Problem:
-    """Stacked weighted regression ``vec(target / noise) ~ Z_nuisance a + Z_candidate w``.
-
-    ``target`` is the residual (``[n,d]``); the nuisance is the linear model-class
-    terms, plus (``poly``) the in-class potential corrections of degree 2 and 3.
-    """
-
-    def __init__(self, res: Residual, folds: np.ndarray, target: np.ndarray, X_lin: np.ndarray, poly: tuple[str, ...]) -> None:
-        self.res = res
-        d, n = res.d, res.n
-        self.w = 1.0 / res.noise_r  # [d]
-        self.y = (target * self.w[None]).T.reshape(-1)  # output-major stacking
-        self.N = n * d
-        X0 = np.concatenate([X_lin, _poly_features(res, poly)], 1) if poly else X_lin
-        self.p0 = X0.shape[1]
-        self.p_lin = X_lin.shape[1]
-        Z = np.zeros((self.N, self.p0 * d))
-        for j in range(d):
-            Z[j * n : (j + 1) * n, j * self.p0 : (j + 1) * self.p0] = X0 * self.w[j]
-        self.Zn = Z
-        self.folds = np.tile(folds, d)
-        self._refresh()
-
-    def _refresh(self) -> None:
-        self.Q, _ = np.linalg.qr(self.Zn / np.maximum(np.linalg.norm(self.Zn, axis=0), 1e-300))
-        self.r0 = self.y - self.Q @ (self.Q.T @ self.y)
-        self.pn = self.Zn.shape[1]
-
-    def add_nuisance(self, Zc: np.ndarray) -> None:
-        """Absorb an accepted effect's columns into the nuisance."""
-        self.Zn = np.concatenate([self.Zn, Zc], 1)
-        self._refresh()
-
-    def stack(self, X: np.ndarray, e: np.ndarray) -> np.ndarray:
-        """Candidate features ``[n,p]`` along direction ``e`` -> stacked ``[N,p]``."""
-        return np.concatenate([X * (e[j] * self.w[j]) for j in range(self.res.d)], 0)
-
-    def fit(self, Zc: np.ndarray, positive: bool) -> tuple[np.ndarray, float, np.ndarray]:
-        """``(w [p], ssr, Zc_projected)`` of the candidate on the nuisance-projected residual."""
-        Zt = Zc - self.Q @ (self.Q.T @ Zc)
-        nrm = np.linalg.norm(Zt, axis=0)
-        ok = nrm > 1e-9 * max(1.0, float(np.linalg.norm(Zc)))
-        w = np.zeros(Zc.shape[1])
-        if ok.any():
-            A = Zt[:, ok] / nrm[ok]
-            if positive:
-                sol, _ = nnls(A, self.r0)
-            else:
-                sol = np.linalg.lstsq(A, self.r0, rcond=None)[0]
-            w[ok] = sol / nrm[ok]
-        res = self.r0 - Zt @ w
-        return w, float(res @ res), Zt
-
-    def bic(self, ssr: float, k: int) -> float:
-        n_eff = self.N / self.res.spacing
-        return n_eff * math.log(max(ssr, 1e-300) / self.N) + k * math.log(n_eff)
-
-    def cv_sse(self, Zc: np.ndarray | None, positive: bool) -> float:
-        """Blocked cross-validation SSE of nuisance (+ candidate) fits."""
-        Z = self.Zn if Zc is None else np.concatenate([self.Zn, Zc], 1)
-        sse = 0.0
-        for f in np.unique(self.folds):
-            tr, te = self.folds != f, self.folds == f
-            A = Z[tr]
-            scale = np.maximum(np.linalg.norm(A, axis=0), 1e-300)
-            if positive and Zc is not None:
-                # nuisance free, candidate >= 0: project the nuisance out within the training rows
-                Zn_tr, Zc_tr = self.Zn[tr] / scale[: self.pn], Zc[tr] / scale[self.pn :]
-                Qt, _ = np.linalg.qr(Zn_tr)
-                Zct = Zc_tr - Qt @ (Qt.T @ Zc_tr)
-                yt = self.y[tr] - Qt @ (Qt.T @ self.y[tr])
-                wc, _ = nnls(Zct, yt) if Zct.shape[1] else (np.zeros(0), 0.0)
-                an = np.linalg.lstsq(Zn_tr, self.y[tr] - Zc_tr @ wc, rcond=None)[0]
-                coef = np.concatenate([an, wc]) / scale
-            else:
-                coef = np.linalg.lstsq(A / scale, self.y[tr], rcond=None)[0] / scale
-            e = self.y[te] - Z[te] @ coef
-            sse += float(e @ e)
-        return sse
-
-
-def _folds(res: Residual, n_folds: int, block_s: float | None) -> np.ndarray:
-    """Interleaved fold label of each residual sample: contiguous blocks of ``block_s`` seconds."""
-    if block_s is None:
-        f = res.f_dominant_hz
-        block_s = 2.0 / f if math.isfinite(f) and f > 0 else 40 * res.dt
-    L = max(8, int(round(block_s / res.dt)))
-    out = np.empty(res.n, int)
-    b = 0
-    for idx in res.segment_slices():
-        nb = max(1, len(idx) // L)
-        blk = np.minimum(np.arange(len(idx)) * nb // len(idx), nb - 1)
-        out[idx] = (b + blk) % n_folds
-        b += nb
-    return out
-
-
-def _scales(res: Residual, e: np.ndarray) -> dict[str, float]:
-    """Linear stiffness / damping of the model along ``e`` (regression of its force on q, qdot) and data scales."""
-    s, v = res.q @ e, res.qdot @ e
-    X = np.stack([s - s.mean(), v, np.ones_like(s)], 1)
-    f = res.f_model @ e
-    coef = np.linalg.lstsq(X, f, rcond=None)[0]
-    return {
-        "k": float(-coef[0]), "c": float(-coef[1]), "s_rms": float(np.std(s)), "s_raw_rms": float(np.std(res.q_raw @ e)),
-        "sdot_rms": float(np.sqrt(np.mean(v**2))),
-        "s_bar": float(s.mean()), "t_bar": float(np.mean(res.t)),
-    }  # fmt: skip
-
-
-def _design(prob: _Problem, fit: CandidateFit) -> np.ndarray:
-    """A fitted candidate's stacked columns on ``prob``'s own residual (its features at the fit's parameters and direction)."""
-    eff = get_effect(fit.effect)
-    phi, _ = eff.feature(prob.res, fit.direction, fit.params)
-    return prob.stack(prob.res.features(phi), fit.direction)
-
-
-def _fit_candidate(prob: _Problem, eff: Effect, dirs: Sequence[np.ndarray], extra_k: int, thresholds: dict[str, float]) -> CandidateFit | None:
-    """Profile one candidate over its grid and directions; the best fit with standard errors."""
-    res = prob.res
-    best: tuple[float, Any] | None = None
-
-    def scan(e: np.ndarray, grid: list[dict[str, Any]]) -> None:
-        nonlocal best
-        for params in grid:
-            phi, names = eff.feature(res, e, params)
-            X = res.features(phi)
-            Zc = prob.stack(X, e)
-            w, ssr, Zt = prob.fit(Zc, eff.positive)
-            if best is None or ssr < best[0]:
-                best = (ssr, (e, params, names, X, Zc, w, Zt))
-
-    for e in dirs:
-        r0e = (prob.r0.reshape(res.d, res.n) / prob.w[:, None]).T @ e  # nuisance-free residual along e (force units)
-        scan(e, eff.grid(res, e, r0e))
-    if best is None:
-        return None
-    e_best, p_best = best[1][0], best[1][1]
-    scan(e_best, eff.refine(res, e_best, p_best))
-    ssr, (e, params, names, X, Zc, w, Zt) = best
-    p = len(w)
-    k = prob.pn + p + eff.n_nonlinear + extra_k
-    dof = max(prob.N - prob.pn - p, 1)
-    s2 = ssr / dof
-    try:
-        cov = s2 * res.spacing * np.linalg.pinv(Zt.T @ Zt)
-        se = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    except np.linalg.LinAlgError:
-        se = np.full(p, np.nan)
-    physical = bool(np.any(w != 0)) and (not eff.positive or bool(np.all(w >= 0)))
-    fit = CandidateFit(eff.name, params, e, names, w, se, ssr, k, prob.bic(ssr, k), physical=physical)
-    fit.force = (X @ w)[:, None] * e[None, :]
-    fit.design = Zc
-    fit.interpretation = eff.interpret(w, se, params, res, e, _scales(res, e))
-    ok, why = eff.practical(fit.interpretation, thresholds)
-    fit.practical = ok
-    if not ok:
-        fit.interpretation["below_practical_size"] = why
-    fit.interpretation["fitted_against"] = "model linearisation" if eff.in_class else "fitted model"
-    return fit
+__all__ = ["select_effect", "rank_candidates", "decide"]
 
 
 def select_effect(
@@ -470,13 +149,13 @@ def select_effect(
 
     * out-of-class candidates (friction, drag, periodic force, drift, delay,
       missing DOF) are fitted to the residual of the *fitted model*, at the wider
-      smoothing of :attr:`Residual.wide <lagsplat.diagnose.residual.Residual.wide>`
+      smoothing of :attr:`Residual.wide <lagsplat.diagnose.residual_data.Residual.wide>`
       when it is there (see "Band of the out-of-class regression" in the module
       docstring), with the linear nuisance plus the in-class corrections (potential: centred ``q``
       monomials of degree 2 and 3; inertia: ``qdot qdot`` and ``q qdot qdot``;
       input map: ``u q``), so that a model learned slightly wrong within its
       own class is not mistaken for an effect it lacks;
-    * in-class candidates (:attr:`Effect.in_class`: cubic stiffness, end stop),
+    * in-class candidates (:attr:`~lagsplat.diagnose.effect_base.Effect.in_class`: cubic stiffness, end stop),
       which a convex potential can partly absorb, are fitted to the residual of
       the model's *linearisation* (the model's force minus its regression on
       the linear nuisance, added back), with the linear and inertia nuisance;
@@ -495,7 +174,7 @@ def select_effect(
     Args:
         res: the residual (:func:`~lagsplat.diagnose.residual.residual_force`), normally
             on training frames only, so that held-out frames stay untouched for the gap;
-            its :attr:`~lagsplat.diagnose.residual.Residual.wide` (if any) is the one the
+            its :attr:`~lagsplat.diagnose.residual_data.Residual.wide` (if any) is the one the
             out-of-class candidates are fitted to.
         candidates: names to test (default: every applicable one of
             :data:`~lagsplat.diagnose.effects.EFFECTS`).
@@ -514,7 +193,7 @@ def select_effect(
             times the chart-noise variance.
 
     Returns:
-        The :class:`Diagnosis`.
+        The :class:`~lagsplat.diagnose.diagnosis.Diagnosis`.
 
     Raises:
         KeyError: on an unknown candidate name.
@@ -528,33 +207,17 @@ def select_effect(
     effs = [e for e in effs if e.applicable(res)]
     thresholds = {"min_cubic_shift": min_cubic_shift, "min_stop_stiffness_ratio": min_stop_stiffness_ratio,
                   "min_periodic_response": min_periodic_response}  # fmt: skip
+    rule = {"min_delta_bic": min_delta_bic, "min_r2": min_r2, "min_cv_gain": min_cv_gain}
     # the chart-invariant signatures, read before the fits: a cubic stiffness must also show in the timing
     ev = signatures(res, model_freqs_hz=model_freqs_hz)
     res.meta["frequency_signature"] = ev["frequency"]
-    probs, prob_null, prob_model = _problems(res, wide, n_folds, block_s)
+    probs, prob_null, prob_model = _regressions(res, wide, n_folds, block_s)
     dirs = {k: directions(p.res) for k, p in probs.items()}
     nuisance, null = _null_summary(res, wide, probs, prob_null)
-
-    accepted: list[CandidateFit] = []
-    ranking: list[CandidateFit] = []
-    remaining = list(effs)
-    for round_ in range(max(1, int(max_effects))):
-        fits = _fit_candidates(remaining, probs, prob_model, dirs, res.d - 1, thresholds)  # fit, ranked by Delta BIC
-        _rank(fits, probs, min_delta_bic, min_r2, min_cv_gain)  # cross-validate where it can matter, then decide
-        if round_ == 0:
-            ranking = fits
-        win = next((f for f in fits if f.significant), None)
-        if win is None:
-            break
-        accepted.append(win)
-        for prob in {id(p): p for p in (*probs.values(), prob_null)}.values():
-            prob.add_nuisance(win.design if prob is probs[get_effect(win.effect).in_class] else _design(prob, win))
-        remaining = [e for e in remaining if e.name != win.effect]
-        if not remaining:
-            break
+    accepted, ranking = _forward_selection(effs, probs, prob_null, prob_model, dirs, res.d - 1, thresholds, rule, max_effects)
     _unexplained(null, prob_null, bool(accepted), unexplained_excess)
     settings = {
-        "min_delta_bic": min_delta_bic, "min_r2": min_r2, "min_cv_gain": min_cv_gain, **thresholds, "max_effects": max_effects,
+        **rule, **thresholds, "max_effects": max_effects,
         "n_folds": n_folds, "candidates": [e.name for e in effs], "sigma_frames": res.sigma, "spacing": res.spacing,
         "n_samples": res.n, "n_segments": res.n_segments, "n_directions": len(dirs[True]),
         "sigma_frames_out_of_class": wide.sigma, "spacing_out_of_class": wide.spacing, "n_samples_out_of_class": wide.n,
@@ -562,14 +225,87 @@ def select_effect(
     return Diagnosis(accepted[0].effect if accepted else "none", accepted, ranking, null, ev, nuisance, settings)
 
 
-def _problems(res: Residual, wide: Residual, n_folds: int, block_s: float | None) -> tuple[dict[bool, _Problem], _Problem, _Problem]:
-    """The regressions of :func:`select_effect`: ``({in_class: problem}, null problem, model problem)``.
+def _forward_selection(
+    effs: list[Effect], probs: dict[bool, Regression], prob_null: Regression, prob_model: Regression, dirs: dict[bool, list[np.ndarray]],
+    extra_k: int, thresholds: dict[str, float], rule: dict[str, float], max_effects: int,
+) -> tuple[list[CandidateFit], list[CandidateFit]]:
+    """Greedy forward selection: fit, rank and decide per round; a winner's columns join every nuisance. ``(accepted, first-round ranking)``."""
+    accepted: list[CandidateFit] = []
+    ranking: list[CandidateFit] = []
+    remaining = list(effs)
+    for round_ in range(max(1, int(max_effects))):
+        fits = fit_candidates(remaining, probs, prob_model, dirs, extra_k, thresholds)
+        fits = rank_candidates(fits, probs, rule["min_delta_bic"], rule["min_r2"])
+        win = decide(fits, **rule)
+        if round_ == 0:
+            ranking = fits
+        if win is None:
+            break
+        accepted.append(win)
+        for prob in {id(p): p for p in (*probs.values(), prob_null)}.values():
+            prob.add_nuisance(win.design if prob is probs[get_effect(win.effect).in_class] else candidate_design(prob, win))
+        remaining = [e for e in remaining if e.name != win.effect]
+        if not remaining:
+            break
+    return accepted, ranking
+
+
+def rank_candidates(fits: list[CandidateFit], probs: dict[bool, Regression], min_delta_bic: float, min_r2: float) -> list[CandidateFit]:
+    """Order the fits by decreasing ``Delta BIC`` and cross-validate where it can matter (the *rank* step).
+
+    The blocked cross-validation gain (module docstring) is the costly part: it is computed for
+    the top 3 and for every physical fit passing ``min_delta_bic`` and ``min_r2``; the others keep
+    ``cv_gain = 0`` (they cannot be significant).
+
+    Args:
+        fits: from :func:`~lagsplat.diagnose.candidates.fit_candidates`; sorted in place.
+        probs: ``{in_class: regression}`` the fits were made in.
+        min_delta_bic, min_r2: the part of the significance rule that decides whether CV is needed.
+
+    Returns:
+        ``fits`` (the same list), best first, with ``cv_gain`` set.
+    """
+    fits.sort(key=lambda f: f.delta_bic, reverse=True)
+    cv_ref: dict[bool, float] = {}
+    for i, fit in enumerate(fits):
+        if not (i < 3 or (fit.physical and fit.delta_bic >= min_delta_bic and fit.r2 >= min_r2)):
+            continue
+        eff = get_effect(fit.effect)
+        prob = probs[eff.in_class]
+        if eff.in_class not in cv_ref:
+            cv_ref[eff.in_class] = prob.cv_sse(None, False)
+        fit.cv_gain = 1.0 - prob.cv_sse(fit.design, eff.positive) / max(cv_ref[eff.in_class], 1e-300)
+    return fits
+
+
+def decide(fits: Sequence[CandidateFit], min_delta_bic: float, min_r2: float, min_cv_gain: float) -> CandidateFit | None:
+    """Mark the significant fits and return the winner, the best significant one (the *decide* step).
+
+    A fit is significant when it is physical, of physical size and passes ``Delta BIC >= min_delta_bic``,
+    ``R2 >= min_r2`` and ``cv_gain >= min_cv_gain`` (module docstring, "Ranking and significance").
+
+    Args:
+        fits: ranked fits (:func:`rank_candidates`); their ``significant`` flag is set.
+
+    Returns:
+        The first significant fit, or ``None`` (nothing significant).
+    """
+    for fit in fits:
+        fit.significant = (
+            fit.physical and fit.practical
+            and fit.delta_bic >= min_delta_bic and fit.r2 >= min_r2 and fit.cv_gain >= min_cv_gain
+        )
+    return next((f for f in fits if f.significant), None)
+
+
+def _regressions(res: Residual, wide: Residual, n_folds: int, block_s: float | None) -> tuple[dict[bool, Regression], Regression, Regression]:
+    """The regressions of :func:`select_effect`: ``({in_class: regression}, null regression, model regression)``.
 
     Raises:
         ValueError: if the residual has too few samples for the nuisance fit.
     """
-    folds = _folds(res, n_folds, block_s)
-    X_lin = _linear_features(res)
+    folds = blocked_folds(res, n_folds, block_s)
+    X_lin = linear_features(res)
     if res.n <= 2 * (X_lin.shape[1] + 9) + 4:
         raise ValueError(f"the residual has {res.n} samples for {X_lin.shape[1] + 9} nuisance coefficients per coordinate; need a longer trajectory")
     # the model's own nonlinear force on the data: its force minus its best linear fit on the nuisance
@@ -578,21 +314,21 @@ def _problems(res: Residual, wide: Residual, n_folds: int, block_s: float | None
     in_class_nuisance = ("inertia",)
     out_nuisance = ("potential", "inertia", "input")
     # the null on the sharp residual: what is reported (and what the localisation reads)
-    prob_null = _Problem(res, folds, res.r, X_lin, out_nuisance)
+    prob_null = Regression(res, folds, res.r, X_lin, out_nuisance)
     probs = {
-        False: prob_null if wide is res else _Problem(wide, _folds(wide, n_folds, block_s), wide.r, _linear_features(wide), out_nuisance),
-        True: _Problem(res, folds, res.r + g_nl, X_lin, in_class_nuisance),
+        False: prob_null if wide is res else Regression(wide, blocked_folds(wide, n_folds, block_s), wide.r, linear_features(wide), out_nuisance),
+        True: Regression(res, folds, res.r + g_nl, X_lin, in_class_nuisance),
     }
-    prob_model = _Problem(res, folds, g_nl, X_lin, in_class_nuisance)  # what the model itself carries of an in-class effect
+    prob_model = Regression(res, folds, g_nl, X_lin, in_class_nuisance)  # what the model itself carries of an in-class effect
     return probs, prob_null, prob_model
 
 
-def _null_of(prob: _Problem) -> dict[str, Any]:
+def _null_of(prob: Regression) -> dict[str, Any]:
     ssr = float(prob.r0 @ prob.r0)
     return {"ssr": ssr, "bic": prob.bic(ssr, prob.pn), "k": prob.pn, "N": prob.N, "excess_over_noise": ssr / prob.N}
 
 
-def _null_summary(res: Residual, wide: Residual, probs: dict[bool, _Problem], pb: _Problem) -> tuple[dict[str, Any], dict[str, Any]]:
+def _null_summary(res: Residual, wide: Residual, probs: dict[bool, Regression], pb: Regression) -> tuple[dict[str, Any], dict[str, Any]]:
     """The fitted nuisance (linear corrections of the model) and the null hypothesis's fit statistics."""
     d = res.d
     coef0 = np.linalg.lstsq(pb.Zn, pb.y, rcond=None)[0].reshape(d, pb.p0) / pb.w[:, None]
@@ -603,45 +339,7 @@ def _null_summary(res: Residual, wide: Residual, probs: dict[bool, _Problem], pb
     return nuisance, null
 
 
-def _fit_candidates(remaining: list, probs: dict[bool, _Problem], prob_model: _Problem, dirs: dict, extra_k: int, thresholds: dict) -> list[CandidateFit]:
-    """Fit each remaining effect to its regression; returns the fits sorted by decreasing Delta BIC."""
-    ref = {k: (float(p.r0 @ p.r0), p.bic(float(p.r0 @ p.r0), p.pn)) for k, p in probs.items()}
-    fits = []
-    for eff in remaining:
-        prob = probs[eff.in_class]
-        fit = _fit_candidate(prob, eff, dirs[eff.in_class], extra_k, thresholds)
-        if fit is None:
-            continue
-        fit.delta_bic = ref[eff.in_class][1] - fit.bic
-        fit.r2 = 1.0 - fit.ssr / max(ref[eff.in_class][0], 1e-300)
-        if eff.in_class:
-            w_model, _, _ = prob_model.fit(fit.design, False)
-            fit.interpretation["model_carries"] = [float(v) for v in w_model]
-            fit.interpretation["model_share"] = [float(m / c) if c != 0 else float("nan") for m, c in zip(w_model, fit.coef)]
-        fits.append(fit)
-    fits.sort(key=lambda f: f.delta_bic, reverse=True)
-    return fits
-
-
-def _rank(fits: list[CandidateFit], probs: dict[bool, _Problem], min_delta_bic: float, min_r2: float, min_cv_gain: float) -> None:
-    """Cross-validate where it can matter (the costly part: candidates passing the rest, and the top 3) and mark the significant fits."""
-    cv_ref: dict[bool, float] = {}
-    for i, fit in enumerate(fits):
-        if not (i < 3 or (fit.physical and fit.delta_bic >= min_delta_bic and fit.r2 >= min_r2)):
-            continue
-        eff = get_effect(fit.effect)
-        prob = probs[eff.in_class]
-        if eff.in_class not in cv_ref:
-            cv_ref[eff.in_class] = prob.cv_sse(None, False)
-        fit.cv_gain = 1.0 - prob.cv_sse(fit.design, eff.positive) / max(cv_ref[eff.in_class], 1e-300)
-    for fit in fits:
-        fit.significant = (
-            fit.physical and fit.practical
-            and fit.delta_bic >= min_delta_bic and fit.r2 >= min_r2 and fit.cv_gain >= min_cv_gain
-        )
-
-
-def _unexplained(null: dict[str, Any], pb: _Problem, any_accepted: bool, unexplained_excess: float) -> None:
+def _unexplained(null: dict[str, Any], pb: Regression, any_accepted: bool, unexplained_excess: float) -> None:
     """Record the residual left after the nuisance and the accepted effects, and warn when it stays far above the chart noise."""
     left = float(pb.r0 @ pb.r0) / pb.N  # after the nuisance and the accepted effects (sharp residual)
     null["excess_after_effects"] = left

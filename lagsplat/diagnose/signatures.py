@@ -10,8 +10,8 @@ from typing import Any
 
 import numpy as np
 
-from lagsplat.diagnose.effects import residual_peaks
-from lagsplat.diagnose.residual import Residual
+from lagsplat.diagnose.residual_data import Residual
+from lagsplat.diagnose.spectrum import residual_peaks
 
 __all__ = ["directions", "signatures"]
 

@@ -5,7 +5,7 @@ against what the autoencoder floor already explains (the decoder cannot
 reproduce a frame better than ``decode(encode(frame))``, paper §3.2, so only
 the error in excess of that floor is the simulation's):
 
-* **time** (:func:`time_localisation`): free multi-step rollouts (velocity
+* **time** (:func:`~lagsplat.diagnose.where_time.time_localisation`): free multi-step rollouts (velocity
   Verlet from the encoded state, :func:`lagsplat.dynamics.integrators.rollout`,
   initial state as in :mod:`lagsplat.evaluate`) started every
   ``start_every_periods`` natural periods from past the smoothing's edge
@@ -47,22 +47,23 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from lagsplat import metrics, timeseries
-from lagsplat.dynamics.integrators import actuation_schedule, initial_state, rollout
+from lagsplat import metrics
+from lagsplat.diagnose.filters import kernel_norm
 from lagsplat.io.clip import HELD_OUT, TRAIN
 
 __all__ = [
     "WhereConfig",
-    "TimeLocalisation",
     "StateLocalisation",
     "LatentLocalisation",
     "split_code",
-    "time_localisation",
+    "split_segments",
+    "symmetric",
+    "residual_z2",
     "state_localisation",
     "latent_localisation",
     "REGIONS",
@@ -131,7 +132,8 @@ def split_code(split: str | int | None) -> int | None:
     return names[split]
 
 
-def _segments(chart: Any, which: int | None) -> list[np.ndarray]:
+def split_segments(chart: Any, which: int | None) -> list[np.ndarray]:
+    """Index arrays of the chart's contiguous segments of split ``which`` (``None``: every frame, split by episode only)."""
     if which is None:
         from lagsplat.io.clip import segments
 
@@ -139,214 +141,15 @@ def _segments(chart: Any, which: int | None) -> list[np.ndarray]:
     return chart.segments(int(which))
 
 
-def _sym(G: np.ndarray) -> np.ndarray:
+def symmetric(G: np.ndarray) -> np.ndarray:
+    """The symmetric part ``(G + G^T) / 2`` of a metric, float64 ``[d,d]``."""
     G = np.asarray(G, np.float64)
     return 0.5 * (G + G.T)
-
-
-def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
-    """``(start, stop)`` (stop exclusive) of the runs of ``True`` in a 1-D bool array."""
-    m = np.concatenate([[False], np.asarray(mask, bool), [False]])
-    edges = np.flatnonzero(m[1:] != m[:-1])
-    return [(int(a), int(b)) for a, b in zip(edges[0::2], edges[1::2])]
-
-
-def _kernel_norm(sigma: float, order: int) -> float:
-    """``|g|_2`` of the discrete Gaussian derivative kernel of this order (the residual's noise propagation)."""
-    from scipy.ndimage import gaussian_filter1d
-
-    n = int(8 * sigma) + 1
-    imp = np.zeros(2 * n + 1)
-    imp[n] = 1.0
-    return float(np.linalg.norm(gaussian_filter1d(imp, sigma, order=order, mode="constant", truncate=6.0)))
 
 
 def residual_z2(res: Any) -> np.ndarray:
     """Residual energy in noise units per sample, ``mean_j (r_j / noise_r_j)^2`` ``[n]`` (about 1 for chart noise)."""
     return np.mean((np.asarray(res.r) / np.asarray(res.noise_r)[None]) ** 2, axis=1)
-
-
-# ---------------------------------------------------------------------- time
-@dataclass
-class TimeLocalisation:
-    """The gap along time (see the module docstring).
-
-    Attributes:
-        frames: int ``[m]`` chart frame indices analysed (the split's segments).
-        t: float ``[m]`` their times, s.
-        segment: int ``[m]`` segment of each frame.
-        p_enc: ``[m]`` smoothed encoded coordinate on the most visible direction.
-        e_roll: ``[m]`` mean rollout error ``dq^T G_bar dq`` over the rollouts covering
-            the frame (image-MSE units; NaN where none covers it).
-        floor: ``[m]`` its floor: the frame's AE MSE plus the chart noise in ``G_bar``.
-        ratio_roll: ``e_roll / floor``.
-        z2: ``[m]`` residual in noise units (NaN where the residual has no sample).
-        flag_roll, flag_res, flag: bool ``[m]``: rollout, residual, both.
-        windows: the flagged time windows (dicts, JSON-ready).
-        period_s: natural period used, s; horizon: rollout length, frames.
-        rollouts: ``(frame [N], q_sim [N,d])`` every simulated state (for the image maps).
-        dq_dir: ``[d]`` mean over rollout states of ``(V^T dq)^2`` (eigenbasis of ``G_bar``).
-    """
-
-    frames: np.ndarray
-    t: np.ndarray
-    segment: np.ndarray
-    p_enc: np.ndarray
-    e_roll: np.ndarray
-    floor: np.ndarray
-    ratio_roll: np.ndarray
-    z2: np.ndarray
-    flag_roll: np.ndarray
-    flag_res: np.ndarray
-    flag: np.ndarray
-    windows: list[dict[str, Any]]
-    period_s: float
-    horizon: int
-    rollouts: tuple[np.ndarray, np.ndarray] = field(repr=False, default=(np.zeros(0, int), np.zeros((0, 1))))
-    dq_dir: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    p_sim: list[tuple[np.ndarray, np.ndarray]] = field(repr=False, default_factory=list)
-
-    def summary(self) -> dict[str, Any]:
-        """JSON-ready numbers (no per-frame arrays)."""
-        dt = float(np.median(np.diff(self.t))) if len(self.t) > 1 else 0.0
-        dur = float(len(self.frames)) * dt
-        fin = np.isfinite(self.z2)
-        return {
-            "n_frames": int(len(self.frames)),
-            "duration_s": dur,
-            "period_s": float(self.period_s),
-            "rollout_horizon_frames": int(self.horizon),
-            "share_flagged_rollout": float(np.mean(self.flag_roll)) if len(self.flag_roll) else 0.0,
-            "share_flagged_residual": float(np.mean(self.flag_res[fin])) if fin.any() else 0.0,
-            "share_flagged_both": float(np.mean(self.flag)) if len(self.flag) else 0.0,
-            "median_rollout_over_floor": float(np.nanmedian(self.ratio_roll)) if np.isfinite(self.ratio_roll).any() else None,
-            "median_residual_z2": float(np.nanmedian(self.z2)) if fin.any() else None,
-            "windows": self.windows,
-        }
-
-
-def time_localisation(model: Any, chart: Any, res: Any | None = None, cfg: WhereConfig | None = None, which: int | None = TRAIN) -> TimeLocalisation:
-    """Rollout error and one-step residual over time, against the AE floor.
-
-    Args:
-        model: fitted model (``acceleration(q, qdot, f_ext, u=...)``).
-        chart: the :class:`~lagsplat.chart.Chart` (``q``, ``t``, ``G_bar``, ``ae_mse``, ``u``).
-        res: the :class:`~lagsplat.diagnose.residual.Residual` of ``model`` on the
-            same split (``None``: no residual flag, only the rollout).
-        cfg: settings.
-        which: split (0 train, 1 held-out, ``None`` all frames).
-
-    Returns:
-        The :class:`TimeLocalisation`.
-
-    Raises:
-        ValueError: if no segment of the split holds one rollout (horizon + 3 frames).
-    """
-    cfg = cfg or WhereConfig()
-    dt = float(np.median(np.diff(chart.t)))
-    G = _sym(chart.G_bar)
-    lam, V = np.linalg.eigh(G)
-    order = np.argsort(lam)[::-1]
-    lam, V = lam[order], V[:, order]
-    top = V[:, 0]
-    segs = [s for s in _segments(chart, which) if len(s) >= 11]
-    if not segs:
-        raise ValueError("time_localisation: no segment of the split has 11 frames")
-    f = float(getattr(res, "f_dominant_hz", float("nan"))) if res is not None else float("nan")
-    if not (math.isfinite(f) and f > 0):
-        longest = max(segs, key=len)
-        f = timeseries.spectral_peak_frequency(metrics.project(timeseries.gaussian_smooth(chart.q[longest], cfg.sigma), top), dt)
-    period = 1.0 / (f * dt)  # frames
-    H = int(max(8, round(cfg.horizon_periods * period)))
-    step = int(max(1, round(cfg.start_every_periods * period)))
-    noise = np.zeros(chart.d)
-    if res is not None:
-        noise = np.asarray(res.noise_q, np.float64)
-    noise_G = float(noise**2 @ np.diag(G))
-    ae = np.asarray(chart.ae_mse, np.float64)
-
-    frames, tt, segid, p_enc, e_roll, floor = [], [], [], [], [], []
-    roll_f, roll_q, dq_acc, dq_n, p_sims = [], [], np.zeros(chart.d), 0, []
-    for k, seg in enumerate(segs):
-        q_s = timeseries.gaussian_smooth(chart.q[seg], cfg.sigma)
-        n = len(q_s)
-        h = min(H, n - 2)
-        first = metrics.rollout_start(cfg.sigma, n, h + 2)  # past the smoothing's edge (biased velocity)
-        starts = np.arange(first, n - h - 2 + 1, step) if n - h - 2 >= 0 else np.zeros(0, int)
-        acc = np.zeros(n)
-        cnt = np.zeros(n)
-        if len(starts):
-            q0, v0 = initial_state(q_s, starts, dt)
-            u = chart.u[seg]
-            u_w = np.stack([u[s : s + h] for s in starts]) if u.shape[1] else None
-            sim, _ = rollout(model, q0, v0, dt, h, u=actuation_schedule(u_w, dt))
-            sim = sim.double().numpy()
-            for i, s in enumerate(starts):
-                dq = sim[i] - q_s[s : s + h]
-                ok = np.isfinite(dq).all(1)
-                e = np.einsum("ti,ij,tj->t", np.where(ok[:, None], dq, 0), G, np.where(ok[:, None], dq, 0))
-                acc[s : s + h] += np.where(ok, e, 0.0)
-                cnt[s : s + h] += ok
-                roll_f.append(seg[s : s + h][ok])
-                roll_q.append(sim[i][ok])
-                proj = np.where(ok[:, None], dq, 0) @ V
-                dq_acc += (proj**2).sum(0)
-                dq_n += int(ok.sum())
-                p_sims.append((chart.t[seg[s : s + h]], sim[i] @ top))
-        with np.errstate(invalid="ignore", divide="ignore"):
-            e_roll.append(np.where(cnt > 0, acc / np.maximum(cnt, 1), np.nan))
-        frames.append(seg)
-        tt.append(chart.t[seg])
-        segid.append(np.full(n, k))
-        p_enc.append(q_s @ top)
-        floor.append(ae[seg] + noise_G)
-    frames_a = np.concatenate(frames)
-    t_a = np.concatenate(tt)
-    e_a = np.concatenate(e_roll)
-    fl = np.maximum(np.concatenate(floor), 1e-12)
-    ratio = e_a / fl
-    z2 = np.full(len(frames_a), np.nan)
-    if res is not None and res.n:
-        pos = {int(fi): i for i, fi in enumerate(frames_a)}
-        idx = np.searchsorted(chart.t, res.t)
-        idx = np.clip(idx, 0, len(chart.t) - 1)
-        zz = residual_z2(res)
-        for j, fi in enumerate(idx):
-            if abs(chart.t[fi] - res.t[j]) < 0.25 * dt and int(fi) in pos:
-                z2[pos[int(fi)]] = zz[j]
-    flag_roll = np.nan_to_num(ratio, nan=0.0) > cfg.floor_factor
-    flag_res = np.nan_to_num(z2, nan=0.0) > cfg.floor_factor
-    flag = flag_roll & flag_res if res is not None else flag_roll
-
-    # windows: runs of the combined flag inside each segment, merged over short gaps, short ones dropped
-    min_len = max(1, int(round(cfg.min_window_periods * period)))
-    seg_a = np.concatenate(segid)
-    windows = []
-    for k in range(len(segs)):
-        idx = np.flatnonzero(seg_a == k)
-        runs = _runs(flag[idx])
-        merged: list[list[int]] = []
-        for a, b in runs:
-            if merged and a - merged[-1][1] < min_len:
-                merged[-1][1] = b
-            else:
-                merged.append([a, b])
-        for a, b in merged:
-            if b - a < min_len:
-                continue
-            sel = idx[a:b]
-            windows.append({
-                "t_start_s": float(t_a[sel[0]]), "t_end_s": float(t_a[sel[-1]]), "segment": int(k),
-                "n_frames": int(len(sel)), "peak_rollout_over_floor": float(np.nanmax(ratio[sel])),
-                "mean_residual_z2": float(np.nanmean(z2[sel])) if np.isfinite(z2[sel]).any() else None,
-            })  # fmt: skip
-    windows.sort(key=lambda w: -(w["peak_rollout_over_floor"] or 0.0) * (w["mean_residual_z2"] or 1.0))
-    return TimeLocalisation(
-        frames=frames_a, t=t_a, segment=seg_a, p_enc=np.concatenate(p_enc), e_roll=e_a, floor=fl, ratio_roll=ratio,
-        z2=z2, flag_roll=flag_roll, flag_res=flag_res, flag=flag, windows=windows, period_s=float(period * dt), horizon=H,
-        rollouts=(np.concatenate(roll_f) if roll_f else np.zeros(0, int), np.concatenate(roll_q) if roll_q else np.zeros((0, chart.d))),
-        dq_dir=dq_acc / max(dq_n, 1), p_sim=p_sims,
-    )  # fmt: skip
 
 
 # ---------------------------------------------------------------------- state
@@ -382,7 +185,7 @@ def state_localisation(res: Any, cfg: WhereConfig | None = None) -> StateLocalis
     """Residual share per phase-portrait region (turning points, high speed, near rest, other).
 
     Args:
-        res: the :class:`~lagsplat.diagnose.residual.Residual`.
+        res: the :class:`~lagsplat.diagnose.residual_data.Residual`.
         cfg: settings.
 
     Returns:
@@ -480,19 +283,19 @@ def latent_localisation(res: Any, G_bar: np.ndarray, dq_dir: np.ndarray | None =
         res: the residual (``r``, ``M``, ``noise_q``, ``sigma``, ``dt``).
         G_bar: ``[d,d]`` visibility metric of the chart.
         dq_dir: ``[d]`` mean square rollout deviation in the eigenbasis
-            (:attr:`TimeLocalisation.dq_dir`), or ``None``.
+            (:attr:`~lagsplat.diagnose.where_time.TimeLocalisation.dq_dir`), or ``None``.
 
     Returns:
         The :class:`LatentLocalisation`.
     """
-    G = _sym(G_bar)
+    G = symmetric(G_bar)
     lam, V = np.linalg.eigh(G)
     order = np.argsort(lam)[::-1]
     lam, V = np.maximum(lam[order], 0.0), V[:, order]
     da = np.linalg.solve(res.M, res.r[..., None])[..., 0]  # [n,d] residual acceleration
     c = da @ V
     ms = np.mean(c**2, 0)
-    s_a = np.asarray(res.noise_q, np.float64) * _kernel_norm(res.sigma, 2) / res.dt**2
+    s_a = np.asarray(res.noise_q, np.float64) * kernel_norm(res.sigma, 2) / res.dt**2
     noise = (V**2).T @ (s_a**2)
     share = ms / max(float(ms.sum()), 1e-300)
     wG = lam * ms
@@ -503,6 +306,3 @@ def latent_localisation(res: Any, G_bar: np.ndarray, dq_dir: np.ndarray | None =
         wr = lam * r_ms
         r_sh = wr / max(float(wr.sum()), 1e-300)
     return LatentLocalisation(lam, V, ms, noise, share, share_G, r_ms, r_sh)
-
-
-# ---------------------------------------------------------------------- image

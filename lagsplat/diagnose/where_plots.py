@@ -14,8 +14,8 @@ from lagsplat.diagnose.where import (
     REGIONS,
     LatentLocalisation,
     StateLocalisation,
-    TimeLocalisation,
 )
+from lagsplat.diagnose.where_time import TimeLocalisation
 from lagsplat.io.atomic import atomic_write
 
 

@@ -1,0 +1,195 @@
+"""Candidates that depend on the state only: dry friction and quadratic drag (dissipative), end stop and cubic stiffness (conservative, in class).
+
+The table of features and coefficients, and why the in-class ones are fitted
+against the model's linearisation and must reach a physical size, are in
+:mod:`lagsplat.diagnose.effects`, which lists these in :data:`~lagsplat.diagnose.effects.EFFECTS`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from lagsplat.diagnose.effect_base import Effect, ratio
+
+__all__ = ["CoulombEffect", "QuadraticDragEffect", "EndStopEffect", "CubicStiffnessEffect"]
+
+
+def _relu(x: np.ndarray) -> np.ndarray:
+    return np.maximum(x, 0.0)
+
+
+class CoulombEffect(Effect):
+    """Dry (Coulomb) friction: ``phi = -tanh(sdot / v_s)``, coefficient ``mu >= 0`` (generalized-force units).
+
+    The smooth-sign velocity ``v_s`` is set, not fitted (:meth:`grid`). Reading: the level
+    ``mu``, its share of the restoring force at the rms amplitude and the amplitude lost per
+    cycle, ``4 mu / k`` (a linear envelope).
+    """
+
+    #: smooth-sign velocity ``v_s`` as a fraction of the rms speed along ``e``: set, not fitted (see :meth:`grid`)
+    V_S_FRACTION = 0.02
+
+    def grid(self, res, e, r0):
+        """One value, ``v_s = 0.02`` rms speed: dry friction is sharp, and the residual cannot say otherwise.
+
+        The residual is smoothed over ``sigma`` frames, in which the speed near a
+        reversal sweeps a large part of its range, so the residual barely tells
+        a sharp sign from a smooth one: on the blind suite's four friction clips
+        the BIC over ``v_s`` from 0.01 to 0.4 rms speed moves by 8 or less. Fitted
+        anyway, ``v_s`` went where the noise put it (2.3 chart units/s on
+        ``cart-coulomb-0``, 0.64 of its rms speed), and the refit with that
+        near-viscous term decayed exponentially: envelope error 0.068 against 0.037
+        for the model without it; 0.004 with ``v_s`` set here.
+        """
+        v = float(np.sqrt(np.mean((res.qdot @ e) ** 2)))
+        return [{"v_s": self.V_S_FRACTION * v}]
+
+    def feature(self, res, e, params):
+        """``-tanh(sdot / v_s)`` along ``e``; one coefficient, ``mu``."""
+        vs = params["v_s"]
+        return (lambda st: -np.tanh(self.coords(st, e)[1] / vs)), ["mu"]
+
+    def interpret(self, coef, se, params, res, e, scale):
+        """The friction level, its share of the restoring force at the rms amplitude and the amplitude lost per cycle."""
+        mu = float(coef[0])
+        return {
+            "mu": mu, "mu_se": float(se[0]), "v_s": params["v_s"],
+            "mu_over_restoring": ratio(mu, scale["k"] * scale["s_rms"]),
+            "amplitude_loss_per_cycle": ratio(4 * mu, scale["k"]),
+            "text": f"dry friction of level {mu:.3g} +- {se[0]:.2g} ({100 * ratio(mu, scale['k'] * scale['s_rms']):.1f} % of the "
+            f"restoring force at the rms amplitude): a linear envelope losing {ratio(4 * mu, scale['k']):.3g} (latent units) per cycle",
+        }  # fmt: skip
+
+
+class QuadraticDragEffect(Effect):
+    """Quadratic drag: ``phi = -|sdot| sdot``, coefficient ``c2 >= 0``.
+
+    Reading: ``c2`` and the equivalent viscous damping at the rms speed
+    (``8 / (3 pi) c2 V``, ``V`` the speed amplitude, sqrt 2 times the rms speed) over the model's own;
+    the envelope decays hyperbolically.
+    """
+
+    def feature(self, res, e, params):
+        """``-|sdot| sdot`` along ``e``; one coefficient, ``c2``."""
+        def phi(st):
+            v = self.coords(st, e)[1]
+            return -np.abs(v) * v
+
+        return phi, ["c2"]
+
+    def interpret(self, coef, se, params, res, e, scale):
+        """``c2`` and its equivalent viscous damping at the speed amplitude, relative to the model's."""
+        c2 = float(coef[0])
+        eq = c2 * 8.0 / (3.0 * math.pi) * scale["sdot_rms"] * math.sqrt(2)  # equivalent viscous at the rms speed amplitude
+        return {
+            "c2": c2, "c2_se": float(se[0]),
+            "equivalent_viscous_over_model": ratio(eq, scale["c"]),
+            "text": f"quadratic drag c2 = {c2:.3g} +- {se[0]:.2g}: at the rms speed it equals "
+            f"{ratio(eq, scale['c']):.2f}x the model's viscous damping; the envelope decays hyperbolically",
+        }  # fmt: skip
+
+
+class EndStopEffect(Effect):
+    """One-sided end stop (penalty contact): ``phi = -side relu(side (s - s_stop))``, coefficient ``k_stop >= 0``.
+
+    In class. The stop position ``s_stop`` (grid on quantiles of ``s``, then refined) and
+    the side are profiled; position, stiffness and the share of samples in contact are read on
+    the chart's own, unsmoothed positions (:attr:`~lagsplat.diagnose.residual_data.SegmentState.q_raw`).
+    Practical only when ``k_stop`` is at least ``min_stop_stiffness_ratio`` times the spring's.
+    """
+
+    def grid(self, res, e, r0):
+        """Stop positions at quantiles of the chart's own positions along ``e``, on either side."""
+        s = res.q_raw @ e
+        out = []
+        for side, qs in ((1.0, (0.5, 0.6, 0.7, 0.8, 0.85, 0.9, 0.93, 0.96, 0.98)), (-1.0, (0.5, 0.4, 0.3, 0.2, 0.15, 0.1, 0.07, 0.04, 0.02))):
+            for a in np.quantile(s, qs):
+                out.append({"side": side, "s_stop": float(a)})
+        return out
+
+    def refine(self, res, e, best):
+        """Stop positions within +-4 % of the range of ``s`` around the best one, same side."""
+        s = res.q_raw @ e
+        step = 0.01 * float(np.ptp(s))
+        return [{"side": best["side"], "s_stop": float(best["s_stop"] + k * step)} for k in (-4, -3, -2, -1, 1, 2, 3, 4)]
+
+    def feature(self, res, e, params):
+        """``-side relu(side (s_raw - s_stop))`` on the chart's own positions; one coefficient, ``k_stop``."""
+        side, a = params["side"], params["s_stop"]
+        return (lambda st: -side * _relu(side * (st.q_raw @ e - a))), ["k_stop"]
+
+    def practical(self, interpretation, thresholds):
+        """A stop only when its stiffness is at least ``min_stop_stiffness_ratio`` times the spring's."""
+        ratio = interpretation.get("stiffness_ratio", float("nan"))
+        lo = thresholds.get("min_stop_stiffness_ratio", 2.0)
+        if not (ratio >= lo):
+            return False, f"stop stiffness {ratio:.2g}x the spring's, below {lo:g}x: a gentle asymmetry of the spring, not a stop"
+        return True, ""
+
+    def interpret(self, coef, se, params, res, e, scale):
+        """Stop position and side, stiffness relative to the model's, share of samples in contact."""
+        k = float(coef[0])
+        s = res.q_raw @ e
+        frac = float(np.mean(params["side"] * (s - params["s_stop"]) > 0))
+        return {
+            "k_stop": k, "k_stop_se": float(se[0]), "s_stop": params["s_stop"], "side": params["side"],
+            "stiffness_ratio": ratio(k, scale["k"]), "fraction_in_contact": frac,
+            "text": f"one-sided stop at s = {params['s_stop']:.3g} ({'upper' if params['side'] > 0 else 'lower'} side, "
+            f"{100 * frac:.0f} % of samples in contact), stiffness {k:.3g} +- {se[0]:.2g} = {ratio(k, scale['k']):.2g}x the model's",
+        }  # fmt: skip
+
+
+class CubicStiffnessEffect(Effect):
+    """Hardening (``k3 > 0``) or softening (``k3 < 0``) stiffness: ``phi = -(s - s_bar)^3``.
+
+    In class. Practical only when the Duffing frequency shift at the largest amplitude,
+    ``3 k3 A^2 / (8 k)`` (Nayfeh & Mook 1979, ch. 4), reaches ``min_cubic_shift`` and the
+    recorded zero-crossing periods shift the same way by at least half of that (a chart
+    that stretches large excursions changes the waveform in ``q``, not the period).
+    """
+
+    def feature(self, res, e, params):
+        """``-(s - s_bar)^3`` along ``e``; one coefficient, ``k3``."""
+        s_bar = float(np.mean(res.q @ e))
+        return (lambda st: -((self.coords(st, e)[0] - s_bar) ** 3)), ["k3"]
+
+    def practical(self, interpretation, thresholds):
+        """A predicted frequency shift of ``min_cubic_shift`` at the largest amplitude, shown by the recorded periods (class docstring)."""
+        pred = interpretation.get("relative_frequency_shift_at_amplitude", float("nan"))
+        lo = thresholds.get("min_cubic_shift", 0.03)
+        if not (abs(pred) >= lo):
+            return False, f"frequency shift {100 * abs(pred):.1f} % at the largest amplitude, below {100 * lo:g} %"
+        # A Duffing term shifts the period with amplitude; a chart that stretches large excursions
+        # (q a nonlinear function of the physical coordinate) does not: zero-crossing periods are
+        # chart-invariant. Accept only a shift the recording shows, with the sign of k3.
+        meas = interpretation.get("measured_frequency_shift")
+        if meas is not None and math.isfinite(meas) and not (meas * pred > 0 and abs(meas) >= 0.5 * lo):
+            return False, (
+                f"the recorded periods shift by {100 * meas:+.1f} % at the largest amplitude (frequency vs amplitude^2, "
+                f"z = {interpretation.get('measured_frequency_z', float('nan')):.1f}) where this k3 predicts {100 * pred:+.1f} %: "
+                "the anharmonic waveform in q comes from the chart, not from a stiffness"
+            )
+        return True, ""
+
+    def interpret(self, coef, se, params, res, e, scale):
+        """``k3``, hardening or softening, the Duffing frequency shift at the largest amplitude and the one the recorded periods show."""
+        k3 = float(coef[0])
+        s = res.q @ e
+        x = s - s.mean()
+        A = float(np.quantile(np.abs(x), 0.99))
+        # the linear stiffness without the part of the cubic that a straight-line fit absorbs
+        k1 = scale["k"] - k3 * float(np.mean(x**4) / max(np.mean(x**2), 1e-300))
+        shift = 3.0 * k3 * A * A / (8.0 * k1) if k1 > 0 else float("nan")
+        fsig = res.meta.get("frequency_signature") or {}  # select_effect's evidence (chart-invariant periods)
+        meas = fsig.get("relative_shift_at_max_amplitude") if fsig.get("n_periods", 0) >= 6 else None
+        return {
+            "k3": k3, "k3_se": float(se[0]), "kind": "hardening" if k3 > 0 else "softening",
+            "relative_frequency_shift_at_amplitude": shift, "amplitude": A, "s_bar": float(s.mean()), "k_linear": k1,
+            "measured_frequency_shift": None if meas is None else float(meas),
+            "measured_frequency_z": None if meas is None else float(fsig["z_amp2"]),
+            "text": f"{'hardening' if k3 > 0 else 'softening'} cubic stiffness k3 = {k3:.3g} +- {se[0]:.2g}: "
+            f"frequency {'+' if shift >= 0 else ''}{100 * shift:.1f} % at amplitude {A:.3g} (Duffing, 3 k3 A^2 / 8 k); "
+            "in the latent coordinate, where a chart that stretches or compresses large excursions looks the same",
+        }  # fmt: skip

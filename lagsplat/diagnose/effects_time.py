@@ -1,0 +1,197 @@
+"""Candidates that depend on time, the input or a hidden mode: periodic force, drift, actuation delay, missing degree of freedom.
+
+The table of features and coefficients, and where the frequency searches are
+restricted, are in :mod:`lagsplat.diagnose.effects`, which lists these in
+:data:`~lagsplat.diagnose.effects.EFFECTS`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from lagsplat.diagnose.effect_base import Effect, ratio
+from lagsplat.diagnose.spectrum import excluded_bands, frequency_allowed, residual_peaks
+
+__all__ = ["PeriodicForceEffect", "DriftEffect", "ActuationDelayEffect", "MissingDofEffect"]
+
+
+class PeriodicForceEffect(Effect):
+    """Unlogged periodic force: ``phi = (cos 2 pi f t, sin 2 pi f t)`` in clip time, coefficients ``a, b``.
+
+    The frequency ``f`` is profiled around the residual's spectral peaks outside the
+    model's own bands (:func:`~lagsplat.diagnose.spectrum.excluded_bands`), then refined to
+    about ``0.01 / span`` (phase-locked over the clip). Practical only when the motion it
+    drives off resonance reaches ``min_periodic_response`` of the recorded one (rms).
+    """
+
+    def grid(self, res, e, r0):
+        """Frequencies within one clip-frequency bin of the residual's 3 strongest allowed peaks."""
+        peaks = residual_peaks(r0, res.segment, res.dt, 3, exclude=excluded_bands(res))
+        T = max(len(st.t) for st in res.states) * res.dt
+        out = []
+        for f in peaks:
+            for k in np.linspace(-1.0, 1.0, 11):
+                fk = f + k / T
+                if frequency_allowed(res, fk):
+                    out.append({"f_hz": float(fk)})
+        return out
+
+    def refine(self, res, e, best):
+        """Frequencies within ``0.2 / T`` of the best one in steps of ``0.01 / span`` (phase-locked over the clip)."""
+        # the phase is locked over the whole clip: resolve f to ~0.01 / (time span)
+        span = float(np.ptp(res.t)) + res.dt
+        T = max(len(st.t) for st in res.states) * res.dt
+        return [{"f_hz": float(best["f_hz"] + k)} for k in np.arange(-0.2 / T, 0.2 / T + 1e-12, 0.01 / span) if frequency_allowed(res, best["f_hz"] + k)]
+
+    def feature(self, res, e, params):
+        """``cos, sin(2 pi f t)`` in clip time; coefficients ``a_cos, b_sin``."""
+        w = 2 * math.pi * params["f_hz"]
+        return (lambda st: np.stack([np.cos(w * st.t), np.sin(w * st.t)], 1)), ["a_cos", "b_sin"]
+
+    def practical(self, interpretation, thresholds):
+        """A force only when the motion it drives off resonance reaches ``min_periodic_response`` of the recorded one."""
+        rel = interpretation.get("driven_over_motion", float("nan"))
+        lo = thresholds.get("min_periodic_response", 0.01)
+        if not (rel >= lo):
+            return False, (f"the motion it drives off resonance is {100 * rel:.2g} % of the recorded motion (rms), below "
+                           f"{100 * lo:g} %: a force too small to change what the video shows")  # fmt: skip
+        return True, ""
+
+    def interpret(self, coef, se, params, res, e, scale):
+        """Frequency, amplitude and phase, and the motion it drives relative to the recorded one."""
+        amp = float(np.hypot(coef[0], coef[1]))
+        amp_se = float(np.sqrt((coef[0] * se[0]) ** 2 + (coef[1] * se[1]) ** 2) / max(amp, 1e-300))
+        r = ratio(params["f_hz"], res.f_dominant_hz)
+        return {
+            "f_hz": params["f_hz"], "amplitude": amp, "amplitude_se": amp_se, "phase": float(math.atan2(-coef[1], coef[0])),
+            "f_over_model": r,
+            "amplitude_over_restoring": ratio(amp, scale["k"] * scale["s_rms"]),
+            # linear response of the fitted spring off resonance (the model's own band is excluded):
+            # amplitude / (k |1 - r^2|), as an rms, over the rms of the recorded (unsmoothed) motion along e
+            "driven_over_motion": ratio(amp, scale["k"] * abs(1.0 - r * r) * math.sqrt(2.0) * scale["s_raw_rms"]),
+            "text": f"an unlogged periodic force at {params['f_hz']:.3g} Hz ({r:.2f}x the "
+            f"oscillation), amplitude {amp:.3g} +- {amp_se:.2g}, phase-locked over the clip",
+        }  # fmt: skip
+
+
+class DriftEffect(Effect):
+    """Slow linear drift of stiffness and damping: ``phi = (-(t - t_bar)(s - s_bar), -(t - t_bar) sdot)``.
+
+    Coefficients ``dk/dt, dc/dt`` (per second); reading: the relative change of each over
+    the recorded span and which one dominates.
+    """
+
+    def feature(self, res, e, params):
+        """``-(t - t_bar)(s - s_bar), -(t - t_bar) sdot``; coefficients ``dk_dt, dc_dt``."""
+        s_bar = float(np.mean(res.q @ e))
+        t_bar = float(np.mean(res.t))
+
+        def phi(st):
+            s, v = self.coords(st, e)
+            dt = st.t - t_bar
+            return np.stack([-dt * (s - s_bar), -dt * v], 1)
+
+        return phi, ["dk_dt", "dc_dt"]
+
+    def interpret(self, coef, se, params, res, e, scale):
+        """Relative change of stiffness and damping over the recorded span, and which dominates."""
+        span = float(np.ptp(res.t))
+        rk, rc = ratio(coef[0] * span, scale["k"]), ratio(coef[1] * span, scale["c"])
+        zk, zc = abs(coef[0]) / max(se[0], 1e-300), abs(coef[1]) / max(se[1], 1e-300)
+        which = "stiffness" if zk >= zc else "damping"
+        return {
+            "dk_dt": float(coef[0]), "dk_dt_se": float(se[0]), "dc_dt": float(coef[1]), "dc_dt_se": float(se[1]),
+            "stiffness_change_over_clip": rk, "damping_change_over_clip": rc, "dominant": which,
+            "t_bar": float(np.mean(res.t)), "s_bar": float(np.mean(res.q @ e)), "k_model": scale["k"], "c_model": scale["c"],
+            "text": f"slow drift, mainly of the {which}: over the {span:.0f} s recorded the stiffness changes by "
+            f"{100 * rk:+.1f} % (z = {zk:.1f}) and the damping by {100 * rc:+.0f} % (z = {zc:.1f})",
+        }  # fmt: skip
+
+
+class ActuationDelayEffect(Effect):
+    """Actuation delay: ``phi = u(t - tau) - u(t)`` per input channel, a gain per channel.
+
+    Applicable only with actuation; ``tau`` is profiled from half a frame to 0.5 s in half-frame steps.
+    """
+
+    def applicable(self, res):
+        """Only with logged actuation."""
+        return res.n_u > 0
+
+    def grid(self, res, e, r0):
+        """Delays from half a frame to about 0.5 s in half-frame steps."""
+        n = int(round(0.5 / res.dt))
+        return [{"tau_s": float(k * res.dt / 2)} for k in range(1, 2 * n + 1)]
+
+    def feature(self, res, e, params):
+        """``u(t - tau) - u(t)`` per input channel; a gain per channel."""
+        tau = params["tau_s"]
+        return (lambda st: st.u_at(st.t - tau) - st.u_at(st.t)), [f"gain_u{j + 1}" for j in range(res.n_u)]
+
+    def interpret(self, coef, se, params, res, e, scale):
+        """The delay and the delayed-input gains."""
+        return {
+            "tau_s": params["tau_s"], "gain": [float(c) for c in coef], "gain_se": [float(s) for s in se],
+            "text": f"the logged input acts {params['tau_s'] * 1000:.0f} ms late (delayed-input gain "
+            + ", ".join(f"{c:.3g} +- {s:.2g}" for c, s in zip(coef, se)) + ")",
+        }  # fmt: skip
+
+
+class MissingDofEffect(Effect):
+    """A hidden lightly damped mode: ``exp(-l t') (cos 2 pi f t', sin 2 pi f t')`` per segment, ``l = 2 pi f zeta``.
+
+    ``t'`` is the time since the segment's first kept sample; the frequency ``f`` (around
+    the residual's peaks outside the model's bands) and ``zeta <= 0.05`` are profiled, and
+    each segment has its own amplitude and phase. Remedy: one more latent dimension.
+    """
+
+    def grid(self, res, e, r0):
+        """Frequencies around the residual's 3 strongest allowed peaks, damping ratios 0 to 0.04."""
+        peaks = residual_peaks(r0, res.segment, res.dt, 3, exclude=excluded_bands(res))
+        T = max(len(st.t) for st in res.states) * res.dt
+        out = []
+        for f in peaks:
+            for k in np.linspace(-1.0, 1.0, 9):
+                fk = f + k / T
+                if not frequency_allowed(res, fk):
+                    continue
+                for z in (0.0, 0.0025, 0.005, 0.01, 0.02, 0.04):
+                    out.append({"f_hz": float(fk), "zeta": z})
+        return out
+
+    def refine(self, res, e, best):
+        """Frequencies within ``0.25 / T`` and damping ratios around the best ones (``zeta <= 0.05``)."""
+        T = max(len(st.t) for st in res.states) * res.dt
+        z0 = best["zeta"]
+        # a lightly damped mode (zeta <= 0.05): a residual that dies out within a few cycles is a transient, not a mode
+        zs = sorted({min(0.05, max(0.0, z0 * f)) for f in (0.6, 0.8, 1.0, 1.25, 1.5)} | {max(0.0, z0 - 0.0025), min(0.05, z0 + 0.0025)})
+        return [{"f_hz": float(best["f_hz"] + k), "zeta": float(z)} for k in np.linspace(-0.25 / T, 0.25 / T, 11) for z in zs if frequency_allowed(res, best["f_hz"] + k)]
+
+    def feature(self, res, e, params):
+        """A decaying cosine and sine per segment, from the segment's first kept sample; two amplitudes per segment."""
+        w = 2 * math.pi * params["f_hz"]
+        lam = params["zeta"] * w
+        n_seg = res.n_segments
+
+        def phi(st):
+            tt = st.t - st.t[st.keep.start]
+            env = np.exp(-lam * tt)
+            out = np.zeros((len(st.t), 2 * n_seg))
+            out[:, 2 * st.index] = env * np.cos(w * tt)
+            out[:, 2 * st.index + 1] = env * np.sin(w * tt)
+            return out
+
+        return phi, [f"seg{k}_{c}" for k in range(n_seg) for c in ("cos", "sin")]
+
+    def interpret(self, coef, se, params, res, e, scale):
+        """Frequency, damping ratio and the amplitude in each segment."""
+        a = np.hypot(coef[0::2], coef[1::2])
+        return {
+            "f_hz": params["f_hz"], "zeta": params["zeta"], "segment_amplitudes": a.tolist(),
+            "f_over_model": ratio(params["f_hz"], res.f_dominant_hz),
+            "text": f"a hidden mode at {params['f_hz']:.3g} Hz ({ratio(params['f_hz'], res.f_dominant_hz):.2f}x the oscillation), "
+            f"damping ratio ~{params['zeta']:.3g}, with its own amplitude and phase in each segment: a degree of freedom the "
+            "latent chart does not carry (remedy: one more latent dimension)",
+        }  # fmt: skip

@@ -1,0 +1,79 @@
+"""Which significant candidate to refit: the Delta-BIC winner, confirmed by its refit's training-rollout error (paper §3.3 model selection)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+from torch import nn
+
+from lagsplat.diagnose.refit import RefitConfig, RefitResult, refit
+
+__all__ = ["choose_by_refit"]
+
+
+def choose_by_refit(
+    chart: Any, model: nn.Module, stage2_cfg: Any, diagnosis: Any, baseline_nrmse: float | None, cfg: RefitConfig | None = None,
+    inertia: Any | None = None,
+) -> tuple[Any, list[dict[str, Any]], RefitResult | None]:
+    """Confirm the Delta-BIC winner by refitting it; if the refit does not help, the best significant rival that does.
+
+    Several effects can explain one residual about equally (an end stop and a
+    stiffening drift both raise the frequency of a bouncing motion as it decays).
+    The residual regression ranks them by Delta BIC on the residual alone. Adding
+    the winner to the model and fitting again (:func:`refit`, without the control)
+    asks whether it makes the *model* follow the training video better: the
+    paper's model selection criterion (§3.3: multi-step rollout NRMSE on training
+    frames, ``history["selected_nrmse"]`` of :func:`lagsplat.train.stage2.train_stage2`),
+    against the identified model's own ``baseline_nrmse``. When it does, the winner
+    stands (one extra refit). When it does not, each other significant candidate
+    is refit and the one with the lowest training-rollout NRMSE *below the
+    baseline* is taken; if none gets below it, the Delta-BIC winner stands. The
+    rollout error rewards any added flexibility, not the right physics (on a
+    dry-friction clip a cubic-stiffness refit can follow the training video
+    better than the friction's, by correcting the model's frequency), so it never
+    ranks candidates whose refits help: it only rejects a winner whose refit
+    makes the model follow its own training video worse. Held-out frames are not read. Applies when
+    there is one accepted effect (``max_effects = 1``, the default) and at least two
+    significant candidates with a Stage-2 refit (a missing degree of freedom has
+    none and is never compared).
+
+    Args:
+        chart, model, stage2_cfg, inertia: as for :func:`refit`.
+        diagnosis: the :class:`~lagsplat.diagnose.diagnosis.Diagnosis`.
+        baseline_nrmse: the identified model's training-rollout NRMSE (Stage-2
+            ``selected_nrmse``); ``None``: nothing is compared.
+        cfg: refit settings (its ``control`` is ignored here).
+
+    Returns:
+        ``(diagnosis, candidates, result)``: the diagnosis with the chosen effect as
+        its winner (the input itself when the winner stands or nothing is compared),
+        one record per candidate refit (``effect``, ``delta_bic``, ``train_rollout_nrmse``,
+        ``beats_identified``: below ``baseline_nrmse``, ``chosen``), empty when nothing was compared, and the
+        chosen effect's refit without its control (:func:`~lagsplat.diagnose.refit.add_control` adds it;
+        ``None`` when nothing was compared).
+    """
+    cfg = cfg or RefitConfig()
+    effects = list(getattr(diagnosis, "effects", []))
+    refittable = [f for f in diagnosis.ranking if f.significant and f.effect != "missing_dof"]
+    if baseline_nrmse is None or len(effects) != 1 or effects[0].effect == "missing_dof" or len(refittable) < 2:
+        return diagnosis, [], None
+    quiet = dataclasses.replace(cfg, control=False)
+    first = effects[0]
+    order = [first, *[f for f in refittable if f.effect != first.effect]]
+    rows: list[dict[str, Any]] = []
+    fits: list[RefitResult | None] = []
+    for fit in order:
+        r = refit(chart, model, stage2_cfg, dataclasses.replace(diagnosis, winner=fit.effect, effects=[fit]), quiet, inertia)
+        err = float(r.history.get("selected_nrmse", math.inf)) if r is not None else math.inf
+        beats = err < baseline_nrmse
+        rows.append({"effect": fit.effect, "delta_bic": float(fit.delta_bic), "train_rollout_nrmse": err, "beats_identified": beats, "chosen": False})
+        fits.append(r)
+        if fit is first and beats:
+            break  # the winner is confirmed: no rival is refit
+    better = [k for k, r in enumerate(rows) if r["beats_identified"]]
+    k = min(better, key=lambda k: rows[k]["train_rollout_nrmse"]) if better else 0
+    rows[k]["chosen"] = True
+    chosen = diagnosis if k == 0 else dataclasses.replace(diagnosis, winner=order[k].effect, effects=[order[k]])
+    return chosen, rows, fits[k]

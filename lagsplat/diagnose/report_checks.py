@@ -1,0 +1,116 @@
+"""Trust in the verdict: whether the upstream artifacts support a diagnosis, and whether the held-out gap confirms it.
+
+:func:`reliability` checks the chart and the identified model before the
+verdict is read (paper §3.2 chart, §3.3 model selection); :func:`held_out_check`
+states whether the refit with the diagnosed effect shrinks the held-out gap
+beyond what the same fine-tune without it does. Both are statements in the
+report (:mod:`lagsplat.diagnose.report`), never choices: the held-out frames
+decide nothing upstream.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from lagsplat.diagnose.markdown import fmt_pct
+
+__all__ = ["reliability", "CHECK_METRICS", "held_out_check"]
+
+
+def reliability(chart: Any, stage2_history: Mapping[str, Any] | None = None, diagnosis: Any | None = None) -> dict[str, Any]:
+    """Whether the upstream artifacts are good enough for the diagnosis to mean anything.
+
+    A residual is only the sign of an unmodelled effect when the chart follows the
+    object and the model follows the chart; otherwise any candidate may win (or
+    none). Checks:
+
+    * ``chart_continuous``: the chart's jump statistic (``chart.meta["continuity_jump_ratio"]``,
+      :func:`lagsplat.chart.chart_continuity`) below :data:`lagsplat.chart.FOLD_WARNING`;
+    * ``decoder_shows_motion``: the image change of one standard deviation of ``q``
+      along the most visible direction, ``lambda_max(G_bar)`` (the chart is
+      whitened), exceeds the AE floor on the training frames;
+    * ``model_follows_training``: the Stage-2 model-selection NRMSE (free rollouts of
+      ``select_periods`` periods on training frames) below 0.5;
+    * ``residual_explained``: the residual left after the model-class corrections
+      and the accepted effects is within ``unexplained_excess`` times the chart
+      noise (:func:`~lagsplat.diagnose.select_effect`, ``null["unexplained"]``).
+
+    The first two (Stage 1) make the verdict ``reliable``. The last two are
+    cautions: a model that does not follow its training video, or a residual
+    nothing explains, may come from a Stage-2 failure or a distorted chart, but
+    also from a strong unmodelled effect (a missing degree of freedom does both),
+    or one outside the library.
+
+    Returns:
+        ``{"reliable": bool, "checks": {name: {"ok", "value", "threshold", "text"}},
+        "reasons": [str] (failed gates), "cautions": [str] (failed cautions)}``.
+    """
+    from lagsplat.chart import FOLD_WARNING
+
+    checks: dict[str, dict[str, Any]] = {}
+    jump = chart.meta.get("continuity_jump_ratio") if isinstance(chart.meta, Mapping) else None
+    if jump is not None:
+        checks["chart_continuous"] = {"ok": bool(jump < FOLD_WARNING), "value": float(jump), "threshold": FOLD_WARNING,
+                                      "text": "chart jump ratio (max |2nd difference| / median |1st difference|)"}  # fmt: skip
+    lam = float(np.linalg.eigvalsh(0.5 * (chart.G_bar + chart.G_bar.T)).max())
+    floor = float(chart.ae_floor_train)
+    if floor > 0:
+        checks["decoder_shows_motion"] = {"ok": bool(lam > floor), "value": lam / floor, "threshold": 1.0,
+                                          "text": "image MSE of one standard deviation of q / AE floor"}  # fmt: skip
+    if stage2_history and stage2_history.get("selected_nrmse") is not None:
+        v = float(stage2_history["selected_nrmse"])
+        checks["model_follows_training"] = {"ok": bool(math.isfinite(v) and v < 0.5), "value": v, "threshold": 0.5,
+                                            "text": "Stage-2 selection NRMSE (free rollouts on training frames)"}  # fmt: skip
+    if diagnosis is not None:
+        null = diagnosis.null
+        checks["residual_explained"] = {"ok": not bool(null.get("unexplained")), "value": float(null.get("excess_after_effects", null["excess_over_noise"])),
+                                        "threshold": float(diagnosis.settings.get("unexplained_excess", 4.0)) if isinstance(diagnosis.settings, Mapping) else 4.0,
+                                        "text": "residual variance left / chart-noise variance"}  # fmt: skip
+    def why(k: str) -> str:
+        return f"{checks[k]['text']} = {checks[k]['value']:.3g} (need {'>' if k == 'decoder_shows_motion' else '<'} {checks[k]['threshold']:g})"
+
+    reasons = [why(k) for k in ("chart_continuous", "decoder_shows_motion") if k in checks and not checks[k]["ok"]]
+    cautions = [why(k) for k in ("model_follows_training", "residual_explained") if k in checks and not checks[k]["ok"]]
+    return {"reliable": not reasons, "checks": checks, "reasons": reasons, "cautions": cautions}
+
+
+#: Gap metrics the held-out check reads (the trajectory and the image; frequency and envelope are reported beside).
+CHECK_METRICS = ("eps_q", "image_excess")
+
+
+def held_out_check(gap: Mapping[str, Any], effects: Sequence[str]) -> dict[str, Any] | None:
+    """Whether the refit with the diagnosed effect(s) shrinks the held-out gap: a statement, never a choice.
+
+    Confirmed when, for each of :data:`CHECK_METRICS`, the refit model's held-out gap is
+    below the identified model's and below the control fine-tune's (same settings, no term),
+    so that what the term buys is not what more training buys. The held-out frames
+    decide nothing upstream: the verdict was taken on the training frames.
+
+    Args:
+        gap: the ``gap`` record of the report (``before``, ``after``, ``control``, ``reduction``,
+            ``reduction_vs_control``).
+        effects: names of the effects refit.
+
+    Returns:
+        ``{"confirmed", "text"}``, or ``None`` when no refit was scored.
+    """
+    red, red_c = gap.get("reduction") or {}, gap.get("reduction_vs_control") or {}
+    vals = [red.get(k) for k in CHECK_METRICS] + ([red_c.get(k) for k in CHECK_METRICS] if gap.get("control") else [])
+    if not red or any(v is None for v in vals):
+        return None
+    ok = all(v > 0 for v in vals)
+    name = ", ".join(effects)
+    nums = "; ".join(
+        f"{k.replace('_', ' ')} {fmt_pct(red[k])}" + (f" (vs the control fine-tune {fmt_pct(red_c[k])})" if gap.get("control") else "")
+        for k in CHECK_METRICS
+    )
+    text = (
+        f"the refit with {name} shrinks the held-out gap ({nums})" if ok
+        else f"the refit with {name} does not shrink the held-out gap beyond more training ({nums}): "
+        "what the training frames point to is not confirmed on the held-out frames"
+    )
+    return {"confirmed": bool(ok), "text": text}
