@@ -70,12 +70,22 @@ DEFAULT_TRAIN_FRACTION = 0.8
 MIN_SEGMENT_FRAMES = 20
 """Frames the longest training segment and the longest held-out segment each need at least.
 
-A lower bound that ingest can check before any training: Stage 2 draws its
-windows of ``3 k + 3`` frames from training segments (``k = stage2.stride``,
-paper Eq. 8), and the evaluation starts its rollouts past the smoothing's edge
-and reads windows of at least 16 held-out frames (paper §4.1); two natural
-periods of held-out video, which the evaluation needs too, are checked once
-the chart gives the frequency."""
+A lower bound that ingest can check before any training (the stage settings
+and the clip's frequency are not known yet):
+
+* held out: the evaluation (:func:`lagsplat.evaluate.paper.evaluate`) refuses
+  a held-out segment under 16 frames (its shortest frequency window) and starts
+  its rollouts past the smoothing's edge, 4 frames at ``sigma = 1``
+  (:func:`lagsplat.timeseries.smoothing_edge`): 16 + 4 = 20;
+* training: Stage 2 (:func:`lagsplat.train.stage2.train_stage2`) needs a
+  training segment longer than ``3 k + 3`` frames for one window of Eq. 8
+  (``k = stage2.stride``): 10 frames at the default ``k = 2``, and 20 still
+  covers ``k`` up to 5.
+
+The two natural periods of held-out video the evaluation needs as well depend
+on the frequency, known only once the chart is built, and are checked there.
+At a contiguous split with training share ``f`` the clip needs about
+``MIN_SEGMENT_FRAMES / min(f, 1 - f)`` frames (100 at the default 0.8)."""
 
 
 def check_length(clip: Clip, src: str) -> Clip:
@@ -91,7 +101,13 @@ def check_length(clip: Clip, src: str) -> Clip:
         seg[name] = max((len(r) for r in runs), default=0)
     if min(seg.values()) < MIN_SEGMENT_FRAMES:
         frac = seg["training"] / max(seg["training"] + seg["held-out"], 1)
-        need = MIN_SEGMENT_FRAMES / max(min(frac, 1 - frac), 1e-9)
+        if min(frac, 1 - frac) <= 0:  # e.g. split.train_fraction = 1: no length is enough
+            empty = "held-out" if seg["held-out"] == 0 else "training"
+            raise ClipError(
+                f"{src}: {clip.n_frames} frames give no {empty} frames; Stage 2 and the evaluation need at least "
+                f"{MIN_SEGMENT_FRAMES} training and {MIN_SEGMENT_FRAMES} held-out frames in a row (lower split.train_fraction)"
+            )
+        need = MIN_SEGMENT_FRAMES / min(frac, 1 - frac)
         raise ClipError(
             f"{src}: too short: {clip.n_frames} frames give {seg['training']} training and {seg['held-out']} held-out frames "
             f"in a row; Stage 2 and the evaluation need at least {MIN_SEGMENT_FRAMES} of each "

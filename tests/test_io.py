@@ -664,6 +664,9 @@ def test_a_clip_too_short_for_the_pipeline_stops_at_ingest(tmp_path):
     np.savez(src, images=long, t=np.arange(60) / 30.0)
     with pytest.raises(ClipError, match="12 held-out"):
         ingest_to_file(cfg, tmp_path / "clip.npz")
+    cfg["split"] = {"train_fraction": 1.0}  # no held-out frames: the split, not the length, is at fault
+    with pytest.raises(ClipError, match=r"short\.npz: 60 frames give no held-out frames.*lower split\.train_fraction"):
+        ingest_to_file(cfg, tmp_path / "clip.npz")
     cfg["split"] = {"train_fraction": 0.6}
     assert ingest_to_file(cfg, tmp_path / "clip.npz").exists()
 
@@ -678,10 +681,64 @@ def test_a_truncated_webm_warns_naming_the_file(tmp_path):
     full = REAL / "oscillating_cart.webm"
     cut = tmp_path / "cut.webm"
     cut.write_bytes(full.read_bytes()[:900_000])
-    with pytest.warns(TruncatedVideoWarning, match=r"cut\.webm.*cut short.*frames decoded"):
+    with pytest.warns(TruncatedVideoWarning, match=r"cut\.webm.*cut short.*\d+ frames decoded, the container states no frame count"):
         frames, _, _ = read_video(cut, fps=30.0)
     assert 100 < len(frames) < 200
     assert matroska_ends_early(full) == (False, 242)
     with warnings.catch_warnings():
         warnings.simplefilter("error", TruncatedVideoWarning)
         assert len(read_video(full, fps=30.0)[0]) == 242
+
+
+def _with_matroska_duration(data: bytes, duration_ms: float) -> bytes:
+    """``data`` (a WebM whose Info element has a 1-byte size and no Duration) with a Duration element added to Info.
+
+    Browser recordings state no duration; tools that fix that up add one. OpenCV then
+    reports a frame count estimated as duration x fps.
+    """
+    i = data.index(bytes.fromhex("1549a966"))  # Info
+    size_byte = data[i + 4]
+    assert size_byte & 0x80, "Info's size is not a 1-byte EBML number"
+    size = size_byte & 0x7F
+    body = data[i + 5 : i + 5 + size] + bytes.fromhex("4489") + bytes([0x88]) + struct.pack(">d", duration_ms)  # Duration, float64
+    assert len(body) < 0x7F
+    return data[: i + 4] + bytes([0x80 | len(body)]) + body + data[i + 5 + size :]
+
+
+@needs_real
+def test_a_frame_count_estimated_from_an_absurd_fps_is_not_trusted(tmp_path):
+    """A WebM with a Duration but a 1000 fps time base: OpenCV estimates 8066 frames for its 242.
+
+    That count used to make the whole recording "truncated or corrupt"; it is not what the
+    container states, so the checks fall back to the file's structure."""
+    from lagsplat.io.video import TruncatedVideoWarning
+
+    data = _with_matroska_duration((REAL / "oscillating_cart.webm").read_bytes(), 8066.0)
+    full = tmp_path / "fixed.webm"
+    full.write_bytes(data)
+    assert cv2.VideoCapture(str(full)).get(cv2.CAP_PROP_FRAME_COUNT) == 8066  # what OpenCV reports
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", TruncatedVideoWarning)
+        frames, _, info = read_video(full, fps=30.0)
+    assert len(frames) == 242 and info["container_frame_count"] == 8066 and not info["container_frame_count_trusted"]
+    cut = tmp_path / "fixed_cut.webm"
+    cut.write_bytes(data[:900_000])
+    with pytest.warns(TruncatedVideoWarning, match=r"fixed_cut\.webm: the file is cut short.*frames decoded, the container states 8066 frames, an estimate"):
+        frames, _, _ = read_video(cut, fps=30.0)
+    assert 100 < len(frames) < 200
+
+
+def test_a_video_that_ends_a_few_frames_early_warns_with_both_counts(tmp_path):
+    """Decoding that stops short of the container's frame count (but within 10 %) warns naming the file and both counts."""
+    from lagsplat.io.video import TruncatedVideoWarning
+
+    src = _write_video(tmp_path / "full.avi", 100, 25.0, fourcc="MJPG")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", TruncatedVideoWarning)
+        assert len(read_video(src)[0]) == 100
+    cut = tmp_path / "cut.avi"
+    cut.write_bytes(src.read_bytes()[: int(0.9 * src.stat().st_size)])
+    with pytest.warns(TruncatedVideoWarning, match=r"cut\.avi: decoding ended early: \d+ frames decoded of the 100 the container states") as rec:
+        frames, _, info = read_video(cut)
+    assert 90 <= len(frames) < 98 and info["container_frame_count"] == 100 and info["container_frame_count_trusted"]
+    assert f"{len(frames)} frames decoded" in str(rec[0].message)

@@ -287,3 +287,59 @@ def test_the_rollout_figure_states_its_key_metrics_in_plain_words() -> None:
     assert held_out_frequency({"f_enc_segment_hz": {"value": 0.7}, **m}) == 0.7
     with pytest.raises(ValueError, match="f_enc_segment_hz or f_enc_hz"):
         held_out_frequency({"eps_q": {"value": 0.1}})
+
+
+# ---------------------------------------------------------------- the page's text and layout, without a browser
+PAGE = ROOT / "lagsplat" / "viewer" / "static" / "index.html"
+
+
+def test_the_stats_say_what_each_number_measures() -> None:
+    """Render time per frame (and the rate it would allow), frames sent and frames shown are separate numbers.
+
+    A 90.8 ms render with 28.3 frames/s sent used to read "render 28.3 fps (90.8 ms/frame)". The page's
+    text functions (pure functions of a state object) run under node."""
+    import shutil
+    import subprocess
+
+    node = shutil.which("node")
+    if node is None:
+        pytest.skip("node is not installed (the page's text functions run under node)")
+    html = PAGE.read_text(encoding="utf-8")
+    functions = html[html.index("// ---- status text:") : html.index("// ---- end of status text")]
+    st = {
+        "stats": {"sim_hz": 30.0, "render_fps": 28.3, "realtime": 1.0}, "dt": 1 / 30, "render_ms": 11.0, "pageFps": 27.9,
+        "step_ms": 0.25, "substeps": 1, "compiled": True, "t": 1.5, "q": [0.1, -0.2], "dist_rest": 0.2236,
+        "grab": {"force": [1.2, -3.0], "seen_px": 0.4},
+    }  # fmt: skip
+    js = functions + f"\nconst st = {json.dumps(st)};\nconsole.log(JSON.stringify([statsText(st), qText(st)]));\n"
+    r = subprocess.run([node, "-e", js], capture_output=True, text=True, timeout=60, check=False)
+    assert r.returncode == 0, r.stderr
+    stats, q = json.loads(r.stdout)
+    assert stats.splitlines() == [
+        "simulation 30.0 Hz (target 30.0, 100% real time)",
+        "render     11.0 ms per frame (91 frames/s possible), 28.3 frames/s sent",
+        "page       27.9 frames/s shown",
+        "step 0.25 ms (1 sub-step, compiled), t = 1.50 s",
+    ]
+    assert q == ("q = [0.100, -0.200]  |q - q_rest| = 0.224  force (1.2, -3.0) px; held material moved 0.40 px rms in training"
+                 " (barely seen moving: its response is extrapolated)")  # fmt: skip
+
+
+def test_the_status_lines_wrap_instead_of_being_cut_off_at_900_px() -> None:
+    """The page's CSS, read without a browser (the browser test measures the laid-out page at 900 px).
+
+    Every status line may wrap (no ``white-space: pre`` / ``nowrap``) and breaks long words, and the
+    image plus the panel's minimum width fit side by side in a 900 px window."""
+    import re
+
+    html = PAGE.read_text(encoding="utf-8")
+    css = html[html.index("<style>") + len("<style>") : html.index("</style>")]
+    rules = {sel.strip(): body for sels, body in re.findall(r"([^{}]+)\{([^}]*)\}", css) for sel in sels.split(",")}
+    for el in ("#stats", "#qline", "#status"):
+        assert "overflow-wrap: anywhere" in rules[el] and not re.search(r"white-space:\s*(pre|nowrap)\s*;", rules[el]), el
+
+    def px(sel: str, prop: str) -> int:
+        return int(re.search(rf"(?:^|[;\s]){prop}:\s*(\d+)px", rules[sel]).group(1))
+
+    border = 2 * px("#view", "border")
+    assert 2 * px("body", "margin") + px("#view", "width") + border + px("#wrap", "gap") + px("#panel", "min-width") <= 900

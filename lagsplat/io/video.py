@@ -30,8 +30,15 @@ one that yields no frame raises ``ClipError("<path>: cannot decode video
 (...)")``. A file that opens but ends early is decoded as far as possible; if
 the container states a frame count and fewer than 90 % of it were decoded,
 ``ClipError("<path>: video is truncated or corrupt: decoded N of M frames")``
-is raised. Containers without a frame count (browser WebM) cannot be checked
-this way and return the frames that decoded.
+is raised; if fewer than stated but at least 90 % (more than 2 short), a
+:class:`TruncatedVideoWarning` names the file and both counts. The count is the
+one the container states, trusted only with a plausible container fps (see the
+timing rule): where the container states no count, OpenCV estimates it as
+duration x fps, which with an absurd fps (a WebM's 1000 fps time base) is
+meaningless, e.g. 8066 frames for a 242-frame recording. Containers without a
+(trusted) count, such as browser WebM, are checked by their structure instead
+(:func:`matroska_ends_early`: a WebM / Matroska file whose last element runs
+past its end was cut short) and warn the same way.
 """
 
 from __future__ import annotations
@@ -45,7 +52,7 @@ import numpy as np
 
 from lagsplat.io.common import FrameCollector, FrameTransform, check_range, cv_to_rgb, validate_range
 from lagsplat.io.clip import ClipError
-from lagsplat.io.timing import resolve_timing
+from lagsplat.io.timing import is_absurd_fps, resolve_timing
 
 __all__ = ["read_video", "VIDEO_EXTENSIONS", "TruncatedVideoWarning", "matroska_ends_early"]
 
@@ -124,8 +131,12 @@ def _fourcc(cap: cv2.VideoCapture) -> str | None:
     return s if s.isprintable() else None
 
 
-def _warn_if_cut_short(path: Path, n: int, container_count: int | None) -> None:
-    """Warn (:class:`TruncatedVideoWarning`) when ``n`` decoded frames fall short of what the container states."""
+def _warn_if_cut_short(path: Path, n: int, container_count: int | None, stated: int | None, container_fps: float) -> None:
+    """Warn (:class:`TruncatedVideoWarning`) when ``n`` decoded frames fall short of what the container states.
+
+    ``container_count`` is the trusted count (None if there is none), ``stated`` what OpenCV reported.
+    A shortfall of at most 2 frames is not warned about (containers round their counts).
+    """
     import warnings
 
     if container_count is not None and n < container_count - 2:
@@ -134,9 +145,10 @@ def _warn_if_cut_short(path: Path, n: int, container_count: int | None) -> None:
     if path.suffix.lower() in (".webm", ".mkv"):
         walked = matroska_ends_early(path)
         if walked is not None and walked[0]:
+            says = "no frame count" if stated is None else f"{stated} frames, an estimate from its implausible {container_fps:g} fps"
             warnings.warn(
-                f"{path}: the file is cut short (its last block runs past the end of the file): {n} frames decoded; "
-                "the rest of the recording is missing",
+                f"{path}: the file is cut short (its last block runs past the end of the file): {n} frames decoded, "
+                f"the container states {says}; the rest of the recording is missing",
                 TruncatedVideoWarning,
                 stacklevel=3,
             )
@@ -174,13 +186,15 @@ def read_video(
         | "timestamps" | "mean_rate"``, see :mod:`lagsplat.io.timing`),
         ``dt_ms_min`` / ``dt_ms_median`` / ``dt_ms_max`` (raw intervals),
         ``warnings`` (messages issued), ``container_frame_count`` (None if the
-        container does not say), ``n_decoded``, ``width`` / ``height`` (native
+        container does not say), ``container_frame_count_trusted`` (False with
+        an absurd container fps: then not used for the checks), ``n_decoded``, ``width`` / ``height`` (native
         pixels), ``codec`` and ``frames`` (the kept range).
 
     Raises:
         ClipError: ``"<path>: file not found"``; ``"<path>: cannot decode
             video (...)"`` if OpenCV cannot open it or decodes no frame;
-            ``"<path>: video is truncated or corrupt: decoded N of M frames"``;
+            ``"<path>: video is truncated or corrupt: decoded N of M frames"`` (fewer
+            than 90 % of a trusted container count);
             the timing rule's error; a frame range outside the video.
 
     Warns:
@@ -211,7 +225,9 @@ def read_video(
             )
         container_fps = float(cap.get(cv2.CAP_PROP_FPS))
         count = float(cap.get(cv2.CAP_PROP_FRAME_COUNT))
-        container_count = int(count) if math.isfinite(count) and 0 < count < 2**31 else None
+        stated = int(count) if math.isfinite(count) and 0 < count < 2**31 else None
+        # a count the container lacks is estimated by OpenCV as duration x fps: meaningless with an absurd fps
+        container_count = stated if not is_absurd_fps(container_fps, max_fps) else None
         capacity = None
         if container_count is not None:
             capacity = max(0, min(container_count, stop if stop is not None else container_count) - start)
@@ -251,7 +267,7 @@ def read_video(
         raise ClipError(f"{src}: cannot decode video (no frame could be decoded)")
     if container_count is not None and n < _MIN_DECODED_FRACTION * container_count:
         raise ClipError(f"{src}: video is truncated or corrupt: decoded {n} of {container_count} frames")
-    _warn_if_cut_short(path, n, container_count)
+    _warn_if_cut_short(path, n, container_count, stated, container_fps)
     start, stop_ = check_range(src, start, stop, n)
 
     t_all, info = resolve_timing(
@@ -265,7 +281,8 @@ def read_video(
             "reader": "video",
             "backend": backend,
             "codec": codec,
-            "container_frame_count": container_count,
+            "container_frame_count": stated,
+            "container_frame_count_trusted": container_count is not None,
             "n_decoded": n,
             "width": int(native[1]) if native else width,
             "height": int(native[0]) if native else height,

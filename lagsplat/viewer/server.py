@@ -21,7 +21,11 @@ that a slow render never slows simulated time:
 Wire format (websocket ``/ws``). Server -> page: one binary message per frame,
 ``uint32 big-endian n`` + ``n`` bytes of UTF-8 JSON (``Session.state()`` plus
 ``frame``, ``format`` and ``stats`` ``{"sim_hz", "render_fps", "realtime"}``)
-+ the encoded image (``render_size`` px). Page -> server: JSON text,
++ the encoded image (``render_size`` px). ``sim_hz``: simulation steps per
+second; ``render_fps``: frames rendered and sent per second, paced by the
+simulation and the page's acknowledgements, so not ``1000 / render_ms``
+(``render_ms``, in the session's state, is the time one render takes); the page
+shows both, and the frames per second it draws itself. Page -> server: JSON text,
 ``{"type": "press" | "move", "x", "y"}`` (training-resolution pixels),
 ``{"type": "release"}``, ``{"type": "reset"}``,
 ``{"type": "params", "inertia"?, "damping"?, "stiffness"?, "force_scale"?}``,
