@@ -543,14 +543,15 @@ def main(argv: list[str] | None = None) -> int:
     from lagsplat.io.download import DownloadError
 
     try:
-        from lagsplat.config_schema import ConfigError, validate_config
+        from lagsplat.config_check import ConfigError, validate_config
 
-        cfg = apply_variant(compose(overrides))
+        cfg = compose(overrides)
         try:
             validate_config(cfg)  # a bad value stops here, before any work, naming key and value
         except ConfigError as exc:
             print(f"lagsplat {stage}: configuration error: {exc}", file=sys.stderr)
             return 1
+        cfg = apply_variant(cfg)  # its settings were checked with the variants
         if "device" in cfg:  # a bad or unavailable device fails here, before any work
             from lagsplat.train.device import resolve_device
 
@@ -568,7 +569,9 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     except Exception as exc:  # hydra config errors etc.
         if type(exc).__module__.startswith(("hydra", "omegaconf")):
-            print(f"lagsplat {stage}: configuration error: {str(exc).splitlines()[0]}", file=sys.stderr)
+            from lagsplat.config_check import explain_compose_error
+
+            print(f"lagsplat {stage}: configuration error: {explain_compose_error(exc, overrides, find_conf_dir())}", file=sys.stderr)
             return 1
         raise
     return 0

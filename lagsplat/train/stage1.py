@@ -14,6 +14,7 @@ from lagsplat.io.clip import Clip
 from lagsplat.models.autoencoder import AutoEncoder, frames_to_tensor
 from lagsplat.models.decoder import ConditionedGaussians
 from lagsplat.motion import motion_masks
+from lagsplat.render.rasterize import Backend
 from lagsplat.models.encoder import CpAEEncoder, nonlocal_filter_penalty
 from lagsplat.train.config import dataclass_from_mapping
 from lagsplat.train.device import resolve_device
@@ -58,7 +59,7 @@ class Stage1Config:
     encoder_channels: tuple[int, int, int] = (2, 2, 2)
     encoder_kernel: int = 12
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    backend: str = "auto"
+    backend: Backend = "auto"
     threads: int = 0
 
     @classmethod

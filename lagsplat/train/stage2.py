@@ -6,7 +6,7 @@ import copy
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Literal, Mapping
 
 import numpy as np
 import torch
@@ -21,7 +21,13 @@ from lagsplat.train.device import resolve_device
 from lagsplat.train.progress import Progress
 from lagsplat.models.lagrangian import DecoderInertia, Lagrangian
 
-__all__ = ["Stage2Config", "one_step_windows", "train_stage2", "save_stage2", "load_stage2"]
+__all__ = ["Stage2Config", "Mass", "Potential", "one_step_windows", "train_stage2", "save_stage2", "load_stage2"]
+
+Mass = Literal["scalar", "constant", "learned", "decoder"]
+"""Inertia models of Stage 2 (``stage2.mass``; :class:`~lagsplat.models.lagrangian.Lagrangian`)."""
+
+Potential = Literal["convex", "invex"]
+"""Potentials of Stage 2 (``stage2.potential``): ICNN, or ICNN o i-ResNet."""
 
 
 @dataclass
@@ -46,8 +52,8 @@ class Stage2Config:
         select_windows, select_periods: rollouts used for selection.
     """
 
-    mass: str = "scalar"
-    potential: str = "convex"
+    mass: Mass = "scalar"
+    potential: Potential = "convex"
     c0: float = 1.0
     dissipation_init: float = 0.2
     hidden: tuple[int, ...] = (64, 64)
