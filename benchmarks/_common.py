@@ -1,21 +1,40 @@
-"""Shared pieces of the benchmark scripts: timing, the environment header, the result table.
+"""Shared pieces of the benchmark scripts: timing, the environment header, the result table, the Markdown report.
 
 Imported by the scripts as ``from _common import ...`` (a script's own folder
 is first on ``sys.path``). Nothing heavy is imported at module level, so a
 script can still set environment variables (``NUMBA_CACHE_DIR``) and import
 :mod:`lagsplat` before torch.
+
+Every script writes what it prints to ``results/benchmarks/<name>.md``
+(:class:`Report`; ``--report PATH`` elsewhere, ``--no-report`` to only print):
+the command line, the environment (machine, versions, threads, date, commit)
+and the tables. These files are the record of the last measurement that the
+documentation points to.
 """
 
 from __future__ import annotations
 
+import argparse
+import math
 import os
+import platform
+import shlex
 import statistics
+import subprocess
+import sys
 import time
 from collections.abc import Callable
+from datetime import datetime, timezone
+from pathlib import Path
 from typing import TYPE_CHECKING, TextIO
 
 if TYPE_CHECKING:
     import pandas as pd
+
+#: The repository's root (this file's folder is ``benchmarks/``).
+ROOT = Path(__file__).resolve().parents[1]
+#: Where the reports go by default.
+REPORTS = ROOT / "results" / "benchmarks"
 
 
 def time_call(fn: Callable[[], object], repeats: int) -> float:
@@ -70,3 +89,174 @@ def score_verdicts(rows: list[dict], file: TextIO | None = None) -> tuple[pd.Dat
     print(format_table(conf, index=True), file=file)
     controls = table[table["truth"] == "none"]
     return table, float(table["ok"].mean()), int((controls["verdict"] != "none").sum()), len(controls)
+
+
+def _cell(v: object) -> str:
+    """A table cell as Markdown text: floats to 4 significant digits, missing as ``-``, ``|`` escaped."""
+    if v is None or (isinstance(v, float) and math.isnan(v)):
+        return "-"
+    text = format(v, ".4g") if isinstance(v, float) else str(v)
+    return text.replace("|", "\\|")
+
+
+def markdown_table(table: pd.DataFrame, index: bool = False) -> str:
+    """``table`` as a Markdown table whose cells are shown as the script formatted them (:func:`_cell`; strings are not re-parsed as numbers).
+
+    Plain text when tabulate is missing.
+    """
+    shown = table.reset_index() if index else table
+    shown = shown.rename(columns=_cell).astype(object).apply(lambda col: col.map(_cell))
+    try:
+        return shown.to_markdown(index=False, disable_numparse=True)
+    except ImportError:  # tabulate missing
+        return shown.to_string(index=False)
+
+
+def add_report_options(ap: argparse.ArgumentParser, name: str) -> Path:
+    """Add ``--report PATH`` (default ``results/benchmarks/<name>.md``) and ``--no-report`` (``args.report = None``) to ``ap``; return the default."""
+    default = REPORTS / f"{name}.md"
+    ap.add_argument("--report", type=Path, default=default, help=f"write the Markdown report here (default {default.relative_to(ROOT)})")
+    ap.add_argument("--no-report", dest="report", action="store_const", const=None, help="print only, write no report")
+    return default
+
+
+def _cpu_model() -> str:
+    """The CPU's model name (Linux ``/proc/cpuinfo``; else :func:`platform.processor`)."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def _git_commit() -> str:
+    """``<short hash>`` of the checkout, ``+ uncommitted changes`` when tracked files differ; ``unknown`` outside git.
+
+    Read-only: ``GIT_OPTIONAL_LOCKS=0`` keeps ``git status`` from rewriting the index.
+    """
+    env = {**os.environ, "GIT_OPTIONAL_LOCKS": "0"}
+
+    def run(*a: str) -> str:
+        return subprocess.run(["git", "-C", str(ROOT), *a], env=env, capture_output=True, text=True, timeout=30, check=True).stdout.strip()
+
+    try:
+        commit = run("rev-parse", "--short", "HEAD")
+        dirty = run("status", "--porcelain", "--untracked-files=no")
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return commit + (" + uncommitted changes" if dirty else "")
+
+
+def environment() -> dict[str, str]:
+    """Machine, software and thread counts of this process, for a report's header (torch must be importable)."""
+    import torch
+
+    env = {
+        "machine": f"{_cpu_model()}, {os.cpu_count()} CPUs; {platform.system()} {platform.machine()}; Python {platform.python_version()}",
+        "torch": f"{torch.__version__}, {_threads(torch.get_num_threads())}",
+    }
+    if torch.cuda.is_available():
+        env["GPU"] = torch.cuda.get_device_name()
+    try:
+        import numba
+
+        env["numba"] = f"{numba.__version__}, {_threads(numba.get_num_threads())}"
+    except ImportError:
+        env["numba"] = "not installed"
+    env["commit"] = _git_commit()
+    return env
+
+
+def _threads(n: int) -> str:
+    """``"1 thread"``, ``"<n> threads"``."""
+    return f"{n} thread" + ("" if n == 1 else "s")
+
+
+def _load() -> float:
+    """The 1-minute load average (NaN where the system has none)."""
+    return os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+
+
+def command_line(script: str | Path, argv: list[str] | None = None) -> str:
+    """``python <script relative to the repository> <argv>`` as a shell would take it (``argv`` default: ``sys.argv[1:]``)."""
+    script = Path(script).resolve()
+    try:
+        script = script.relative_to(ROOT)
+    except ValueError:
+        pass
+    return shlex.join(["python", str(script), *(sys.argv[1:] if argv is None else argv)])
+
+
+class Report:
+    """A benchmark's Markdown report: what it prints, recorded as it is printed, written atomically by :meth:`write`.
+
+    ``title`` heads the file; ``path`` is where it goes (``None``: nothing is
+    written); ``script`` and ``argv`` give the command line (``argv`` default:
+    ``sys.argv[1:]``). :meth:`text` and :meth:`table` print to stdout and keep
+    the same content for the file; :meth:`write` puts the command, the date,
+    the wall time since the report was created and :func:`environment` (read
+    then, after the script has set its thread counts) under the title, then
+    the recorded blocks. The load average at the start and at the end tells
+    whether the machine was busy with anything else.
+    """
+
+    def __init__(self, title: str, path: str | Path | None, script: str | Path, argv: list[str] | None = None) -> None:
+        self.title, self.path = title, None if path is None else Path(path)
+        self.command = command_line(script, argv)
+        self.blocks: list[str] = []
+        self.started = datetime.now(timezone.utc)
+        self._t0, self._load0 = time.perf_counter(), _load()
+
+    def text(self, *lines: str) -> None:
+        """Print ``lines`` and record them as one paragraph (lines joined by Markdown line breaks)."""
+        for line in lines:
+            print(line, flush=True)
+        self.blocks.append("  \n".join(ln.strip() for ln in lines if ln.strip()))
+
+    def block(self, markdown: str, echo: bool = True) -> None:
+        """Record ``markdown`` (tables, lists) verbatim; print it as it is when ``echo``."""
+        if echo:
+            print(markdown, end="" if markdown.endswith("\n") else "\n", flush=True)
+        self.blocks.append(markdown.strip("\n"))
+
+    def table(self, rows: list[dict] | pd.DataFrame, title: str = "", index: bool = False) -> pd.DataFrame:
+        """Print ``rows`` as a table (:func:`markdown_table`, after ``title`` when given) and record it; return the ``DataFrame``."""
+        import pandas as pd
+
+        table = rows if isinstance(rows, pd.DataFrame) else pd.DataFrame(rows)
+        if title:
+            print(f"\n{title}")
+            self.blocks.append(title)
+        text = markdown_table(table, index=index)
+        print()
+        print(text, flush=True)
+        self.blocks.append(text)
+        return table
+
+    def markdown(self, **extra: str) -> str:
+        """The report as Markdown; ``extra`` adds header items after the environment's."""
+        wall = time.perf_counter() - self._t0
+        head = {
+            "command": f"`{self.command}`",
+            "date": f"{self.started:%Y-%m-%d %H:%M} UTC (wall time {wall:.0f} s)",
+            **environment(),
+            "load average (1 min)": f"{self._load0:.2f} at the start, {_load():.2f} at the end (other processes slow the timings down)",
+            **extra,
+        }
+        lines = [f"# {self.title}", "", *(f"- {k}: {v}" for k, v in head.items()), ""]
+        for block in self.blocks:
+            lines += [block, ""]
+        return "\n".join(lines)
+
+    def write(self, **extra: str) -> Path | None:
+        """Write :meth:`markdown` to ``path`` atomically (a temporary file beside it, then ``os.replace``); the path, or ``None`` without one."""
+        if self.path is None:
+            return None
+        from lagsplat.io.atomic import atomic_write
+
+        with atomic_write(self.path) as tmp:
+            tmp.write_text(self.markdown(**extra))
+        print(f"\nreport: {self.path}")
+        return self.path

@@ -57,6 +57,11 @@ under ``<clip>/d2/``) is scored instead (no control then).
                                    [--markdown out.md] [--list] [--force] [--rediagnose] [--dof-refit]
                                    [--refine-iters N] [--refit-epochs N]
 
+A run over the whole suite, or ``--gather``, writes the summary with the
+command line and the environment to ``results/benchmarks/diagnosis_<budget>.md``
+(``--markdown PATH`` / ``--report PATH`` elsewhere, ``--no-report``: none); a
+subset (``--only``, ``--clip``) writes one only when given a path.
+
 One job per clip (what the Snakemake rules of ``workflow/rules/suite.smk`` run,
 each clip on its own core or cluster node), then the scoring over all of them:
 
@@ -85,7 +90,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import lagsplat  # noqa: F401  (sets the OpenMP wait policy before torch)
 import numpy as np
 import torch
-from _common import score_verdicts
+from _common import REPORTS, Report, score_verdicts
 
 from lagsplat.artifacts import Artifacts  # noqa: E402
 from lagsplat.chart import build_chart, load_chart, save_chart
@@ -93,7 +98,7 @@ from lagsplat.diagnose.refit import GAP_METRICS, RefitConfig
 from lagsplat.diagnose.report import DiagnoseConfig, diagnose_system
 from lagsplat.diagnose.where import WhereConfig
 from lagsplat.evaluate import EvalConfig, evaluate
-from lagsplat.io.atomic import atomic_write, write_json
+from lagsplat.io.atomic import write_json
 from lagsplat.io.clip import Clip, load_clip, save_clip
 from lagsplat.synth.effect_clips import blind_suite, make_effect_clip
 from lagsplat.train.stage1 import Stage1Config, train_stage1
@@ -401,19 +406,23 @@ def main() -> None:
     ap.add_argument("--list", action="store_true", help="list the suite and exit")
     ap.add_argument("--dof-refit", action="store_true", help="when the verdict is missing_dof, rerun Stage 1 / chart / Stage 2 with d = 2 and score its gap")
     ap.add_argument("--json", default="", help="write the per-clip rows and the summary here")
-    ap.add_argument("--markdown", default="", help="write the summary (per-clip table, confusion matrix, scores) here as markdown")
+    ap.add_argument("--markdown", "--report", dest="markdown", default=None,
+                    help="write the summary (per-clip table, confusion matrix, scores) here as markdown "
+                         "(default for the whole suite or --gather: results/benchmarks/diagnosis_<budget>.md)")  # fmt: skip
+    ap.add_argument("--no-report", action="store_true", help="write no markdown summary")
     ap.add_argument("--refine-iters", type=int, default=None,
                     help="chart refinement iterations (lagsplat.chart.refine_latents; default: the budget's); "
                          "another value than the budget's caches under <results>/<budget>-refine<N>")  # fmt: skip
     ap.add_argument("--refit-epochs", type=int, default=None, help="epochs of the refit's fine-tune (default: the budget's; a cached diagnosis is redone only with --rediagnose)")
     args = ap.parse_args()
+    rep = Report("Blind diagnosis suite", None, __file__)
     if args.row and not args.clip:
         ap.error("--row needs --clip (one clip per row file)")
     if args.gather and (args.clip or args.only):
         ap.error("--gather runs nothing: no --clip / --only")
     if args.gather:
         rows, timings, budget = read_rows(args.gather)
-        report(rows, timings, budget, args)
+        report(rows, timings, budget, args, rep)
         return
     torch.set_num_threads(args.threads)
     if args.refine_iters is not None and args.refine_iters != BUDGETS[args.budget]["refine_iters"]:
@@ -450,16 +459,28 @@ def main() -> None:
         return
     if args.row:
         write_json(args.row, {"budget": args.budget, "row": rows[0], "timing": timings[rows[0]["clip"]]})
-    report(rows, timings, args.budget, args)
+    report(rows, timings, args.budget, args, rep)
 
 
-def report(rows: list[dict], timings: dict[str, dict], budget: str, args: argparse.Namespace) -> None:
-    """Print the summary of ``rows`` (:func:`summarize`); write it to ``args.markdown`` and ``args.json`` when given."""
+def report(rows: list[dict], timings: dict[str, dict], budget: str, args: argparse.Namespace, rep: Report) -> None:
+    """Print the summary of ``rows`` (:func:`summarize`); write it to ``args.markdown`` and ``args.json`` when given.
+
+    The markdown goes through ``rep`` (:class:`_common.Report`: command line
+    and environment under the title). Without ``--markdown`` it goes to
+    ``results/benchmarks/diagnosis_<budget>.md`` when the whole suite was run
+    or ``--gather`` scored rows, and nowhere for a subset or ``--no-report``.
+    """
     text, record = summarize(rows, timings, budget)
     print(text, end="")
-    if args.markdown:
-        with atomic_write(Path(args.markdown)) as tmp:
-            tmp.write_text(summarize(rows, timings, budget, markdown=True)[0])
+    path = args.markdown
+    if path is None and not (args.only or args.clip):
+        path = REPORTS / f"diagnosis_{budget}.md"
+    if path and not args.no_report:
+        title, _, body = summarize(rows, timings, budget, markdown=True)[0].partition("\n")
+        rep.title, rep.path = title.removeprefix("# "), Path(path)
+        rep.block(body, echo=False)
+        extra = {"timings": "stage wall times as measured by the per-clip jobs (`--clip ... --row`) that wrote the rows"} if args.gather else {}
+        rep.write(**extra)
     if args.json:
         write_json(args.json, {"args": vars(args), **record})
 

@@ -23,12 +23,15 @@ number of controls flagged.
     python benchmarks/diagnosis_latent.py [--model lagrangian|linear] [--noise 0.01] [--epochs 20]
                                           [--n-per-effect 2] [--json out.json]
 
-Scores, not tests: nothing is asserted.
+Writes what it prints to ``results/benchmarks/diagnosis_latent_<model>.md``
+(``--report PATH``, ``--no-report``; a subset, ``--only``, writes one only
+when given a path). Scores, not tests: nothing is asserted.
 """
 
 from __future__ import annotations
 
 import argparse
+import io
 import sys
 import time
 from pathlib import Path
@@ -37,7 +40,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import numpy as np
 import torch
-from _common import score_verdicts
+from _common import REPORTS, Report, score_verdicts
 
 import lagsplat  # noqa: F401  (OpenMP wait policy before torch)
 from lagsplat.chart import Chart
@@ -84,8 +87,13 @@ def main() -> None:
     ap.add_argument("--only", default="", help="comma-separated substrings of clip names to run")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--json", default="", help="write the per-clip results here")
+    ap.add_argument("--report", type=Path, default=None,
+                    help="write the Markdown report here (default: results/benchmarks/diagnosis_latent_<model>.md, none with --only)")  # fmt: skip
+    ap.add_argument("--no-report", action="store_true", help="print only, write no report")
     args = ap.parse_args()
     torch.set_num_threads(1)
+    path = None if args.no_report else args.report or (None if args.only else REPORTS / f"diagnosis_latent_{args.model}.md")
+    rep = Report(f"Blind diagnosis at the latent level: model {args.model}", path, __file__)
 
     suite = blind_suite(args.n_per_effect)
     if args.only:
@@ -109,10 +117,16 @@ def main() -> None:
         records.append({"entry": entry, "diagnosis": diag.to_dict()})
         print(f"{entry['name']:28s} -> {diag.winner}", flush=True)
 
-    table, acc, flagged, n_controls = score_verdicts(rows)
-    print(f"\nmodel: {args.model}, noise {args.noise:g}, clips {len(table)}")
-    print(f"top-1 accuracy: {acc:.3f} ({int(table['ok'].sum())}/{len(table)})")
-    print(f"controls flagged: {flagged}/{n_controls}")
+    buf = io.StringIO()
+    table, acc, flagged, n_controls = score_verdicts(rows, file=buf)
+    rep.block(buf.getvalue())
+    print()
+    rep.text(
+        f"model: {args.model}, noise {args.noise:g}, clips {len(table)}",
+        f"top-1 accuracy: {acc:.3f} ({int(table['ok'].sum())}/{len(table)})",
+        f"controls flagged: {flagged}/{n_controls}",
+    )
+    rep.write()
     if args.json:
         write_json(args.json, {"args": vars(args), "accuracy": acc, "controls_flagged": flagged, "clips": records})
 

@@ -53,7 +53,8 @@ one that fails on some (the decoder's Jacobians varying between trainings).
 
     python benchmarks/force_truth.py [--results results/pendulum_force [more trained folders ...]] [--sigma 1.5] [--min-transmittance 0.5]
 
-Prints a table; no assertion (scores, not tests).
+Prints the tables and writes them to ``results/benchmarks/force_truth.md``
+(``--report PATH``, ``--no-report``); no assertion (scores, not tests).
 """
 
 from __future__ import annotations
@@ -61,6 +62,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 from pathlib import Path
 from typing import NamedTuple
 
@@ -74,6 +76,9 @@ from lagsplat.io.clip import TRAIN
 from lagsplat.force import ForceTransport, calibrate_kappa
 from lagsplat.force_checks import ForceCheckConfig
 from lagsplat.synth.pendulum import PIVOT_Y, ROD_LENGTH
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import Report, add_report_options  # this script's folder
 
 
 def true_angle(F: np.ndarray, r: float) -> float:
@@ -164,21 +169,28 @@ def main() -> None:
     )
     ap.add_argument("--max-deg", type=float, default=5.0, help="direction tolerance counted in the summary")
     ap.add_argument("--max-pct", type=float, default=10.0, help="magnitude tolerance counted in the summary")
+    add_report_options(ap, "force_truth")
     args = ap.parse_args()
-    summaries = [(d, force_truth(Path(d), args)) for d in args.results]
+    rep = Report("Forces against a known truth (checkered pendulum)", args.report, __file__)
+    summaries = [(d, force_truth(Path(d), args, rep)) for d in args.results]
     if len(summaries) > 1:
-        print(
-            f"\nchart read-out, scored forces (seen moving >= {args.min_motion:g} px) within tolerance (all | those Eq. 9 carries), "
-            "largest magnitude error; forces not scored:"
-        )
+        lines = [
+            (
+                f"chart read-out, scored forces (seen moving >= {args.min_motion:g} px) within tolerance (all | those Eq. 9 carries), "
+                "largest magnitude error; forces not scored:"
+            )
+        ]
         for d, rows in summaries:
             test, unseen = scored(rows[1:], args)
             carried = carried_forces(test, args)
-            print(
+            lines.append(
                 f"  {d}: {n_within(test, args)} of {len(test)} | {n_within(carried, args)} of {len(carried)}, "
                 f"{max(abs(r.mag_c) for r in test):.1f} %; " + (", ".join(f"#{r.k} {r.mag_c:+.1f} %" for r in unseen) or "none")
             )
-        per_force(args, [rows for _, rows in summaries])
+        print()
+        rep.text(*lines)
+        per_force(args, [rows for _, rows in summaries], rep)
+    rep.write()
 
 
 def brush_settings(d: Path, args: argparse.Namespace) -> tuple[float, float, str]:
@@ -223,25 +235,29 @@ def carried_forces(test: list[Row], args: argparse.Namespace) -> list[Row]:
     return [r for r in test if abs(r.floor) < 0.5 * args.max_pct]
 
 
-def per_force(args: argparse.Namespace, runs: list[list[Row]]) -> None:
+def per_force(args: argparse.Namespace, runs: list[list[Row]], rep: Report) -> None:
     """Per force, over the trained models: how many are within tolerance, and the spread of the magnitude error (chart)."""
-    print(f"\nper force over the {len(runs)} models (chart read-out): within {args.max_deg:g} deg and {args.max_pct:g} %, magnitude error (%)")
-    print(
-        "| # | radius | force (Fx, Fy) | Eq. 9 floor (%) | seen moving, rms px (model: min-max) | scored on | models within "
-        "| min | median | max | max abs dir err (deg) |"
-    )
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print()
+    rep.text(f"per force over the {len(runs)} models (chart read-out): within {args.max_deg:g} deg and {args.max_pct:g} %, magnitude error (%)")
+    table = [
+        (
+            "| # | radius | force (Fx, Fy) | Eq. 9 floor (%) | seen moving, rms px (model: min-max) | scored on | models within "
+            "| min | median | max | max abs dir err (deg) |"
+        ),
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for rows in zip(*runs):
         r0, mags, seen = rows[0], np.array([r.mag_c for r in rows]), np.array([r.seen for r in rows])
-        print(
+        table.append(
             f"| {r0.k} | {r0.r:.2f} | ({r0.F[0]:+.3f}, {r0.F[1]:+.3f}) | {r0.floor:+.1f} | {seen.min():.2f}-{seen.max():.2f} | "
             f"{sum(is_scored(r, args) for r in rows)} | {sum(within(r, args) for r in rows)} of {len(rows)} | "
             f"{mags.min():+.1f} | {np.median(mags):+.1f} | {mags.max():+.1f} | {max(abs(r.dir_c) for r in rows):.2f} |"
         )
+    rep.block("\n".join(table))
 
 
-def force_truth(d: Path, args: argparse.Namespace) -> list[Row]:
-    """Print the table and summary of one trained model; return its rows (the first is the calibration)."""
+def force_truth(d: Path, args: argparse.Namespace, rep: Report) -> list[Row]:
+    """Print the table and summary of one trained model (and record them in ``rep``); return its rows (the first is the calibration)."""
     a = Artifacts.at(d)
     ae, chart, clip = a.load_stage1(), a.load_chart(), a.load_clip()
     model, _ = a.load_stage2()
@@ -313,40 +329,45 @@ def force_truth(d: Path, args: argparse.Namespace) -> list[Row]:
         floor = score(d_true, arc_displacement(constant_j_angle(F, r, kappa_exact), r, L_px))[1]
         rows.append(Row(k, r, F, math.degrees(th), d_true, dp, *score(d_true, dp), dc, *score(d_true, dc), floor, seen, seen_true))
 
-    print(
+    rep.text(
         f"pendulum model: {d} ({W}x{H} px, rod {L_px:.1f} px), brush {args.brush} sigma {sigma:g} px"
         + (f" min transmittance {tr.min_transmittance:g}" if args.brush == "visible" else "")
         + f" ({source}); "
         + f"kappa {kappa_point:.4g} (application point), {kappa_chart:.4g} (chart read-out); "
         f"chart read-out theta(q): cubic on {int(train.sum())} training frames, rms {fit_rms_deg:.3f} deg"
     )
-    print(
-        "| # | radius | force (Fx, Fy) | true angle (deg) | true disp (px) | Eq. 9 floor: mag err (%) "
-        "| application point disp (px) | dir err (deg) | mag err (%) "
-        "| chart read-out disp (px) | dir err (deg) | mag err (%) | seen moving in training, rms px: model | truth |"
-    )
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    table = [
+        (
+            "| # | radius | force (Fx, Fy) | true angle (deg) | true disp (px) | Eq. 9 floor: mag err (%) "
+            "| application point disp (px) | dir err (deg) | mag err (%) "
+            "| chart read-out disp (px) | dir err (deg) | mag err (%) | seen moving in training, rms px: model | truth |"
+        ),
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for row in rows:
         k, r, F, th, dt_, dp, ang_p, mag_p, dc, ang_c, mag_c, floor, seen, seen_true = row
         tag = " (calibration)" if k == 0 else ("" if is_scored(row, args) else " (not scored)")
-        print(
+        table.append(
             f"| {k}{tag} | {r:.2f} | ({F[0]:+.3f}, {F[1]:+.3f}) | {th:+.2f} | ({dt_[0]:+.2f}, {dt_[1]:+.2f}) | {floor:+.1f} | "
             f"({dp[0]:+.2f}, {dp[1]:+.2f}) | {ang_p:+.2f} | {mag_p:+.1f} | ({dc[0]:+.2f}, {dc[1]:+.2f}) | {ang_c:+.2f} | {mag_c:+.1f} | "
             f"{seen:.2f} | {seen_true:.2f} |"
         )
+    rep.block("\n".join(table))
     test, unseen = scored(rows[1:], args)
     carried = carried_forces(test, args)
 
     print()
+    summary = []
     for name, ia, im in (("application point", "dir_p", "mag_p"), ("chart read-out", "dir_c", "mag_c")):
         for label, sub in (("", test), (f" [the {len(carried)} Eq. 9 carries: floor below {0.5 * args.max_pct:g} %]", carried)):
-            print(
+            summary.append(
                 f"{name}{label}: over {len(sub)} forces after calibration, max |direction error| {max(abs(getattr(r, ia)) for r in sub):.2f} deg, "
                 f"max |magnitude error| {max(abs(getattr(r, im)) for r in sub):.1f} %, median |magnitude error| {np.median([abs(getattr(r, im)) for r in sub]):.1f} %; "
                 f"{n_within(sub, args, ia, im)} of {len(sub)} within {args.max_deg:g} deg and {args.max_pct:g} %"
             )
+    rep.text(*summary)
     if unseen:
-        print(
+        rep.text(
             f"not scored, material seen moving below {args.min_motion:g} px rms in training (chart read-out): "
             + "; ".join(f"#{r.k} at r {r.r:+.2f}: {r.seen:.2f} px, dir {r.dir_c:+.2f} deg, mag {r.mag_c:+.1f} %" for r in unseen)
         )

@@ -28,6 +28,8 @@ Usage::
 
     python benchmarks/interactive.py [--threads 2] [--repeats 5] [--no-page]
 
+Writes what it prints to ``results/benchmarks/interactive.md`` (``--report PATH``, ``--no-report``).
+
 The target is >= 30 Hz (goal 60) at 128x128 with about 2000 Gaussians.
 """
 
@@ -40,7 +42,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout without installing
-from _common import env_header, print_table, time_call
+from _common import Report, add_report_options, env_header, time_call
 
 from lagsplat.viewer.browser import CHROMIUM
 
@@ -56,6 +58,7 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--page", dest="page", action="store_true", default=None, help="also measure the served page in headless Chromium")
     ap.add_argument("--no-page", dest="page", action="store_false")
     ap.add_argument("--seconds", type=float, default=4.0, help="measurement window of each page run")
+    add_report_options(ap, "interactive")
     return ap.parse_args(argv)
 
 
@@ -76,8 +79,8 @@ def _doubled(ae, jitter_px: float = 0.3, seed: int = 0):
     return AutoEncoder(ae.encoder, dec, ae.height, ae.width).eval()
 
 
-def _sessions(args):
-    """``[(name, Session)]`` of the configurations measured."""
+def _sessions(args, note=print):
+    """``[(name, Session)]`` of the configurations measured; ``note`` gets the line saying when the toy is missing."""
     from lagsplat.viewer.session import Session
     from lagsplat.viewer.synthetic import synthetic_pendulum
 
@@ -92,7 +95,8 @@ def _sessions(args):
         out.append(("toy", Session(ae, chart, model, render_scale=2.0)))
         out.append(("toy x2", Session(_doubled(ae), chart, model, render_scale=2.0)))
     else:
-        print(f"({args.toy} has no trained toy system: synthetic pendulum only)")
+        shown = args.toy.resolve().relative_to(ROOT) if args.toy.resolve().is_relative_to(ROOT) else args.toy
+        note(f"({shown} has no trained toy system: synthetic pendulum only)")
     out.append(("synthetic", Session(*synthetic_pendulum(size=128, n_background=44))))
     return out
 
@@ -143,11 +147,15 @@ def main(argv: list[str] | None = None):
     import numba
 
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    rep = Report("Interactive viewer: simulation and render rates", args.report, __file__, argv)
     print(env_header(f"numba {numba.__version__}, {numba.config.NUMBA_NUM_THREADS} threads") + f"; load average {load:.1f}")
-    print(f"batch 1; median of {args.repeats} timed calls of {args.steps} steps after one warm-up; drag: 8 px at the most mobile point\n")
+    rep.text(
+        f"batch 1; median of {args.repeats} timed calls of {args.steps} steps after one warm-up; drag: 8 px at the most mobile point; "
+        + (f"page: headless Chromium, {args.seconds:g} s per run, 128x128 sessions only" if page else "page not measured")
+    )
 
     rows = []
-    for name, s in _sessions(args):
+    for name, s in _sessions(args, rep.text):
         s.render()  # numba compilation / cache load outside the timings
         base = {"system": name, "gaussians": s.ae.decoder.K, "size": f"{s.render_width}x{s.render_height}"}
         x, y = s.most_mobile_point()
@@ -189,7 +197,9 @@ def main(argv: list[str] | None = None):
     for r in rows:  # the page is measured at 128x128 only
         for k in dict.fromkeys(page_cols):
             r.setdefault(k, "-")
-    return print_table(rows)
+    table = rep.table(rows)
+    rep.write()
+    return table
 
 
 if __name__ == "__main__":

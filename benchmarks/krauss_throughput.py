@@ -23,8 +23,9 @@ Usage::
 
     python benchmarks/krauss_throughput.py [--threads 2]
 
-Prints figures; asserts nothing. The load average is printed: on a shared
-machine the rates are lower bounds.
+Prints figures and writes them to ``results/benchmarks/krauss_throughput.md``
+(``--report PATH``, ``--no-report``); asserts nothing. The load average is
+printed: on a shared machine the rates are lower bounds.
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _common import env_header, print_table
+from _common import Report, add_report_options, env_header
 
 import lagsplat  # noqa: F401,E402  (OpenMP wait policy before torch)
 
@@ -53,6 +54,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--seconds", type=float, default=40.0, help="length of the simulated clip")
     ap.add_argument("--steps", type=int, default=90, help="Stage-1 steps of the longer run (the short one has a third)")
+    add_report_options(ap, "krauss_throughput")
     args = ap.parse_args(argv)
 
     import torch
@@ -64,12 +66,13 @@ def main(argv: list[str] | None = None) -> None:
     from lagsplat.train.stage2 import Stage2Config, train_stage2
 
     torch.set_num_threads(args.threads)
+    rep = Report("Training throughput at the soft-robot operating point", args.report, __file__, argv)
     print(env_header("numba CPU rasteriser"), f"; load average {os.getloadavg()[0]:.2f}")
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "robot.npz"
         write_robot_npz(path, 2, duration_s=args.seconds, seed=0)
         clip = _clip(read_npz, path)
-    print(f"clip: {len(clip.images)} frames {clip.images.shape[1:3]}, {clip.u.shape[1]} pressures")
+    rep.text(f"clip: simulated two-segment robot, {len(clip.images)} frames {clip.images.shape[1:3]}, {clip.u.shape[1]} pressures, d = 4, 2048 Gaussians")
 
     rows = []
     ae = None
@@ -92,7 +95,7 @@ def main(argv: list[str] | None = None) -> None:
     steps = 2 * base["windows_per_epoch"] / base["batch"]
     per_step = (t3 - t1) / steps
     rows.append({"stage": "2", "batch": 32, "s/step": per_step, "steps/s": 1 / per_step, "items/s": 32 / per_step, "items": "windows"})
-    table = print_table(rows)
+    table = rep.table(rows)
 
     s1_64 = float(table[(table.stage == "1") & (table.batch == 64)]["s/step"].iloc[0])
     s2 = float(table[table.stage == "2"]["s/step"].iloc[0])
@@ -102,8 +105,8 @@ def main(argv: list[str] | None = None) -> None:
     ]
     for p in proj:
         p["total h"] = p["stage 1 h"] + p["stage 2 h"]
-    print("\nprojected wall time on this machine for the real 2-segment data (43 872 training frames):")
-    print_table(proj)
+    rep.table(proj, title="projected wall time on this machine for the real 2-segment data (43 872 training frames):")
+    rep.write()
 
 
 def _clip(read_npz, path):

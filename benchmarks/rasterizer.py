@@ -19,6 +19,8 @@ Usage::
     python benchmarks/rasterizer.py [--repeats N] [--batch B] [--threads T]
     python benchmarks/rasterizer.py --device cuda --backends torch gsplat --batch 64
 
+Writes what it prints to ``results/benchmarks/rasterizer.md`` (``--report PATH``, ``--no-report``).
+
 Each configuration gets one warm-up call (this also triggers numba's
 compilation, or loads its cache) and then ``--repeats`` timed calls; the table
 reports ``batch / median time``. "fwd+bwd" times the forward pass and the
@@ -42,7 +44,7 @@ import pandas as pd
 
 
 from lagsplat.render.rasterize import rasterize_cpu, rasterize_dense, rasterize_gsplat, rasterize_tiles
-from _common import env_header, print_table, time_call  # this script's folder
+from _common import Report, add_report_options, env_header, time_call  # this script's folder
 
 BACKENDS = {"cpu": rasterize_cpu, "torch": rasterize_tiles, "dense": rasterize_dense, "gsplat": rasterize_gsplat}
 
@@ -109,6 +111,7 @@ def main(argv: list[str] | None = None) -> pd.DataFrame:
     ap.add_argument("--backends", nargs="+", default=["cpu", "torch", "dense"], choices=list(BACKENDS))
     ap.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="where the scenes live (gsplat needs cuda, cpu needs cpu)")
     ap.add_argument("--dense-limit-gb", type=float, default=4.0, help="skip dense above this estimated memory")
+    add_report_options(ap, "rasterizer")
     args = ap.parse_args(argv)
 
     if args.threads is not None:
@@ -122,10 +125,11 @@ def main(argv: list[str] | None = None) -> pd.DataFrame:
         numba_threads = str(numba.get_num_threads())
     except ImportError:
         pass
+    rep = Report("Rasteriser throughput (frames/s)", args.report, __file__, argv)
     print(env_header(f"numba threads: {numba_threads}"))
     if args.device == "cuda":
         print(f"device: {torch.cuda.get_device_name()}")
-    print(f"batch {args.batch}, median of {args.repeats} timed calls after one warm-up; numbers are frames/s\n")
+    rep.text(f"device {args.device}, batch {args.batch}, median of {args.repeats} timed calls after one warm-up; numbers are frames/s")
 
     rows = []
     for size in args.sizes:
@@ -141,7 +145,9 @@ def main(argv: list[str] | None = None) -> pd.DataFrame:
                     row["max |diff| vs torch"] = f"{diff:.1e}"
                 rows.append(row)
                 print(f"  done: {row}", flush=True)
-    return print_table(rows)
+    table = rep.table(rows)
+    rep.write()
+    return table
 
 
 if __name__ == "__main__":

@@ -26,9 +26,12 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from _common import Report  # this script's folder
 
 from lagsplat.artifacts import Artifacts  # noqa: E402
-from lagsplat.io.atomic import atomic_write, write_json  # noqa: E402
+from lagsplat.io.atomic import write_json  # noqa: E402
 from lagsplat.synth.realistic import clip_spec  # noqa: E402
 from lagsplat.timeseries import spectral_peak_frequency  # noqa: E402
 
@@ -81,8 +84,11 @@ def row_of(name: str, clips: Path, results: Path, code: int, reason: str, wall_s
     return row
 
 
-def gather(rows: list[dict], out_md: Path) -> dict:
-    """Write the summary table (Markdown) and the JSON record beside it; returns the summary."""
+def gather(rows: list[dict], out_md: Path, argv: list[str] | None = None) -> dict:
+    """Write the summary table (Markdown) and the JSON record beside it; returns the summary.
+
+    ``argv``: the command line's arguments, for the report (default ``sys.argv[1:]``).
+    """
     ok = [r for r in rows if r["status"] == "ok" and r.get("eps_freq_truth") is not None]
     e = np.array([r["eps_freq_truth"] for r in ok])
     summary = {
@@ -94,9 +100,7 @@ def gather(rows: list[dict], out_md: Path) -> dict:
         "wall_s_median": float(np.median([r["wall_s"] for r in rows])) if rows else None,
         "wall_s_max": float(max(r["wall_s"] for r in rows)) if rows else None,
     }  # fmt: skip
-    L = ["# Realistic suite (MuJoCo-rendered clips) against the ground truth", "",
-         f"Command: `{' '.join(sys.argv)}`", "",
-         f"{summary['n_clips']} clips over {len(summary['systems'])} systems: {summary['n_ok']} with metrics, "
+    L = [f"{summary['n_clips']} clips over {len(summary['systems'])} systems: {summary['n_ok']} with metrics, "
          f"{summary['n_stopped']} stopped with a reason, {summary['n_crashed']} crashed.", ""]  # fmt: skip
     if len(e):
         L += [f"Frequency error against the truth: median {100 * summary['eps_freq_truth_median']:.2f} %, 90th percentile "
@@ -107,9 +111,10 @@ def gather(rows: list[dict], out_md: Path) -> dict:
     fmt = lambda v, f: "" if v is None else format(v, f)  # noqa: E731
     for r in sorted(rows, key=lambda r: r["name"]):
         L.append(f"| {r['name']} | {r['status']} | {r['f_truth_hz']:.3f} | {fmt(r.get('f_sim_hz'), '.3f')} | {fmt(r.get('eps_freq_truth'), '.2%')} | "
-                 f"{fmt(r.get('eps_q'), '.3f')} | {fmt(r.get('eps_I_over_AE'), '.2f')} | {fmt(r.get('chart_jump_ratio'), '.1f')} | {r.get('reason', '')} |")  # fmt: skip
-    with atomic_write(out_md) as tmp:
-        tmp.write_text("\n".join(L) + "\n")
+                 f"{fmt(r.get('eps_q'), '.3f')} | {fmt(r.get('eps_I_over_AE'), '.2f')} | {fmt(r.get('chart_jump_ratio'), '.1f')} | {r.get('reason', '').replace('|', chr(92) + '|')} |")  # fmt: skip
+    rep = Report("Realistic suite (MuJoCo-rendered clips) against the ground truth", out_md, __file__, argv)
+    rep.block("\n".join(L), echo=False)  # the command line and the environment go under the title
+    rep.write(timings="wall time per clip as measured by the per-clip jobs (`--clip ... --row`)")
     write_json(out_md.with_suffix(".json"), {"summary": summary, "rows": rows})
     return summary
 
@@ -127,7 +132,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("extra", nargs="*", help="Hydra overrides for every stage, e.g. stage1.steps=500")
     a = ap.parse_args(argv)
     if a.gather:
-        s = gather([json.loads(p.read_text()) for p in a.gather], a.out)
+        s = gather([json.loads(p.read_text()) for p in a.gather], a.out, argv)
         print(json.dumps(s, indent=1))
         return 0
     if not a.clip or not a.row:

@@ -23,7 +23,8 @@ Usage::
     python benchmarks/rollout.py [--dims 1 2 4] [--threads 2] [--repeats 3]
 
 Steps per second are ``steps / median time`` over ``--repeats`` calls after one
-warm-up call.
+warm-up call. Writes what it prints to ``results/benchmarks/rollout.md``
+(``--report PATH``, ``--no-report``).
 """
 
 from __future__ import annotations
@@ -40,7 +41,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout without installing
 # this script's folder; imports nothing heavy (torch and numba are imported in main)
-from _common import env_header, print_table, time_call
+from _common import Report, add_report_options, env_header, time_call
 
 
 def _parse(argv: list[str] | None) -> argparse.Namespace:
@@ -56,6 +57,7 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--seconds", type=float, default=1000.0, help="length of the long rollout (s)")
     ap.add_argument("--rate", type=float, default=30.0, help="frame rate of the long rollout (Hz)")
     ap.add_argument("--warm-cache", action="store_true", help="keep numba's on-disk cache (compile time = cache load)")
+    add_report_options(ap, "rollout")
     return ap.parse_args(argv)
 
 
@@ -87,8 +89,9 @@ def main(argv: list[str] | None = None):
 
     import numba
 
+    rep = Report("Free-rollout throughput (steps/s, batch 1)", args.report, __file__, argv)
     print(env_header(f"numba {numba.__version__}"))
-    print(f"batch 1, h = 1/{args.rate:g} s, widths {tuple(args.hidden)}, potential {args.potential}; median of {args.repeats} timed calls after one warm-up\n")
+    rep.text(f"batch 1, h = 1/{args.rate:g} s, widths {tuple(args.hidden)}, potential {args.potential}; median of {args.repeats} timed calls after one warm-up")
 
     # ---- the long rollout at d = 1, compile time apart
     h = 1.0 / args.rate
@@ -107,8 +110,10 @@ def main(argv: list[str] | None = None):
     q, _ = rollout(model, q0, v0, h, n_long)
     t_long = time.perf_counter() - t0
     assert torch.isfinite(q).all()
-    print(f"numba compilation ({'cache load' if args.warm_cache else 'fresh cache'}): {t_compile:.2f} s; weight export: {t_export * 1e3:.1f} ms")
-    print(f"{args.seconds:g} s free rollout at {args.rate:g} Hz, d = 1 ({n_long - 1} steps), compiled path, first call: {t_long:.3f} s\n")
+    rep.text(
+        f"numba compilation ({'cache load' if args.warm_cache else 'fresh cache'}): {t_compile:.2f} s; weight export: {t_export * 1e3:.1f} ms",
+        f"{args.seconds:g} s free rollout at {args.rate:g} Hz, d = 1 ({n_long - 1} steps), compiled path, first call: {t_long:.3f} s",
+    )
 
     rows = []
     for d in args.dims:
@@ -128,7 +133,9 @@ def main(argv: list[str] | None = None):
         }
         rows.append(row)
         print(f"  done: {row}", flush=True)
-    return print_table(rows)
+    table = rep.table(rows)
+    rep.write()
+    return table
 
 
 if __name__ == "__main__":

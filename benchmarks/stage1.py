@@ -40,7 +40,8 @@ Usage::
 
     python benchmarks/stage1.py [--settings toy softrobot] [--steps 300] [--against 2663fff] [--rounds 2]
 
-Prints figures; asserts nothing.
+Prints figures and writes them to ``results/benchmarks/stage1.md``
+(``--report PATH``, ``--no-report``); asserts nothing.
 """
 
 from __future__ import annotations
@@ -180,6 +181,10 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--against", default=None, help="git commit to compare with, side by side")
     ap.add_argument("--rounds", type=int, default=2, help="alternating timing rounds per checkout")
     ap.add_argument("--worker", default=None, help=argparse.SUPPRESS)
+    sys.path.insert(0, str(HERE))
+    from _common import Report, add_report_options, env_header
+
+    add_report_options(ap, "stage1")
     args = ap.parse_args(argv)
     if args.worker:
         print(json.dumps(worker(args.worker, args.steps, args.threads)))
@@ -188,15 +193,18 @@ def main(argv: list[str] | None = None) -> None:
     import lagsplat  # noqa: F401
     import torch
 
-    sys.path.insert(0, str(HERE))
-    from _common import env_header, print_table
     from rasterizer import bench_one
 
     torch.set_num_threads(args.threads)
     import numba
 
     numba.set_num_threads(args.threads)
+    rep = Report("Stage-1 training speed", args.report, __file__, argv)
     print(env_header(f"numba threads: {numba.get_num_threads()}"), f"; load average {os.getloadavg()[0]:.2f}")
+    rep.text(
+        f"s/step: slope between runs of {max(1, args.steps // 3)} and {args.steps} steps, each in a fresh process, median of {args.rounds} "
+        f"round(s); phase shares over {args.profile_steps} steps; rasteriser ratio at the setting's batch and size (5 timed calls)"
+    )
     with tempfile.TemporaryDirectory() as tmp:
         roots = {"this checkout": ROOT}
         if args.against:
@@ -222,10 +230,10 @@ def main(argv: list[str] | None = None) -> None:
                 row["raster fwd+bwd / fwd"] = f"{fb / fwd:.2f}"
                 rows.append(row)
                 print(f"  done: {row}", flush=True)
-            print_table(rows)
-            print("\nshare of a step's wall time by phase (this checkout):")
+            rep.table(rows)
             shares = [{"setting": st, **{k: f"{v:.0%}" for k, v in phase_shares(st, args.profile_steps).items()}} for st in args.settings]
-            print_table(shares)
+            rep.table(shares, title="share of a step's wall time by phase (this checkout):")
+            rep.write()
         finally:
             if args.against:
                 subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(wt)], check=False)

@@ -10,7 +10,8 @@ frame range and split as ``results/<system>/clip.npz``) and over the whole clip.
 
 Prints one row per clip: tracked frequencies, and, when
 ``results/<system>/metrics.json`` exists, the model's rollout frequency and its
-error against the tracked one.
+error against the tracked one; writes them to
+``results/benchmarks/track_real_clips.md`` (``--report PATH``, ``--no-report``).
 """
 
 from __future__ import annotations
@@ -21,7 +22,9 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 import numpy as np  # noqa: E402
+from _common import Report, add_report_options  # this script's folder
 
 from lagsplat.io.video import read_video  # noqa: E402
 from lagsplat.timeseries import spectral_peak_frequency  # noqa: E402
@@ -64,14 +67,17 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--raw-dir", default="data/raw")
     ap.add_argument("--results", default="results")
+    add_report_options(ap, "track_real_clips")
     args = ap.parse_args()
     import yaml
+
+    rep = Report("Frequency of the real clips by colour tracking", args.report, __file__)
 
     rows = []
     for system, (fname, fps, mask_fn, band) in CLIPS.items():
         path = Path(args.raw_dir) / fname
         if not path.exists():
-            print(f"{system}: {path} not found, skipped")
+            rep.text(f"{system}: {path} not found, skipped")
             continue
         xs, t = track(path, fps, mask_fn, band)
         conf = yaml.safe_load((Path(__file__).resolve().parents[1] / "conf" / "system" / f"{system}.yaml").read_text())["system"]
@@ -94,7 +100,8 @@ def main() -> None:
         rows.append(row)
     import pandas as pd
 
-    print(pd.DataFrame(rows).to_string(index=False, float_format=lambda v: f"{v:.4f}"))
+    rep.table(pd.DataFrame(rows).round(4))
+    rep.write()
 
 
 if __name__ == "__main__":
