@@ -65,7 +65,16 @@ def row_of(name: str, clips: Path, results: Path, code: int, reason: str, wall_s
     """One scored row of the suite (see the module docstring)."""
     spec = clip_spec(name)
     row = {**spec, "exit_code": code, "wall_s": round(wall_s, 1), "f_truth_hz": truth_frequency(clips / f"{name}.truth.npz")}
-    m = Artifacts.for_run(results, name).load_metrics()
+    art = Artifacts.for_run(results, name)
+    if art.chart.exists():  # the chart-quality gate, also for a run that stopped at it
+        gate = art.load_chart().meta.get("gate") or {}
+        row.update(gate_passed=gate.get("passed"), gate={k: round(v["value"], 4) for k, v in gate.get("checks", {}).items()})
+    if art.stage1.exists():
+        import torch
+
+        attempts = torch.load(art.stage1, map_location="cpu", weights_only=False)["history"].get("attempts", [])
+        row.update(stage1_attempts=len(attempts))
+    m = art.load_metrics()
     if code != 0 or m is None:
         return {**row, "status": "stopped" if code == 1 else "crashed", "reason": reason}
     mm = m["metrics"]
@@ -97,21 +106,31 @@ def gather(rows: list[dict], out_md: Path, argv: list[str] | None = None) -> dic
         "eps_freq_truth_median": float(np.median(e)) if len(e) else None,
         "eps_freq_truth_p90": float(np.percentile(e, 90)) if len(e) else None,
         "share_within_5pct": float(np.mean(e <= 0.05)) if len(e) else None,
+        "n_gate_passed": sum(bool(r.get("gate_passed")) for r in rows),
+        "share_within_5pct_of_gate_passed": float(np.mean([r["eps_freq_truth"] <= 0.05 for r in ok if r.get("gate_passed")]))
+        if any(r.get("gate_passed") for r in ok) else None,
         "wall_s_median": float(np.median([r["wall_s"] for r in rows])) if rows else None,
         "wall_s_max": float(max(r["wall_s"] for r in rows)) if rows else None,
     }  # fmt: skip
     L = [f"{summary['n_clips']} clips over {len(summary['systems'])} systems: {summary['n_ok']} with metrics, "
-         f"{summary['n_stopped']} stopped with a reason, {summary['n_crashed']} crashed.", ""]  # fmt: skip
+         f"{summary['n_stopped']} stopped with a reason, {summary['n_crashed']} crashed; the chart passed the quality gate "
+         f"on {summary['n_gate_passed']}.", ""]  # fmt: skip
+    if summary["share_within_5pct_of_gate_passed"] is not None:
+        L += [f"Of the clips whose chart passed the gate and that have metrics, {100 * summary['share_within_5pct_of_gate_passed']:.0f} % "
+              "are within 5 % of the true frequency.", ""]  # fmt: skip
     if len(e):
         L += [f"Frequency error against the truth: median {100 * summary['eps_freq_truth_median']:.2f} %, 90th percentile "
               f"{100 * summary['eps_freq_truth_p90']:.2f} %, within 5 %: {100 * summary['share_within_5pct']:.0f} % of the clips with metrics.", ""]  # fmt: skip
     L += [f"Wall time per clip: median {summary['wall_s_median']:.0f} s, max {summary['wall_s_max']:.0f} s.", "",
-          "| clip | status | f_truth (Hz) | f_sim (Hz) | eps_freq vs truth | eps_q | eps_I / eps_AE | jump ratio | reason |",
-          "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+          "| clip | status | gate | attempts | f_truth (Hz) | f_sim (Hz) | eps_freq vs truth | eps_q | eps_I / eps_AE | continuity | coverage | saturation | reason |",
+          "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     fmt = lambda v, f: "" if v is None else format(v, f)  # noqa: E731
     for r in sorted(rows, key=lambda r: r["name"]):
-        L.append(f"| {r['name']} | {r['status']} | {r['f_truth_hz']:.3f} | {fmt(r.get('f_sim_hz'), '.3f')} | {fmt(r.get('eps_freq_truth'), '.2%')} | "
-                 f"{fmt(r.get('eps_q'), '.3f')} | {fmt(r.get('eps_I_over_AE'), '.2f')} | {fmt(r.get('chart_jump_ratio'), '.1f')} | {r.get('reason', '').replace('|', chr(92) + '|')} |")  # fmt: skip
+        g = r.get("gate") or {}
+        gate = {True: "passed", False: "failed"}.get(r.get("gate_passed"), "")
+        L.append(f"| {r['name']} | {r['status']} | {gate} | {r.get('stage1_attempts', '')} | {r['f_truth_hz']:.3f} | {fmt(r.get('f_sim_hz'), '.3f')} | "
+                 f"{fmt(r.get('eps_freq_truth'), '.2%')} | {fmt(r.get('eps_q'), '.3f')} | {fmt(r.get('eps_I_over_AE'), '.2f')} | "
+                 f"{fmt(g.get('continuity'), '.1f')} | {fmt(g.get('coverage'), '.2f')} | {fmt(g.get('saturation'), '.2f')} | {r.get('reason', '').replace('|', chr(92) + '|')} |")  # fmt: skip
     rep = Report("Realistic suite (MuJoCo-rendered clips) against the ground truth", out_md, __file__, argv)
     rep.block("\n".join(L), echo=False)  # the command line and the environment go under the title
     rep.write(timings="wall time per clip as measured by the per-clip jobs (`--clip ... --row`)")

@@ -79,7 +79,7 @@ CHECKS: dict[str, Bound] = {
     "stage1.sigma_xy": POSITIVE, "stage1.sigma_q_floor": POSITIVE, "stage1.alpha_dead": FRACTION,
     "stage1.recycle_every": POSITIVE_INT, "stage1.recycle_warmup": COUNT, "stage1.grad_clip": POSITIVE,
     "stage1.encoder_channels[]": POSITIVE_INT, "stage1.encoder_kernel": POSITIVE_INT, "stage1.background[]": FRACTION,
-    "stage1.threads": COUNT,
+    "stage1.threads": COUNT, "stage1.retries": COUNT, "stage1.w_motion_init": NON_NEGATIVE, "stage1.split_share": FRACTION,
     # chart
     "chart.n_metric_samples": POSITIVE_INT, "chart.rho": POSITIVE, "chart.refine_iters": COUNT,
     # stage2 (Stage2Config)
@@ -160,7 +160,12 @@ def _check_type(key: str, value: Any, tp: Any) -> None:
         if value is None and type(None) in args:
             return
         inner = [a for a in args if a is not type(None)]
-        fits = [a for a in inner if dataclasses.is_dataclass(a)] if isinstance(value, Mapping) else []
+        if isinstance(value, Mapping):
+            fits = [a for a in inner if dataclasses.is_dataclass(a)]
+        elif isinstance(value, (list, tuple)):  # e.g. crop: auto or [x0, y0, x1, y1]: the list's own error
+            fits = [a for a in inner if a in (list, tuple) or typing.get_origin(a) in (list, tuple, Sequence)]
+        else:
+            fits = []
         if len(inner) == 1 or fits:  # one candidate: its own (more precise) error
             return _check_type(key, value, (fits or inner)[0])
         for a in inner:

@@ -101,13 +101,15 @@ class SystemConfig:
         d: latent dimension = degrees of freedom of the chart (>= 1).
         protocol: evaluation protocol (:data:`lagsplat.evaluate.PROTOCOLS`; ``default`` = ``paper``).
         data: what the clip is (tables label rows by it); ``None``: ``synthetic`` for a ``synth``
-            source, else ``real`` (:func:`lagsplat.cli.data_kind`).
+            source, else ``real`` (:func:`lagsplat.cli_common.data_kind`).
         truth: the simulated soft robot's sidecar JSON (its natural frequencies).
         segments: soft robot: number of segments.
         source, sources: one recording, or several (multi-clip training; see :mod:`lagsplat.ingest`).
         frames: ``[start, stop)`` of source frames (``stop`` may be null).
-        crop: ``[x0, y0, x1, y1]``, native pixels.
-        resize: ``[width, height]`` of the clip, pixels.
+        crop: ``[x0, y0, x1, y1]``, native pixels; ``auto`` (video sources): the region of interest
+            read off the motion (:mod:`lagsplat.prepare`); ``None``: the whole frame.
+        resize: ``[width, height]`` of the clip, pixels; ``auto`` (video sources): the working
+            resolution at which the moving object spans enough pixels; ``None``: native size.
         split: :class:`SplitConfig`.
     """
 
@@ -122,8 +124,8 @@ class SystemConfig:
     source: Optional[SourceConfig] = None
     sources: Optional[list[SourceConfig]] = None
     frames: Optional[tuple[Optional[int], Optional[int]]] = None
-    crop: Optional[tuple[int, int, int, int]] = None
-    resize: Optional[tuple[int, int]] = None
+    crop: Optional[Union[Literal["auto"], tuple[int, int, int, int]]] = "auto"
+    resize: Optional[Union[Literal["auto"], tuple[int, int]]] = "auto"
     split: SplitConfig = field(default_factory=SplitConfig)
 
 
@@ -136,16 +138,19 @@ class ChartConfig:
         rho: whitening regulariser (> 0).
         refine_iters: Levenberg-Marquardt steps per frame of :func:`lagsplat.chart.refine_latents`
             (0: the paper's chart, the encoder's output; ``conf/experiment/refined_chart.yaml`` sets 8).
+        gate: Stage 2 refuses a chart that fails the quality gate (:func:`lagsplat.chart_gate.chart_gate`);
+            ``false`` runs it anyway and marks the metrics as read on a failed chart.
     """
 
     n_metric_samples: int = 64
     rho: float = 0.01
     refine_iters: int = 0
+    gate: bool = True
 
 
 @dataclass
 class ViewConfig:
-    """The interactive viewer (``view`` group; :func:`lagsplat.cli.stage_view`, :mod:`lagsplat.viewer`).
+    """The interactive viewer (``view`` group; :func:`lagsplat.stages_report.stage_view`, :mod:`lagsplat.viewer`).
 
     Attributes:
         port: on 127.0.0.1; 0 = any free port.

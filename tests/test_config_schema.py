@@ -153,7 +153,8 @@ def _numbers(cls: type, prefix: str) -> list[str]:
     for name, tp in typing.get_type_hints(cls).items():
         union = typing.get_origin(tp) in (typing.Union, types.UnionType)
         args = [a for a in typing.get_args(tp) if a is not type(None)] if union else [tp]
-        inner = args[0] if len(args) == 1 else None
+        lists = [a for a in args if typing.get_origin(a) in (list, tuple)]
+        inner = args[0] if len(args) == 1 else (lists[0] if len(lists) == 1 else None)  # e.g. Union[Literal["auto"], tuple]
         key = f"{prefix}{name}"
         if any(a in (int, float) for a in args) and inner not in (bool,):
             out.append(key)

@@ -20,15 +20,15 @@ LAYERS: list[tuple[str, list[str]]] = [
     ("io", ["lagsplat", "lagsplat.io"]),
     ("signals", ["lagsplat.timeseries", "lagsplat.motion", "lagsplat.metrics"]),
     ("render and synthetic clips", ["lagsplat.render", "lagsplat.synth"]),
-    ("ingest and models", ["lagsplat.ingest", "lagsplat.models"]),
+    ("ingest and models", ["lagsplat.ingest", "lagsplat.prepare", "lagsplat.models"]),
     ("dynamics", ["lagsplat.dynamics"]),
-    ("chart", ["lagsplat.chart"]),
+    ("chart", ["lagsplat.chart", "lagsplat.chart_gate"]),
     ("train", ["lagsplat.train"]),
     ("artifacts", ["lagsplat.artifacts"]),
     ("evaluate and forces", ["lagsplat.evaluate", "lagsplat.force", "lagsplat.force_checks"]),
     ("diagnose, baselines, viewer, figures", ["lagsplat.diagnose", "lagsplat.baselines", "lagsplat.viewer", "lagsplat.viz"]),
     ("report", ["lagsplat.report"]),
-    ("cli", ["lagsplat.cli", "lagsplat.__main__", "lagsplat.config_schema", "lagsplat.config_check"]),
+    ("cli", ["lagsplat.cli", "lagsplat.__main__", "lagsplat.config_schema", "lagsplat.config_check", "lagsplat.cli_common", "lagsplat.stages", "lagsplat.stages_report"]),
 ]
 
 

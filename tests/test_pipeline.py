@@ -199,7 +199,8 @@ def test_snakemake_end_to_end_on_the_tiny_toy(tmp_path):
 
 def test_data_kind_of_each_system():
     """``metrics.json``'s ``data``: the system's own label, else synthetic for procedural sources, real for recordings."""
-    from lagsplat.cli import compose, data_kind
+    from lagsplat.cli import compose
+    from lagsplat.cli_common import data_kind
 
     kinds = {name: data_kind(compose([f"system={name}"]).system) for name in ("toy", "two_carts", "oscillating_cart", "krauss_2seg", "krauss_2seg_synth")}
     assert kinds == {"toy": "synthetic", "two_carts": "synthetic", "oscillating_cart": "real", "krauss_2seg": "real", "krauss_2seg_synth": "surrogate"}

@@ -326,11 +326,13 @@ class ConditionedGaussians(nn.Module):
         sigma_xy: float = 0.05,
         sigma_q_floor: float = 0.5,
         generator: torch.Generator | None = None,
+        prob: Tensor | None = None,
     ) -> None:
         """Place primitives on one frame, edges favoured (reference "smart init").
 
-        Positions are drawn with probability ``0.8 |grad I| / max + 0.2`` (with
-        replacement when ``K > H W``), colours are read at those pixels, latent
+        Positions are drawn with probability ``prob`` (default
+        :func:`lagsplat.models.densify.placement_probability` of the frame:
+        ``0.8 |grad I| / max + 0.2``; with replacement when ``K > H W``), colours are read at those pixels, latent
         means are drawn from ``N(mean z, std z)`` and the latent extent is
         ``max(std z, sigma_q_floor)`` so the gate is open while the encoder is
         still untrained.
@@ -341,15 +343,13 @@ class ConditionedGaussians(nn.Module):
             sigma_xy: spatial standard deviation, normalised units.
             sigma_q_floor: lower bound of the latent standard deviation.
             generator: RNG for reproducibility.
+            prob: ``[H*W]`` unnormalised placement probability, or ``None``.
         """
         _, H, W = frame.shape
-        gray = frame.mean(0)
-        gx = torch.zeros_like(gray)
-        gy = torch.zeros_like(gray)
-        gx[:, :-1] = gray[:, 1:] - gray[:, :-1]
-        gy[:-1, :] = gray[1:, :] - gray[:-1, :]
-        mag = torch.sqrt(gx**2 + gy**2).flatten()
-        prob = 0.8 * mag / mag.max().clamp_min(1e-12) + 0.2
+        if prob is None:
+            from lagsplat.models.densify import placement_probability
+
+            prob = placement_probability(frame)
         idx = torch.multinomial(prob, self.K, replacement=self.K > H * W, generator=generator)
         self.mu_raw.copy_(self._raw_positions(idx, H, W))
         mean, std = z.mean(0), z.std(0).clamp_min(1e-3)

@@ -13,6 +13,7 @@ from torch.profiler import record_function
 from lagsplat.io.clip import Clip
 from lagsplat.models.autoencoder import AutoEncoder, frames_to_tensor
 from lagsplat.models.decoder import ConditionedGaussians
+from lagsplat.models.densify import placement_probability, split_overloaded
 from lagsplat.motion import motion_masks
 from lagsplat.render.rasterize import Backend
 from lagsplat.models.encoder import CpAEEncoder, nonlocal_filter_penalty
@@ -61,6 +62,9 @@ class Stage1Config:
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     backend: Backend = "auto"
     threads: int = 0
+    retries: int = 1
+    w_motion_init: float = 1.0
+    split_share: float = 0.5
 
     @classmethod
     def from_mapping(cls, m: Mapping[str, Any]) -> "Stage1Config":
@@ -133,7 +137,8 @@ def train_stage1(
     dec = ConditionedGaussians(cfg.n_gaussians, d, backend=cfg.backend, background=cfg.background)
     with torch.no_grad():
         z0 = torch.cat([enc(X[i : i + 256]) for i in range(0, N, 256)])
-    dec.init_from_frame(X[0], z0, cfg.sigma_xy, cfg.sigma_q_floor, generator=gen)
+    motion_std = X.std(0).mean(0) if cfg.w_motion_init > 0 else None  # [H,W] temporal std of the training frames
+    dec.init_from_frame(X[0], z0, cfg.sigma_xy, cfg.sigma_q_floor, generator=gen, prob=placement_probability(X[0], motion_std, cfg.w_motion_init))
     model = AutoEncoder(enc, dec, H, W).to(dev)
     X = X.to(dev)
     static = None if static is None else static.to(dev)
@@ -197,8 +202,11 @@ def train_stage1(
                     zj = enc(X[j : j + 1])
                     rendered = dec(zj, H, W)[0]
                     zs = torch.cat([enc(X[i : i + 256]) for i in range(0, N, 256)]).std(0)
-                    dec.recycle(dead, X[j], rendered, zj[0], zs, cfg.sigma_xy, generator=gen)
-                    _reset_adam_rows(opt, dec_params, dead)
+                    n_split = int(round(cfg.split_share * n_dead))
+                    to_split = dead & (torch.cumsum(dead.long(), 0) <= n_split)
+                    used, split = split_overloaded(dec, to_split, zs, cfg.sigma_xy) if n_split else (torch.zeros_like(dead),) * 2
+                    dec.recycle(dead & ~used, X[j], rendered, zj[0], zs, cfg.sigma_xy, generator=gen)
+                    _reset_adam_rows(opt, dec_params, dead | split)
                 history["recycled"].append((step, n_dead))
     return model.cpu().eval(), history
 

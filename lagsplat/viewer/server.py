@@ -1,6 +1,6 @@
 """The viewer's local web server: live render over a websocket, pointer events back.
 
-``python -m lagsplat view system=<name>`` (see :func:`lagsplat.cli.stage_view`)
+``python -m lagsplat view system=<name>`` (see :func:`lagsplat.stages_report.stage_view`)
 builds a :class:`~lagsplat.viewer.session.Session` and serves it with a
 :class:`Viewer` on ``http://127.0.0.1:<port>/`` (loopback only).
 

@@ -1,0 +1,90 @@
+"""What every command-line stage shares: composing the configuration, the artifact paths, the resolved-config record.
+
+Used by :mod:`lagsplat.cli` (the entry point) and the stage modules
+:mod:`lagsplat.stages` and :mod:`lagsplat.stages_report`.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from omegaconf import DictConfig, OmegaConf
+
+if TYPE_CHECKING:
+    from lagsplat.artifacts import Artifacts
+
+__all__ = ["find_conf_dir", "compose", "artifacts_of", "apply_variant", "save_stage_config", "plain", "data_kind"]
+
+
+def find_conf_dir() -> Path:
+    """Locate the Hydra ``conf/`` folder.
+
+    Order: ``$LAGSPLAT_CONF``, ``./conf`` in the working directory, then the
+    ``conf/`` beside the package (a source checkout / editable install).
+
+    Raises:
+        FileNotFoundError: if none has a ``config.yaml``.
+    """
+    cands = [os.environ.get("LAGSPLAT_CONF"), Path.cwd() / "conf", Path(__file__).resolve().parents[1] / "conf"]
+    for c in cands:
+        if c and (Path(c) / "config.yaml").exists():
+            return Path(c).resolve()
+    raise FileNotFoundError("no conf/config.yaml found: run from the project root or set LAGSPLAT_CONF")
+
+
+def compose(overrides: list[str]) -> DictConfig:
+    """Compose the configuration (``conf/config.yaml`` + system + overrides)."""
+    from hydra import compose as hcompose
+    from hydra import initialize_config_dir
+
+    from lagsplat.config_schema import register_schemas
+
+    register_schemas()
+
+    with initialize_config_dir(config_dir=str(find_conf_dir()), version_base=None):
+        return hcompose(config_name="config", overrides=overrides)
+
+
+def artifacts_of(cfg: DictConfig) -> "Artifacts":
+    """The run's artifact paths (:class:`lagsplat.artifacts.Artifacts`): ``${results_dir}/<system>/``,
+    the model's under ``variants/<variant>/`` when ``variant`` is set, each overridable as ``artifacts.<name>=PATH``."""
+    from lagsplat.artifacts import Artifacts
+
+    return Artifacts.for_run(cfg.results_dir, cfg.system.name, cfg.get("variant"), plain(cfg.get("artifacts") or {}))
+
+
+def apply_variant(cfg: DictConfig) -> DictConfig:
+    """Merge ``variants[cfg.variant]`` into ``cfg`` (no-op without a variant).
+
+    Raises:
+        KeyError: naming the unknown variant and the known ones.
+    """
+    v = cfg.get("variant")
+    if not v:
+        return cfg
+    known = cfg.get("variants") or {}
+    if v not in known:
+        raise KeyError(f"unknown variant {v!r}; known: {sorted(known)} (conf/config.yaml, key variants)")
+    return OmegaConf.merge(cfg, known[v])
+
+
+def save_stage_config(cfg: DictConfig, stage: str) -> None:
+    from lagsplat.io.atomic import atomic_write
+
+    with atomic_write(artifacts_of(cfg).config(stage)) as tmp:
+        tmp.write_text(OmegaConf.to_yaml(cfg, resolve=True))
+
+
+def plain(node) -> dict:
+    return OmegaConf.to_container(node, resolve=True) if isinstance(node, DictConfig) else dict(node)
+
+
+def data_kind(system: DictConfig) -> str:
+    """What a system's clip is: ``system.data`` when set (``real`` | ``surrogate``), else ``synthetic`` for a
+    procedural source (``source.synth``) and ``real`` for a recording."""
+    if system.get("data"):
+        return str(system.data)
+    sources = list(system.get("sources") or []) or [system.get("source") or {}]
+    return "synthetic" if all(src.get("synth") for src in sources) else "real"

@@ -1,0 +1,172 @@
+"""The pipeline stages of the command line, one per Snakemake rule: download, ingest, stage1, chart, stage2, evaluate, figures.
+
+Each reads only upstream artifacts under ``${results_dir}/${system.name}/``
+(:class:`lagsplat.artifacts.Artifacts`) and writes its own atomically, with
+the resolved configuration saved beside it (``config/<stage>.yaml``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from omegaconf import DictConfig, open_dict
+
+from lagsplat.cli_common import artifacts_of, data_kind, plain, save_stage_config
+
+__all__ = ["stage_download", "stage_ingest", "stage_stage1", "stage_chart", "stage_stage2", "stage_evaluate", "stage_figures"]
+
+
+def stage_download(cfg: DictConfig) -> None:
+    """Fetch the source clip(s) to ``source.path`` and verify their SHA256.
+
+    With ``sources`` (several recordings) every entry with a ``url`` is
+    fetched, or only the one whose ``file`` is ``download.file`` when set.
+    """
+    from lagsplat.io.download import fetch
+
+    entries = list(cfg.system.get("sources") or []) or [cfg.system.source]
+    dl = cfg.get("download") or {}
+    only = dl.get("file")
+    todo = [e for e in entries if e.get("url") and (not only or e.get("file") == only)]
+    if not todo:
+        print(f"{cfg.system.name}: nothing to download (no source.url)")
+        return
+    for src in todo:
+        if src.get("member"):  # a file inside a zip archive (lagsplat.io.zenodo): the member's SHA256 is verified
+            from lagsplat.io.zenodo import fetch_member
+
+            cache = Path(cfg.raw_dir) / src.archive_file if src.get("archive_file") else None
+            hint = "or give a local copy with download.archive=PATH (Snakemake: --config krauss_archive=PATH)"
+            fetch_member(src.url, src.member, Path(src.path), src.sha256, archive=dl.get("archive"), cache=cache, hint=hint)
+            continue
+        fetch(src.url, Path(src.path), src.sha256)
+
+
+def stage_ingest(cfg: DictConfig) -> None:
+    """Source clip -> ``clip.npz``."""
+    from lagsplat.config_schema import SystemConfig
+    from lagsplat.ingest import ingest_to_file
+
+    system = plain(cfg.system)
+    for key in ("crop", "resize"):  # absent: the schema's default (auto: read off the motion)
+        system.setdefault(key, getattr(SystemConfig, key))
+    a = artifacts_of(cfg)
+    ingest_to_file(system, a.clip)
+    clip = a.load_clip()
+    prepared = clip.meta.get("prepare")
+    if prepared:  # the automatic choices, printed and written into the resolved configuration
+        from lagsplat.prepare import Preparation
+
+        print(f"[lagsplat] {cfg.system.name}: prepared {Preparation(**prepared).summary()}", flush=True)
+        with open_dict(cfg):
+            cfg.system.crop, cfg.system.resize = clip.meta["crop"], clip.meta["resize"]
+    save_stage_config(cfg, "ingest")
+
+
+def stage_stage1(cfg: DictConfig) -> None:
+    """``clip.npz`` -> ``stage1.pt``."""
+    from lagsplat.models.autoencoder import save_stage1
+    from lagsplat.train.attempts import train_stage1_gated
+    from lagsplat.train.stage1 import Stage1Config
+
+    a = artifacts_of(cfg)
+    clip = a.load_clip()
+    s1 = Stage1Config.from_mapping(plain(cfg.stage1))
+    chart_kw = {"n_metric_samples": int(cfg.chart.n_metric_samples), "rho": float(cfg.chart.rho), "refine_iters": int(cfg.chart.refine_iters)}
+    model, hist, attempts = train_stage1_gated(
+        clip, s1, int(cfg.system.d), seed=int(cfg.seed), retries=s1.retries if bool(cfg.chart.gate) else 0, chart_kwargs=chart_kw,
+        progress=bool(cfg.progress), device=str(cfg.device), label=f"{cfg.system.name} stage1",
+    )  # fmt: skip
+    hist["attempts"] = attempts
+    save_stage1(a.stage1, model, plain(cfg.stage1), hist, int(cfg.system.d))
+    save_stage_config(cfg, "stage1")
+
+
+def stage_chart(cfg: DictConfig) -> None:
+    """``stage1.pt`` -> ``chart.npz``."""
+    from lagsplat.chart import build_chart, save_chart
+
+    from lagsplat.chart_gate import chart_gate, gate_summary
+
+    a = artifacts_of(cfg)
+    model, clip = a.load_stage1(), a.load_clip()
+    chart = build_chart(model, clip, int(cfg.chart.n_metric_samples), float(cfg.chart.rho), int(cfg.seed), refine_iters=int(cfg.chart.refine_iters))
+    chart.meta["gate"] = chart_gate(model, clip, chart)
+    print(f"[lagsplat] {cfg.system.name}: chart quality gate {gate_summary(chart.meta['gate'])}", flush=True)
+    save_chart(a.chart, chart)
+    save_stage_config(cfg, "chart")
+
+
+def stage_stage2(cfg: DictConfig) -> None:
+    """``chart.npz`` -> ``stage2.pt``."""
+    from lagsplat.train.stage2 import Stage2Config, save_stage2, train_stage2
+
+    from lagsplat.chart_gate import gate_summary
+
+    a = artifacts_of(cfg)
+    s2 = Stage2Config.from_mapping(plain(cfg.stage2))
+    chart = a.load_chart()
+    gate = chart.meta.get("gate")
+    if gate is not None and not gate["passed"] and bool(cfg.chart.gate):
+        raise ValueError(f"{a.chart}: the chart {gate_summary(gate)}; Stage 2 not run (chart.gate=false runs it, its metrics marked)")
+    inertia = None
+    if s2.mass == "decoder":  # parameter-free inertia from the frozen Stage-1 decoder (paper Eq. 7)
+        from lagsplat.models.lagrangian import DecoderInertia
+
+        ae = a.load_stage1()
+        inertia = DecoderInertia.from_decoder(ae.decoder, chart.W_inv, chart.mean, chart.height, chart.width)
+    model, hist = train_stage2(
+        chart, s2, seed=int(cfg.seed), progress=bool(cfg.progress), inertia=inertia, device=str(cfg.device), label=f"{cfg.system.name} stage2"
+    )
+    save_stage2(a.stage2, model, s2, hist)
+    save_stage_config(cfg, "stage2")
+
+
+def stage_evaluate(cfg: DictConfig) -> None:
+    """Upstream artifacts -> ``metrics.json``."""
+    from lagsplat.evaluate import SETTINGS_GROUP, protocol_for, run_protocol
+    from lagsplat.io.atomic import write_json
+
+    a = artifacts_of(cfg)
+    clip, chart = a.load_clip(), a.load_chart()
+    model, ck = a.load_stage2()
+    protocol = protocol_for(cfg.system)  # the published soft-robot protocol for system.protocol=krauss (paper §4.4, Table 4)
+    settings = cfg.get(SETTINGS_GROUP[protocol])
+    m = run_protocol(protocol, clip, a.load_stage1(), chart, model, plain(settings) if settings else {}, plain(cfg.system), str(a.clip))
+    gate = chart.meta.get("gate")
+    if gate is not None and not gate["passed"]:  # run with chart.gate=false: every number says what it stands on
+        from lagsplat.chart_gate import gate_summary
+
+        for entry in m.values():
+            if isinstance(entry, dict):
+                entry["caution"] = f"read on a chart that {gate_summary(gate)}"
+    write_json(
+        a.metrics,
+        {
+            "system": cfg.system.name,
+            "variant": cfg.get("variant"),
+            "protocol": protocol,
+            "data": data_kind(cfg.system),
+            "stage2": plain(cfg.stage2),
+            "title": cfg.system.get("title", cfg.system.name),
+            "d": int(cfg.system.d),
+            "provenance": cfg.system.get("provenance", ""),
+            "dt_s": float(clip.dt),
+            "n_train": int(len(clip.train_idx)),
+            "n_held_out": int(len(clip.held_out_idx)),
+            "image_size": [chart.width, chart.height],
+            "stage2_selected_epoch": ck["history"].get("selected_epoch"),
+            "chart_gate": chart.meta.get("gate"),
+            "read_on_failed_chart": not chart.meta["gate"]["passed"] if "gate" in chart.meta else None,
+            "metrics": m,
+        },
+    )
+    save_stage_config(cfg, "evaluate")
+
+
+def stage_figures(cfg: DictConfig) -> None:
+    """Upstream artifacts -> ``figures/rollout.png``."""
+    from lagsplat.viz.rollout import rollout_figure
+
+    title = str(cfg.system.get("title", cfg.system.name)) + (f" [{cfg.variant}]" if cfg.get("variant") else "")
+    rollout_figure(artifacts_of(cfg), title=title, provenance=str(cfg.system.get("provenance", "")))

@@ -1,0 +1,195 @@
+"""The stages of the command line after the pipeline: forces, diagnosis, tables, the viewer.
+
+Each reads the artifacts of the pipeline stages (:mod:`lagsplat.stages`) and
+writes its own atomically, with the resolved configuration saved beside it.
+"""
+
+from __future__ import annotations
+
+
+from omegaconf import DictConfig, OmegaConf
+
+from lagsplat.cli_common import artifacts_of, plain
+
+__all__ = ["stage_forces", "stage_diagnose", "stage_table", "stage_ablation", "stage_seed_table", "stage_krauss_table", "stage_view"]
+
+
+def stage_forces(cfg: DictConfig) -> None:
+    """Force-transport checks (paper §3.4, Fig. 7) -> ``forces.json`` and ``figures/forces.png``.
+
+    The figure and the top level of ``forces.json`` use the default brush
+    (``brush``); ``other_brushes`` holds the background, linearity and kernel
+    checks through the others (:data:`lagsplat.force.BRUSHES`).
+    """
+    import numpy as np
+    import torch
+
+    from lagsplat.force import BRUSHES, ForceTransport
+    from lagsplat.force_checks import ForceCheckConfig, plot_force_checks, public_result, run_force_checks
+    from lagsplat.io.atomic import write_json
+    from lagsplat.train.config import dataclass_from_mapping
+
+    a = artifacts_of(cfg)
+    fc = dataclass_from_mapping(ForceCheckConfig, OmegaConf.to_container(cfg.get("forces", {}), resolve=True), "forces")
+    ae, chart = a.load_stage1(), a.load_chart()
+    model, _ = a.load_stage2()
+    model.eval()
+    tr = ForceTransport.from_autoencoder(ae, chart, min_transmittance=fc.min_transmittance)
+    with torch.no_grad():
+        z = model.q_rest.detach()[None] @ torch.as_tensor(chart.W_inv, dtype=torch.float32) + torch.as_tensor(chart.mean, dtype=torch.float32)
+        rest = (ae.decode(z)[0].clamp(0, 1).permute(1, 2, 0).numpy() * 255 + 0.5).astype(np.uint8)
+    clip = a.load_clip()
+    res = run_force_checks(model, tr, clip.images, rest, fc)
+    lever = None
+    if clip.meta.get("source") == "lagsplat.synth.pendulum":  # known pivot: the lever-arm profile along the rod
+        from lagsplat.force_checks import lever_profile
+        from lagsplat.synth.pendulum import PIVOT_Y, ROD_LENGTH
+
+        H, W = ae.height, ae.width
+        above = float(clip.meta.get("params", {}).get("rod_above", 0.0)) * H
+        radii = np.linspace(-max(above - fc.sigma, 0.0), ROD_LENGTH * H, 25)
+        force = (float(np.median(res["_maps"]["dq_obj"]) > 0) * res["force_px"], 0.0)
+        lever = lever_profile(model, tr, (W / 2.0, PIVOT_Y * H), (0.0, 1.0), radii, force, fc.sigma)
+        res["lever"] = {"r_px": lever["r"].tolist(), "f_lat": lever["f_lat"][:, 0].tolist(), "dq": lever["dq"][:, 0].tolist()}
+    title = str(cfg.system.get("title", cfg.system.name)) + ": forces through J^T f"
+    plot_force_checks(res, rest, a.forces_figure, title=title, lever=lever)
+    pub = public_result(res)
+    pub["brush"] = tr.brush
+    pub["min_transmittance"] = tr.min_transmittance
+    # the same checks through the other brush (lagsplat.force.BRUSHES), for comparison
+    pub["other_brushes"] = {}
+    for name in (b for b in BRUSHES if b != tr.brush):
+        other = run_force_checks(model, ForceTransport.from_autoencoder(ae, chart, brush=name), clip.images, rest, fc)
+        pub["other_brushes"][name] = {k: other[k] for k in ("background", "linearity", "kernel")}
+    write_json(a.forces, pub)
+    for name, r in {tr.brush: pub, **pub["other_brushes"]}.items():
+        b, lin, ker = r["background"], r["linearity"], r["kernel"]
+        gap = "exactly still" if b["ratio"] is None else f"{b['ratio']:.0f}x below the object"
+        verdict = "pass" if b["passed"] else "FAIL"
+        print(
+            f"{cfg.system.name} ({name} brush): background {gap} ({verdict}, need {b['required_ratio']:g}x); "
+            f"J^T f additivity {lin['f_lat_rel_err']:.1e}; kernel {ker['rel']:.1e}"
+        )
+
+
+def stage_diagnose(cfg: DictConfig) -> None:
+    """Sim-to-real gap diagnosis -> ``diagnosis/report.md``, ``report.json``, ``figures/*.png``.
+
+    Reads ``clip.npz``, ``stage1.pt``, ``chart.npz``, ``stage2.pt`` and
+    ``metrics.json`` (of the variant when ``variant`` is set); settings in the
+    ``diagnose`` group, the gap protocol in ``evaluate``; the refit uses the
+    Stage-2 settings saved in ``stage2.pt``. See :mod:`lagsplat.diagnose.report`.
+    """
+    from lagsplat.diagnose.report import DiagnoseConfig, diagnose_system
+    from lagsplat.evaluate import EvalConfig
+
+    dc = DiagnoseConfig.from_mapping(plain(cfg.diagnose) if cfg.get("diagnose") else None)
+    dc.refit.seed = int(cfg.seed)
+    title = str(cfg.system.get("title", cfg.system.name)) + (f" [{cfg.variant}]" if cfg.get("variant") else "")
+    a = artifacts_of(cfg)
+    rep = diagnose_system(a, dc, EvalConfig(**plain(cfg.evaluate)), title, bool(cfg.progress))
+    red = (rep["gap"].get("reduction") or {}).get("eps_q")
+    print(
+        f"{cfg.system.name}: {rep['verdict_text']}; held-out eps_q {rep['gap']['before']['eps_q']:.4f}"
+        + (f" -> {rep['gap']['after']['eps_q']:.4f} ({100 * red:+.0f} %)" if red is not None else "")
+        + f"; report: {a.report_md}"
+    )
+    from lagsplat.io.atomic import atomic_write
+
+    with atomic_write(a.diagnosis_config) as tmp:  # beside the report: the stage writes only under diagnosis/
+        tmp.write_text(OmegaConf.to_yaml(cfg, resolve=True))
+
+
+def stage_table(cfg: DictConfig) -> None:
+    """``metrics.json`` of ``table.systems`` -> ``results/tables/<table.name>.tex`` and ``.csv``."""
+    from lagsplat.artifacts import table_path, variant_metrics_path
+    from lagsplat.report.tables import physical_table
+
+    t = cfg.get("table", {})
+    name = t.get("name", "physical")
+    systems = list(t.get("systems", [cfg.system.name]))
+    inputs = [variant_metrics_path(cfg.results_dir, s, None) for s in systems]
+    physical_table(inputs, table_path(cfg.results_dir, name))
+
+
+def stage_ablation(cfg: DictConfig) -> None:
+    """Variant ``metrics.json`` of one system -> ``results/tables/<system>_<ablation>.tex`` and ``.csv``."""
+    from lagsplat.artifacts import table_path, variant_metrics_path
+    from lagsplat.report.tables import ablation_table
+
+    key = str(cfg.ablation)
+    if key not in cfg.ablations:
+        raise KeyError(f"unknown ablation {key!r}; known: {sorted(cfg.ablations)} (conf/config.yaml, key ablations)")
+    inputs = [variant_metrics_path(cfg.results_dir, cfg.system.name, v) for v in cfg.ablations[key]]
+    ablation_table(inputs, table_path(cfg.results_dir, f"{cfg.system.name}_{key}"))
+
+
+def stage_seed_table(cfg: DictConfig) -> None:
+    """One system trained with each of ``seed_table.seeds`` -> ``results/tables/<system>_seeds.md`` and ``.csv``.
+
+    Reads ``${results_dir}/${seed_table.dir}/seed<k>/<system>/metrics.json``:
+    the ``evaluate`` output of a run with ``seed=<k>
+    results_dir=${results_dir}/${seed_table.dir}/seed<k>`` (the Snakemake
+    rule ``seed_run``).
+    """
+    from lagsplat.artifacts import seed_metrics_path, table_path
+    from lagsplat.report.tables import seed_table
+
+    t = cfg.seed_table
+    seeds = [int(s) for s in t.seeds]
+    inputs = [seed_metrics_path(cfg.results_dir, str(t.dir), s, cfg.system.name) for s in seeds]
+    seed_table(inputs, seeds, table_path(cfg.results_dir, f"{cfg.system.name}_seeds", ".md"))
+
+
+def stage_krauss_table(cfg: DictConfig) -> None:
+    """Paper Table 4 -> ``results/tables/<krauss_table.name>.tex``, ``.csv`` and ``.md``.
+
+    Published rows from the versioned CSV of :mod:`lagsplat.report.krauss`;
+    ours from the ``metrics.json`` of ``krauss_table.one_segment`` /
+    ``two_segments`` and of the two-segment ``krauss_table.ablation``
+    variants. A run whose ``metrics.json`` is missing gives no row.
+    """
+    from lagsplat.artifacts import table_path, variant_metrics_path
+    from lagsplat.report.krauss import krauss_table
+
+    t = cfg.krauss_table
+    res = cfg.results_dir
+    krauss_table(
+        variant_metrics_path(res, str(t.one_segment), None) if t.get("one_segment") else None,
+        variant_metrics_path(res, str(t.two_segments), None) if t.get("two_segments") else None,
+        [variant_metrics_path(res, str(t.two_segments), str(v)) for v in (t.get("ablation") or [])],
+        table_path(res, str(t.name)),
+    )
+
+
+def stage_view(cfg: DictConfig) -> None:
+    """Serve the interactive viewer of the system's artifacts on ``http://127.0.0.1:<view.port>/``.
+
+    Reads ``stage1.pt``, ``chart.npz`` and ``stage2.pt`` (of the variant when
+    ``variant`` is set); writes nothing. Runs until Ctrl-C or ``view.max_seconds``.
+    """
+    from lagsplat.viewer.server import Viewer
+    from lagsplat.viewer.session import load_session
+
+    v = cfg.view
+    fs = v.get("force_scale", "auto")
+    session = load_session(
+        artifacts_of(cfg),
+        sigma=float(v.sigma),
+        force_scale="auto" if fs in (None, "auto") else float(fs),
+        kappa=float(v.kappa),
+        initial=str(v.initial),
+        render_scale=float(v.render_scale),
+        max_substeps=int(v.max_substeps),
+    )
+    viewer = Viewer(session, host="127.0.0.1", port=int(v.port), image_format=str(v.image_format))
+
+    def ready(url: str) -> None:
+        print(f"lagsplat view: {cfg.system.name} at {url}  ({session.width}x{session.height} px, dt = {session.dt * 1e3:.1f} ms; Ctrl-C stops)", flush=True)
+        if bool(v.open_browser):
+            import webbrowser
+
+            webbrowser.open(url)
+
+    max_s = v.get("max_seconds")
+    viewer.serve(max_seconds=None if max_s is None else float(max_s), on_ready=ready)

@@ -1,0 +1,105 @@
+"""The chart-quality gate (lagsplat.chart_gate): tears against impacts, decoder motion, coverage, saturation."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from lagsplat.chart import build_chart
+from lagsplat.chart_gate import chart_gate, encoder_saturation, gate_summary, moving_pixel_r2, speed_jump_ratio
+from lagsplat.io.clip import Clip
+from lagsplat.models.autoencoder import AutoEncoder
+
+T = 300
+SPLIT = np.zeros(T, np.int8)
+
+
+def _sine(f: float = 0.7) -> np.ndarray:
+    return np.sin(2 * np.pi * f * np.arange(T) / 30.0)[:, None]
+
+
+def test_a_smooth_oscillation_is_continuous():
+    r, _ = speed_jump_ratio(_sine(), np.eye(1), SPLIT)
+    assert r < 2.0
+
+
+def test_a_one_frame_excursion_and_a_branch_switch_are_tears():
+    spike = _sine()
+    spike[120] += 1.5  # the encoder reads one frame on another branch
+    r, at = speed_jump_ratio(spike, np.eye(1), SPLIT)
+    assert r > 4.0 and at in (119, 120)
+    step = _sine()
+    step[150:] += 1.0  # the chart switches branch and stays
+    r, at = speed_jump_ratio(step, np.eye(1), SPLIT)
+    assert r > 4.0 and at == 149
+
+
+def test_an_impact_is_not_a_tear():
+    """A cart bouncing off an end stop: the velocity reverses, its size is kept up to the restitution."""
+    x, v, e, dt, out = 0.0, 1.2, 0.6, 1 / 30, []
+    for _ in range(T):
+        v -= 4.0 * x * dt  # a soft spring pulls back towards 0
+        x += v * dt
+        if x > 0.25:  # hard stop at 0.25: reflected with restitution e
+            x, v = 0.25 - e * (x - 0.25), -e * v
+        out.append(x)
+    q = np.array(out)[:, None]
+    r, _ = speed_jump_ratio(q, np.eye(1), SPLIT)
+    assert r < 1 / e + 1.0
+
+
+def _blob_autoencoder(moves: bool = True, size: int = 24, saturate: float = 0.8) -> AutoEncoder:
+    from lagsplat.viewer.synthetic import decoder_from_primitives
+
+    class Centroid(torch.nn.Module):  # the blob's horizontal centroid, 4 px per unit, saturating at +-saturate
+        def forward(self, x: torch.Tensor) -> torch.Tensor:
+            w = x.mean(1).sum(1)
+            cols = torch.arange(x.shape[-1], dtype=x.dtype)
+            c = (w * cols).sum(1) / w.sum(1).clamp_min(1e-6) - (x.shape[-1] - 1) / 2
+            return (c / 4.0).clamp(-saturate, saturate)[:, None]
+
+    J = [[4.0, 0.0]] if moves else [[0.0, 0.0]]
+    dec = decoder_from_primitives([[size / 2 - 0.5, size / 2 - 0.5]], [J[0]], [[0.9, 0.9, 0.9]], [0.95], [2.5], size, size)
+    return AutoEncoder(Centroid(), dec, size, size)
+
+
+def _clip(amplitude: float, n: int = 120) -> Clip:
+    ae = _blob_autoencoder()
+    z = amplitude * np.sin(2 * np.pi * np.arange(n) / 30.0)[:, None]
+    with torch.no_grad():
+        img = ae.decode(torch.as_tensor(z, dtype=torch.float32)).clamp(0, 1)
+    frames = (img.permute(0, 2, 3, 1).numpy() * 255).round().astype(np.uint8)
+    split = np.zeros(n, np.int8)
+    split[int(0.7 * n) :] = 1
+    return Clip(images=frames, t=np.arange(n) / 30.0, split=split)
+
+
+def test_a_decoder_that_draws_the_motion_passes():
+    clip, ae = _clip(0.6), _blob_autoencoder()
+    chart = build_chart(ae, clip, n_metric_samples=8)
+    r2, moving = moving_pixel_r2(ae, clip, chart)
+    assert r2 > 0.8 and 0 < moving < 0.5
+    assert abs(encoder_saturation(ae, clip, chart)) < 0.05
+    gate = chart_gate(ae, clip, chart)
+    assert gate["passed"], gate["reasons"]
+    assert gate_summary(gate) == "passed"
+
+
+def test_a_decoder_that_leaves_the_object_out_fails_coverage():
+    """The decoder draws the blob where it rests and never moves it (as a decoder that learned only the static scene)."""
+    clip, ae = _clip(0.6), _blob_autoencoder(moves=False)
+    chart = build_chart(ae, clip, n_metric_samples=8)
+    gate = chart_gate(ae, clip, chart)
+    assert not gate["passed"]
+    assert gate["checks"]["coverage"]["value"] < 0.2 and not gate["checks"]["coverage"]["ok"]
+    assert not gate["checks"]["decoder_motion"]["ok"]
+    assert gate_summary(gate).startswith("failed: ") and "coverage" in gate_summary(gate)
+
+
+def test_an_encoder_that_saturates_at_the_turning_points_fails():
+    clip, ae = _clip(1.2), _blob_autoencoder(saturate=0.8)  # reads the extremes at 0.8 of 1.2
+    chart = build_chart(ae, clip, n_metric_samples=8)
+    sat = encoder_saturation(ae, clip, chart)
+    assert sat > 0.25
+    gate = chart_gate(ae, clip, chart)
+    assert not gate["checks"]["saturation"]["ok"] and any(r.startswith("saturation") for r in gate["reasons"])

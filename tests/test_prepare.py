@@ -1,0 +1,76 @@
+"""Automatic clip preparation (lagsplat.prepare): region of interest, working resolution, motion checks."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from lagsplat.io.clip import ClipError
+from lagsplat.prepare import MIN_OBJECT_PX, analyse_motion, prepare_video
+
+
+def _scene(T: int = 90, W: int = 320, H: int = 240, amplitude: float = 60.0, x0: float = 200.0, noise: float = 3.0, seed: int = 0) -> np.ndarray:
+    """A textured static background (checkerboard + noise pattern) with a 12 px red square swinging horizontally."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[:H, :W]
+    bg = np.where(((xx // 20) + (yy // 20)) % 2, 170, 110).astype(np.float32)[..., None] * np.ones(3)
+    bg += rng.normal(0, 10, (H, W, 1))
+    frames = []
+    for t in range(T):
+        f = bg.copy()
+        cx = x0 + amplitude * np.sin(2 * np.pi * t / 30.0)
+        f[150:162, int(cx) - 6 : int(cx) + 6] = (220, 30, 30)
+        f += rng.normal(0, noise, f.shape)
+        frames.append(np.clip(f, 0, 255).astype(np.uint8))
+    return np.stack(frames)
+
+
+def _write(path, frames: np.ndarray, fps: float = 30.0) -> str:
+    H, W = frames.shape[1:3]
+    vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (W, H))
+    for f in frames:
+        vw.write(cv2.cvtColor(f, cv2.COLOR_RGB2BGR))
+    vw.release()
+    return str(path)
+
+
+def test_the_region_of_interest_holds_the_motion_and_little_else(tmp_path):
+    p = prepare_video(_write(tmp_path / "swing.mp4", _scene()), fps=30.0)
+    x0, y0, x1, y1 = p.crop
+    assert x0 <= 200 - 60 - 6 and x1 >= 200 + 60 + 6  # the square's whole path
+    assert y0 <= 150 and y1 >= 162
+    assert (x1 - x0) * (y1 - y0) < 0.25 * 320 * 240  # not the whole textured frame
+    assert max(p.resize) in (64, 96, 128) and p.object_px >= MIN_OBJECT_PX
+    aspect_crop, aspect_resize = (x1 - x0) / (y1 - y0), p.resize[0] / p.resize[1]
+    assert aspect_resize == pytest.approx(aspect_crop, rel=0.1)
+    assert p.native_size == [320, 240] and p.motion_snr > 10
+
+
+def test_an_explicit_crop_is_kept_and_only_the_resolution_chosen(tmp_path):
+    p = prepare_video(_write(tmp_path / "swing.mp4", _scene()), fps=30.0, crop=[100, 100, 300, 200])
+    assert p.crop == [100, 100, 300, 200]
+    assert p.resize[0] / p.resize[1] == pytest.approx(2.0, rel=0.05)
+
+
+def test_a_clip_without_motion_is_refused():
+    frames = _scene(amplitude=0.0)
+    with pytest.raises(ClipError, match="nothing moves"):
+        analyse_motion(frames[:, ::2, ::2], "still.mp4")
+
+
+def test_an_object_leaving_the_frame_is_refused():
+    frames = _scene(T=120, amplitude=140.0, x0=250.0)  # the square swings out past the right border
+    with pytest.raises(ClipError, match="leaves the frame"):
+        analyse_motion(frames[:, ::2, ::2], "out.mp4")
+
+
+def test_ingest_applies_auto_and_records_it(tmp_path):
+    from lagsplat.ingest import ingest
+
+    path = _write(tmp_path / "swing.mp4", _scene())
+    clip = ingest({"name": "swing", "source": {"path": path, "fps": 30.0}, "crop": "auto", "resize": "auto"})
+    assert clip.meta["prepare"]["crop"] == clip.meta["crop"]
+    assert [clip.images.shape[2], clip.images.shape[1]] == clip.meta["resize"] == clip.meta["prepare"]["resize"]
+    plain = ingest({"name": "swing", "source": {"path": path, "fps": 30.0}})  # no key: the whole frame, native size
+    assert plain.images.shape[1:3] == (240, 320) and plain.meta["prepare"] is None
