@@ -35,14 +35,12 @@ from lagsplat.io.atomic import write_json  # noqa: E402
 from lagsplat.synth.realistic import clip_spec  # noqa: E402
 from lagsplat.timeseries import spectral_peak_frequency  # noqa: E402
 
-TRAIN_FRACTION = 0.6  # conf/system/realistic.yaml
-
-
-def truth_frequency(truth_npz: Path) -> float:
-    """Frequency (Hz) of the true first coordinate on the held-out frames, by the evaluation's spectral peak."""
+def truth_frequency(truth_npz: Path, n_train: int | None = None) -> float:
+    """Frequency (Hz) of the true first coordinate on the held-out frames (after ``n_train``; default: the
+    last 20 %), by the evaluation's spectral peak."""
     z = np.load(truth_npz)
     q, t = z["q"], z["t"]
-    ho = q[int(TRAIN_FRACTION * len(q)) :, :1]
+    ho = q[(int(0.8 * len(q)) if n_train is None else n_train) :, :1]
     return float(spectral_peak_frequency(ho, float(np.median(np.diff(t)))))
 
 
@@ -64,8 +62,9 @@ def run_clip(name: str, clips: Path, results: Path, threads: int, extra: list[st
 def row_of(name: str, clips: Path, results: Path, code: int, reason: str, wall_s: float) -> dict:
     """One scored row of the suite (see the module docstring)."""
     spec = clip_spec(name)
-    row = {**spec, "exit_code": code, "wall_s": round(wall_s, 1), "f_truth_hz": truth_frequency(clips / f"{name}.truth.npz")}
     art = Artifacts.for_run(results, name)
+    n_train = art.load_clip().meta["split"]["n_train"] if art.clip.exists() else None  # the split the run chose
+    row = {**spec, "exit_code": code, "wall_s": round(wall_s, 1), "f_truth_hz": truth_frequency(clips / f"{name}.truth.npz", n_train), "n_train": n_train}
     if art.chart.exists():  # the chart-quality gate, also for a run that stopped at it
         gate = art.load_chart().meta.get("gate") or {}
         row.update(gate_passed=gate.get("passed"), gate={k: round(v["value"], 4) for k, v in gate.get("checks", {}).items()})

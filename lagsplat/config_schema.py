@@ -86,9 +86,11 @@ class SourceConfig:
 
 @dataclass
 class SplitConfig:
-    """The contiguous train / held-out split (``system.split``): ``n_train = int(train_fraction * T)``, fraction in (0, 1]."""
+    """The contiguous train / held-out split (``system.split``): ``n_train = int(train_fraction * T)``, fraction in (0, 1],
+    or ``auto`` (video sources; :func:`lagsplat.prepare.auto_train_fraction`: three periods of the motion held out;
+    the command line's default for a video whose configuration gives no split)."""
 
-    train_fraction: float = 0.8
+    train_fraction: Union[Literal["auto"], float] = 0.8
 
 
 @dataclass

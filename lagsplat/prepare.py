@@ -34,8 +34,9 @@ from scipy.ndimage import binary_dilation, binary_opening, gaussian_filter, labe
 
 from lagsplat.io.clip import ClipError
 from lagsplat.io.video import read_video
+from lagsplat.timeseries import spectral_peak_frequency
 
-__all__ = ["Preparation", "MIN_OBJECT_PX", "LONG_SIDES", "analyse_motion", "prepare_video"]
+__all__ = ["Preparation", "MIN_OBJECT_PX", "LONG_SIDES", "HELD_OUT_PERIODS", "analyse_motion", "prepare_video", "auto_train_fraction"]
 
 #: Smallest extent (px) of the moving object at the working resolution that the resolution choice aims for.
 MIN_OBJECT_PX = 8.0
@@ -45,6 +46,11 @@ LONG_SIDES = (64, 96, 128)
 CHANGE_FRACTION = 0.15
 #: A changing part is kept when its summed standard deviation reaches this share of the largest part's.
 KEEP_SHARE = 0.3
+#: Periods of the motion the automatic split keeps for the held-out part: the evaluation's two-period
+#: horizon (``evaluate.n_periods``) and one period of room for its windows.
+HELD_OUT_PERIODS = 3.0
+#: The automatic split's training share: at most (the default split) and at least.
+TRAIN_FRACTION_MAX, TRAIN_FRACTION_MIN = 0.8, 0.5
 #: Long side (px) of the frames the analysis reads.
 ANALYSIS_PX = 160
 
@@ -61,6 +67,8 @@ class Preparation:
         object_px: the object's typical extent at the working resolution, px (square root of its area).
         motion_snr: largest temporal standard deviation over the noise floor.
         leaving_fraction: share of frames in which the object shrinks at the image border.
+        frequency_hz: dominant frequency of the object's path (centroid of its departure from
+            the static scene; :func:`lagsplat.timeseries.spectral_peak_frequency`), Hz.
     """
 
     crop: list[int] | None
@@ -70,6 +78,7 @@ class Preparation:
     object_px: float
     motion_snr: float
     leaving_fraction: float
+    frequency_hz: float = float("nan")
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-serialisable form (``clip.meta["prepare"]``)."""
@@ -80,7 +89,7 @@ class Preparation:
         crop = "whole frame" if self.crop is None else f"crop {self.crop}"
         return (
             f"{crop} of {self.native_size[0]}x{self.native_size[1]}, resize {self.resize[0]}x{self.resize[1]} "
-            f"(object about {self.object_px:.0f} px across, motion {self.motion_snr:.0f}x the noise floor)"
+            f"(object about {self.object_px:.0f} px across, motion {self.motion_snr:.0f}x the noise floor, about {self.frequency_hz:.2f} Hz)"
         )
 
 
@@ -176,7 +185,14 @@ def analyse_motion(frames: np.ndarray, src: str = "<clip>") -> dict[str, Any]:
         raise ClipError(
             f"{src}: the moving object leaves the frame: it shrinks at the image border in {100 * leaving:.0f}% of the frames (at most 5%)"
         )
-    return {"box": box, "snr": snr, "changing": changing, "object_area": med, "leaving_fraction": leaving}
+    # the object's path: the centroid of its departure from the static scene, on its more mobile axis
+    dev = np.abs(x - bg) * changing[None]
+    mass = dev.sum((1, 2))
+    ys_, xs_ = np.mgrid[:h, :w]
+    cx = (dev * xs_[None]).sum((1, 2)) / np.maximum(mass, 1e-9)
+    cy = (dev * ys_[None]).sum((1, 2)) / np.maximum(mass, 1e-9)
+    path = cx if cx.std() >= cy.std() else cy
+    return {"box": box, "snr": snr, "changing": changing, "object_area": med, "leaving_fraction": leaving, "path": path}
 
 
 def prepare_video(
@@ -234,4 +250,28 @@ def prepare_video(
         object_px=float(extent_native * k),
         motion_snr=float(m["snr"]),
         leaving_fraction=float(m["leaving_fraction"]),
+        frequency_hz=spectral_peak_frequency(m["path"], 1.0 / float(info.get("fps") or fps or 30.0)),
     )
+
+
+def auto_train_fraction(n_frames: int, frequency_hz: float, fps: float, src: str = "<clip>") -> float:
+    """The training share of a contiguous split that leaves :data:`HELD_OUT_PERIODS` periods held out.
+
+    ``1 - (HELD_OUT_PERIODS periods + 3 frames) / n_frames``, at most :data:`TRAIN_FRACTION_MAX`
+    (the default split); a frequency that cannot be read leaves the default.
+
+    Raises:
+        ClipError: naming ``src`` when the training part would fall below
+            :data:`TRAIN_FRACTION_MIN` of the clip (too short for its own frequency).
+    """
+    if not (np.isfinite(frequency_hz) and frequency_hz > 0 and fps > 0):
+        return TRAIN_FRACTION_MAX
+    need = HELD_OUT_PERIODS * fps / frequency_hz + 3
+    frac = min(TRAIN_FRACTION_MAX, 1.0 - need / n_frames)
+    if frac < TRAIN_FRACTION_MIN:
+        raise ClipError(
+            f"{src}: too short for its motion: {n_frames} frames at {fps:g} fps hold {n_frames * frequency_hz / fps:.1f} periods of "
+            f"{frequency_hz:.2f} Hz; the evaluation needs {HELD_OUT_PERIODS:g} held-out periods and Stage 2 as many again to train "
+            f"(about {int(np.ceil(2 * need))} frames)"
+        )
+    return float(frac)

@@ -50,6 +50,8 @@ def stage_ingest(cfg: DictConfig) -> None:
     system = plain(cfg.system)
     for key in ("crop", "resize"):  # absent: the schema's default (auto: read off the motion)
         system.setdefault(key, getattr(SystemConfig, key))
+    if "train_fraction" not in (system.get("split") or {}) and "path" in (system.get("source") or {}):
+        system["split"] = {**(system.get("split") or {}), "train_fraction": "auto"}  # a recording: three periods held out
     a = artifacts_of(cfg)
     ingest_to_file(system, a.clip)
     clip = a.load_clip()
@@ -60,6 +62,7 @@ def stage_ingest(cfg: DictConfig) -> None:
         print(f"[lagsplat] {cfg.system.name}: prepared {Preparation(**prepared).summary()}", flush=True)
         with open_dict(cfg):
             cfg.system.crop, cfg.system.resize = clip.meta["crop"], clip.meta["resize"]
+            cfg.system.split = {**plain(cfg.system.get("split") or {}), "train_fraction": clip.meta["split"]["train_fraction"]}
     save_stage_config(cfg, "ingest")
 
 

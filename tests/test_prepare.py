@@ -74,3 +74,18 @@ def test_ingest_applies_auto_and_records_it(tmp_path):
     assert [clip.images.shape[2], clip.images.shape[1]] == clip.meta["resize"] == clip.meta["prepare"]["resize"]
     plain = ingest({"name": "swing", "source": {"path": path, "fps": 30.0}})  # no key: the whole frame, native size
     assert plain.images.shape[1:3] == (240, 320) and plain.meta["prepare"] is None
+
+
+def test_the_motion_frequency_is_read_and_sets_the_automatic_split(tmp_path):
+    from lagsplat.ingest import ingest
+    from lagsplat.prepare import HELD_OUT_PERIODS, auto_train_fraction
+
+    path = _write(tmp_path / "swing.mp4", _scene(T=300))  # 1 Hz at 30 fps, 10 periods
+    p = prepare_video(path, fps=30.0)
+    assert abs(p.frequency_hz - 1.0) < 0.03
+    clip = ingest({"name": "swing", "source": {"path": path, "fps": 30.0}, "crop": "auto", "resize": "auto", "split": {"train_fraction": "auto"}})
+    held = clip.meta["split"]["n_held_out"]
+    assert HELD_OUT_PERIODS * 30 + 3 <= held <= HELD_OUT_PERIODS * 30 + 5
+    assert auto_train_fraction(1000, 1.0, 30.0) == 0.8  # a long clip keeps the default split
+    with pytest.raises(ClipError, match="too short for its motion"):
+        auto_train_fraction(150, 1.0, 30.0, "short.mp4")
