@@ -94,6 +94,7 @@ from _common import REPORTS, Report, score_verdicts
 
 from lagsplat.artifacts import Artifacts  # noqa: E402
 from lagsplat.chart import build_chart, load_chart, save_chart
+from lagsplat.chart_gate import chart_gate
 from lagsplat.diagnose.refit import GAP_METRICS, RefitConfig
 from lagsplat.diagnose.report import DiagnoseConfig, diagnose_system
 from lagsplat.diagnose.where import WhereConfig
@@ -167,8 +168,11 @@ def run_clip(entry: dict, budget: str, root: Path, seed: int, force: bool, dof_r
         ae, hist = train_stage1(load_clip(a.clip), s1, 1, seed=seed, progress=False)
         save_stage1(a.stage1, ae, asdict(s1), hist, 1)
 
-    def do_chart() -> None:
-        save_chart(a.chart, build_chart(load_stage1(a.stage1), load_clip(a.clip), b["n_metric_samples"], 0.01, seed, b["refine_iters"]))
+    def do_chart() -> None:  # with the chart-quality gate's result, recorded, not acted on (the suite scores the diagnosis)
+        ae, clip = load_stage1(a.stage1), load_clip(a.clip)
+        chart = build_chart(ae, clip, b["n_metric_samples"], 0.01, seed, b["refine_iters"])
+        chart.meta["gate"] = chart_gate(ae, clip, chart)
+        save_chart(a.chart, chart)
 
     def do_stage2() -> None:
         model, hist = train_stage2(load_chart(a.chart), s2, seed=seed, progress=False)
@@ -264,6 +268,7 @@ def score(entry: dict, budget: str, root: Path, timing: dict) -> dict:
         "jump": round(metrics.get("chart_jump_ratio", {}).get("value", float("nan")), 2),
         "eps_q": round(gap["before"]["eps_q"], 4), "eps_q_after": round(gap["after"]["eps_q"], 4) if gap["after"] else None,
         "refit": bool(rep["refit"].get("done")), "reliable": bool(rep["reliability"]["reliable"]),
+        "gate": (load_chart(a.chart).meta.get("gate") or {}).get("passed"),
     }  # fmt: skip
     red, after = gap.get("reduction") or {}, gap.get("after") or {}
     if rep["verdict"] == "missing_dof" and (d / "d2" / "gap.json").exists():  # the d + 1 remedy (--dof-refit)
@@ -357,6 +362,10 @@ def summarize(rows: list[dict], timings: dict[str, dict], budget: str, markdown:
     rel = table[table["reliable"]]
     lines.append(f"reliable upstream (chart continuous, decoder shows motion; lagsplat.diagnose.report.reliability): {len(rel)}/{len(table)}"
                  + (f"; top-1 accuracy on those {float(rel['ok'].mean()):.3f}" if len(rel) else ""))  # fmt: skip
+    if "gate" in table:
+        passed = table[table["gate"] == True]  # noqa: E712 (None: a row from before the gate)
+        lines.append(f"chart-quality gate passed (lagsplat.chart_gate): {len(passed)}/{len(table)}"
+                     + (f"; top-1 accuracy on those {float(passed['ok'].mean()):.3f}" if len(passed) else ""))  # fmt: skip
     lines.append(f"effect clips refit: {len(effects)}/{int((table['truth'] != 'none').sum())}")
     pct = lambda v: "n/a" if v is None else f"{100 * v:+.0f} %"  # noqa: E731
     for k in GAP_METRICS:
