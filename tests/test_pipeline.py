@@ -204,3 +204,24 @@ def test_data_kind_of_each_system():
 
     kinds = {name: data_kind(compose([f"system={name}"]).system) for name in ("toy", "two_carts", "oscillating_cart", "krauss_2seg", "krauss_2seg_synth")}
     assert kinds == {"toy": "synthetic", "two_carts": "synthetic", "oscillating_cart": "real", "krauss_2seg": "real", "krauss_2seg_synth": "surrogate"}
+
+
+def test_a_chart_that_fails_the_gate_stops_before_stage2_and_is_marked_when_forced(tmp_path):
+    """Two Stage-1 steps draw no motion: the gate fails, Stage 2 refuses in one line; chart.gate=false runs on and marks every metric."""
+    base = [sys.executable, "-m", "lagsplat"]
+    common = ["system=toy_tiny", f"results_dir={tmp_path}", "stage1.steps=2", "stage1.retries=0", "progress=false"]
+    for stage in ("ingest", "stage1", "chart"):
+        r = run(base + [stage] + common)
+        assert r.returncode == 0, r.stderr
+    assert "chart quality gate failed" in r.stdout
+    r = run(base + ["stage2"] + common)
+    lines = [ln for ln in r.stderr.strip().splitlines() if ln.strip()]
+    assert r.returncode == 1 and len(lines) == 1, r.stderr
+    assert "chart.npz" in lines[0] and "failed" in lines[0] and "Stage 2 not run" in lines[0]
+    assert not (tmp_path / "toy_tiny" / "stage2.pt").exists()
+    for stage in ("stage2", "evaluate"):
+        r = run(base + [stage] + common + ["chart.gate=false"])
+        assert r.returncode == 0, r.stderr
+    m = json.loads((tmp_path / "toy_tiny" / "metrics.json").read_text())
+    assert m["read_on_failed_chart"] is True and m["chart_gate"]["passed"] is False
+    assert all("caution" in e for e in m["metrics"].values())

@@ -58,7 +58,8 @@ def train_stage1_gated(
 
     Returns:
         ``(model, history, attempts)``: the kept model and its training history; ``attempts``
-        one entry per attempt: ``seed``, ``steps``, ``n_gaussians``, ``wall_s``, ``gate``
+        one entry per attempt: ``seed``, ``steps`` (at most), ``steps_run``, ``stopped`` (why it
+        stopped early, or ``None``), ``n_gaussians``, ``wall_s``, ``gate``
         (:func:`lagsplat.chart_gate.chart_gate`'s result) and ``kept``.
 
     Raises:
@@ -75,8 +76,11 @@ def train_stage1_gated(
         t0 = time.perf_counter()
         model, hist = train_stage1(clip, c, d, seed=s, progress=progress, device=device, label=f"{label} attempt {k + 1}" if k else label)
         gate = chart_gate(model, clip, build_chart(model, clip, seed=seed, **kw))  # the chart stage's own chart
-        attempts.append({"seed": s, "steps": c.steps, "n_gaussians": c.n_gaussians, "wall_s": round(time.perf_counter() - t0, 1), "gate": gate, "kept": False})
-        print(f"[lagsplat] {label}: attempt {k + 1} (seed {s}, {c.steps} steps, {c.n_gaussians} Gaussians): chart {gate_summary(gate)}", flush=True)
+        stopped = hist.get("stopped") or {}
+        attempts.append({"seed": s, "steps": c.steps, "steps_run": stopped.get("step", c.steps), "stopped": stopped.get("reason"),
+                         "n_gaussians": c.n_gaussians, "wall_s": round(time.perf_counter() - t0, 1), "gate": gate, "kept": False})  # fmt: skip
+        ran = f"{stopped['step']} of {c.steps} steps ({stopped['reason']})" if stopped else f"{c.steps} steps"
+        print(f"[lagsplat] {label}: attempt {k + 1} (seed {s}, {ran}, {c.n_gaussians} Gaussians): chart {gate_summary(gate)}", flush=True)
         score = len(gate["reasons"])
         if best is None or score < best[0]:
             best = (score, k, model, hist)

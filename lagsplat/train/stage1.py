@@ -19,6 +19,7 @@ from lagsplat.render.rasterize import Backend
 from lagsplat.models.encoder import CpAEEncoder, nonlocal_filter_penalty
 from lagsplat.train.config import dataclass_from_mapping
 from lagsplat.train.device import resolve_device
+from lagsplat.train.plateau import Plateau
 from lagsplat.train.losses import reconstruction_loss, static_motion_penalty
 from lagsplat.train.progress import Progress
 
@@ -65,6 +66,9 @@ class Stage1Config:
     retries: int = 1
     w_motion_init: float = 1.0
     split_share: float = 0.5
+    plateau_patience: int = 1000
+    plateau_tol: float = 0.01
+    max_minutes: float = 60.0
 
     @classmethod
     def from_mapping(cls, m: Mapping[str, Any]) -> "Stage1Config":
@@ -152,7 +156,16 @@ def train_stage1(
     order = rng.permutation(N)
     pos = 0
     ema = None
+    plateau = Plateau(cfg.plateau_patience, cfg.plateau_tol, max_seconds=60.0 * cfg.max_minutes)
+    probe = X[torch.as_tensor(np.unique(np.linspace(0, N - 1, min(N, 64)).round().astype(int)))]
     for step in bar:
+        if (step + 1) % cfg.recycle_every == 0 and step + 1 >= cfg.recycle_warmup + cfg.recycle_every:
+            # converged? asked where a recycling would come, so the last recycled primitives have trained a full period
+            with torch.no_grad():
+                why = plateau.check(step, ema, enc(probe).detach().cpu().double().numpy())
+            if why is not None:
+                history["stopped"] = {"step": step, "reason": why}
+                break
         if pos + cfg.batch > N:
             order, pos = rng.permutation(N), 0
         idx = order[pos : pos + min(cfg.batch, N)]
