@@ -80,7 +80,7 @@ CHECKS: dict[str, Bound] = {
     "stage1.recycle_every": POSITIVE_INT, "stage1.recycle_warmup": COUNT, "stage1.grad_clip": POSITIVE,
     "stage1.encoder_channels[]": POSITIVE_INT, "stage1.encoder_kernel": POSITIVE_INT, "stage1.background[]": FRACTION,
     "stage1.threads": COUNT, "stage1.retries": COUNT, "stage1.w_motion_init": NON_NEGATIVE, "stage1.split_share": FRACTION,
-    "stage1.plateau_patience": COUNT, "stage1.plateau_tol": NON_NEGATIVE, "stage1.max_minutes": POSITIVE,
+    "stage1.w_temporal": NON_NEGATIVE, "stage1.plateau_patience": COUNT, "stage1.plateau_tol": NON_NEGATIVE, "stage1.max_minutes": POSITIVE,
     # chart
     "chart.n_metric_samples": POSITIVE_INT, "chart.rho": POSITIVE, "chart.refine_iters": COUNT,
     # stage2 (Stage2Config)

@@ -35,3 +35,20 @@ def test_ssim_is_one_on_identical_images_and_rejects_bad_input() -> None:
         ssim(x, x[:, :, :8])
     with pytest.raises(ValueError, match="odd"):
         ssim(x, x, win_size=6)
+
+
+def test_temporal_curvature_penalty_sees_a_tear_not_a_smooth_chart():
+    import numpy as np
+
+    from lagsplat.train.losses import temporal_curvature_penalty
+
+    t = torch.arange(120, dtype=torch.float32)
+    z = torch.sin(2 * np.pi * t / 40.0)[:, None]  # 40 frames per period
+    c = torch.arange(1, 119)
+    smooth = temporal_curvature_penalty(torch.stack([z[c - 1], z[c], z[c + 1]]), z)
+    torn = z.clone()
+    torn[60:] += 2.0  # neighbouring frames 59 and 60 sent far apart
+    tear = temporal_curvature_penalty(torch.stack([torn[c - 1], torn[c], torn[c + 1]]), torn)
+    assert smooth < 1e-2 and tear > 10 * smooth
+    # scale-free: the same chart, stretched, costs the same
+    assert torch.isclose(temporal_curvature_penalty(torch.stack([3 * z[c - 1], 3 * z[c], 3 * z[c + 1]]), 3 * z), smooth)

@@ -11,6 +11,7 @@ from torch import Tensor
 from lagsplat.models.decoder import ConditionedGaussians
 
 __all__ = [
+    "temporal_curvature_penalty",
     "anisotropy_penalty",
     "reconstruction_loss",
     "ssim",
@@ -155,3 +156,22 @@ def static_motion_penalty(motion: Tensor, static: Tensor) -> Tensor:
     return motion.pow(2).sum(1)[:, static].mean()
 
 
+def temporal_curvature_penalty(z3: Tensor, z_batch: Tensor) -> Tensor:
+    """Second difference of the encodings of consecutive frames, relative to the spread of the batch's encodings.
+
+    ``mean |z_{t+1} - 2 z_t + z_{t-1}|^2 / mean var(z_batch)``: small for a chart along
+    which the object moves smoothly (about ``(2 pi / N)^4`` for an oscillation sampled at
+    ``N`` frames per period), large where the encoder tears the chart (neighbouring
+    frames sent far apart). The spread is taken from the batch (detached), so the penalty
+    cannot be lowered by shrinking the chart.
+
+    Args:
+        z3: ``[3, n, d]`` encodings of frames ``t - 1``, ``t``, ``t + 1`` for ``n`` triplets.
+        z_batch: ``[B, d]`` encodings of the batch (detached by the caller), ``B >= 2``.
+
+    Returns:
+        Scalar tensor.
+    """
+    d2 = z3[2] - 2.0 * z3[1] + z3[0]
+    spread = z_batch.var(0).mean().clamp_min(1e-8) if len(z_batch) > 1 else torch.ones((), device=z3.device)
+    return (d2**2).sum(-1).mean() / spread

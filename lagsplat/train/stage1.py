@@ -10,7 +10,7 @@ import torch
 from torch import Tensor, nn
 from torch.profiler import record_function
 
-from lagsplat.io.clip import Clip
+from lagsplat.io.clip import TRAIN, Clip
 from lagsplat.models.autoencoder import AutoEncoder, frames_to_tensor
 from lagsplat.models.decoder import ConditionedGaussians
 from lagsplat.models.densify import placement_probability, split_overloaded
@@ -20,7 +20,7 @@ from lagsplat.models.encoder import CpAEEncoder, nonlocal_filter_penalty
 from lagsplat.train.config import dataclass_from_mapping
 from lagsplat.train.device import resolve_device
 from lagsplat.train.plateau import Plateau
-from lagsplat.train.losses import reconstruction_loss, static_motion_penalty
+from lagsplat.train.losses import reconstruction_loss, static_motion_penalty, temporal_curvature_penalty
 from lagsplat.train.progress import Progress
 
 __all__ = ["Stage1Config", "train_stage1", "static_pixels"]
@@ -66,6 +66,7 @@ class Stage1Config:
     retries: int = 1
     w_motion_init: float = 1.0
     split_share: float = 0.5
+    w_temporal: float = 0.0
     plateau_patience: int = 1000
     plateau_tol: float = 0.01
     max_minutes: float = 60.0
@@ -133,6 +134,8 @@ def train_stage1(
     if len(frames) < 2:
         raise ValueError("stage 1 needs at least 2 training frames")
     X = frames_to_tensor(frames)
+    # centres of triplets of consecutive training frames (positions in X), for the temporal prior
+    centres = np.concatenate([np.arange(1, len(seg) - 1) + k for seg, k in _offsets(clip.segments(TRAIN))]) if cfg.w_temporal > 0 else None
     N, _, H, W = X.shape
 
     static = static_pixels(frames, cfg.static_margin) if cfg.w_static > 0 else None
@@ -187,6 +190,9 @@ def train_stage1(
                 loss = loss + cfg.w_nonlocal * nonlocal_filter_penalty(enc.large_kernels())
             if static is not None:
                 loss = loss + cfg.w_static * static_motion_penalty(motion, static)
+            if centres is not None and len(centres):
+                c = torch.as_tensor(rng.choice(centres, size=max(1, cfg.batch // 2)), device=dev)
+                loss = loss + cfg.w_temporal * temporal_curvature_penalty(enc(X[torch.cat([c - 1, c, c + 1])]).reshape(3, len(c), -1), z.detach())
         with record_function("stage1.backward"):
             opt.zero_grad(set_to_none=True)
             loss.backward()
@@ -222,6 +228,15 @@ def train_stage1(
                     _reset_adam_rows(opt, dec_params, dead | split)
                 history["recycled"].append((step, n_dead))
     return model.cpu().eval(), history
+
+
+def _offsets(segs: list[np.ndarray]) -> list[tuple[np.ndarray, int]]:
+    """Each training segment with the position of its first frame among the concatenated training frames."""
+    out, k = [], 0
+    for seg in segs:
+        out.append((seg, k))
+        k += len(seg)
+    return out
 
 
 def static_pixels(frames: np.ndarray, margin: float = 1.0) -> Tensor | None:
