@@ -19,7 +19,7 @@ threshold fixed in :class:`GateThresholds`:
   temporal variance that the decoded chart reproduces. A decoder that draws
   the static scene and leaves the moving object out scores about 0.
 * ``saturation``: :func:`encoder_saturation`, how far the decoder-refined
-  latents (:func:`lagsplat.chart.refine_latents`) of the most extreme frames
+  latents (:func:`lagsplat.chart_refine.refine_latents`) of the most extreme frames
   lie beyond their encodings: an encoder that saturates at the turning points
   reads a compressed amplitude.
 """
@@ -32,7 +32,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from lagsplat.chart import Chart, refine_latents
+from lagsplat.chart import Chart
+from lagsplat.chart_refine import refine_latents
 from lagsplat.io.clip import HELD_OUT, TRAIN, Clip, segments
 from lagsplat.models.autoencoder import AutoEncoder, frames_to_tensor
 from lagsplat.motion import motion_masks
@@ -147,7 +148,7 @@ def encoder_saturation(model: AutoEncoder, clip: Clip, chart: Chart, share: floa
 
     Along ``G_bar``'s most visible direction ``v``, the ``share`` of training
     frames with the largest and the smallest ``p = q v`` are refined by
-    :func:`lagsplat.chart.refine_latents` (per frame, to where the decoder draws
+    :func:`lagsplat.chart_refine.refine_latents` (per frame, to where the decoder draws
     them best). The statistic is ``(range_refined - range_encoded) / range_encoded``
     with ``range`` the difference of the two groups' mean ``p``: 0 for an
     encoder that reads the turning points where the decoder draws them, 0.3 for

@@ -138,7 +138,7 @@ class ChartConfig:
     Attributes:
         n_metric_samples: training frames the metric ``G_bar`` averages over (>= 1).
         rho: whitening regulariser (> 0).
-        refine_iters: Levenberg-Marquardt steps per frame of :func:`lagsplat.chart.refine_latents`
+        refine_iters: Levenberg-Marquardt steps per frame of :func:`lagsplat.chart_refine.refine_latents`
             (0: the paper's chart, the encoder's output; ``conf/experiment/refined_chart.yaml`` sets 8).
         gate: Stage 2 refuses a chart that fails the quality gate (:func:`lagsplat.chart_gate.chart_gate`);
             ``false`` runs it anyway and marks the metrics as read on a failed chart.

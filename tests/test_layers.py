@@ -22,7 +22,7 @@ LAYERS: list[tuple[str, list[str]]] = [
     ("render and synthetic clips", ["lagsplat.render", "lagsplat.synth"]),
     ("ingest and models", ["lagsplat.ingest", "lagsplat.prepare", "lagsplat.models"]),
     ("dynamics", ["lagsplat.dynamics"]),
-    ("chart", ["lagsplat.chart", "lagsplat.chart_gate"]),
+    ("chart", ["lagsplat.chart", "lagsplat.chart_refine", "lagsplat.chart_gate"]),
     ("train", ["lagsplat.train"]),
     ("artifacts", ["lagsplat.artifacts"]),
     ("evaluate and forces", ["lagsplat.evaluate", "lagsplat.force", "lagsplat.force_checks"]),
