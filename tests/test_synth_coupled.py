@@ -13,14 +13,8 @@ from omegaconf import OmegaConf
 from lagsplat.io.clip import HELD_OUT, TRAIN, Clip, load_clip, save_clip
 from lagsplat.timeseries import spectral_peak_frequency
 from lagsplat.synth import GENERATORS, make_clip
-from lagsplat.synth.coupled_carts import (
-    MAX_DISPLACEMENT,
-    RAIL_Y,
-    CoupledCarts,
-    make_coupled_carts_clip,
-    render_coupled_carts,
-    simulate_coupled_carts,
-)
+from lagsplat.synth.coupled_carts import MAX_DISPLACEMENT, RAIL_Y, CoupledCarts, simulate_coupled_carts
+from lagsplat.synth.coupled_carts_clip import make_coupled_carts_clip, render_coupled_carts
 
 CONF = Path(__file__).resolve().parents[1] / "conf" / "system" / "two_carts.yaml"
 

@@ -19,12 +19,8 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from lagsplat.io.clip import Clip
-from lagsplat.synth.coupled_carts import (
-    CoupledCarts,
-    make_coupled_carts_clip,
-    render_coupled_carts,
-    simulate_coupled_carts,
-)
+from lagsplat.synth.coupled_carts import CoupledCarts, simulate_coupled_carts
+from lagsplat.synth.coupled_carts_clip import make_coupled_carts_clip, render_coupled_carts
 from lagsplat.synth.effect_clips import make_effect_clip
 from lagsplat.synth.pendulum import make_pendulum_clip, render_pendulum, simulate_pendulum
 

@@ -1,7 +1,7 @@
 """Argument checks and the contiguous split shared by the synthetic clip factories.
 
 Used by :func:`~lagsplat.synth.pendulum.make_pendulum_clip` and
-:func:`~lagsplat.synth.coupled_carts.make_coupled_carts_clip`, so both reject
+:func:`~lagsplat.synth.coupled_carts_clip.make_coupled_carts_clip`, so both reject
 the same arguments with the same messages.
 """
 

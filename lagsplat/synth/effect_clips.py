@@ -17,11 +17,8 @@ from lagsplat.synth._render import (
     parse_size,
     render_frames,
 )
-from lagsplat.synth.coupled_carts import (
-    CART_HEIGHT,
-    CART_WIDTH,
-    render_coupled_carts,
-)
+from lagsplat.synth.coupled_carts import CART_HEIGHT, CART_WIDTH
+from lagsplat.synth.coupled_carts_clip import render_coupled_carts
 from lagsplat.synth.effects import (
     EFFECTS,
     SYSTEMS,
@@ -113,7 +110,7 @@ def render_effect(run: EffectRun, size: Sequence[int] = (64, 64), seed: int = 0,
 
     The end stop is drawn as a static green bumper; the missing DOF as a
     moving pivot slider (pendulum) or a second cart (cart, drawn by
-    :func:`~lagsplat.synth.coupled_carts.render_coupled_carts`).
+    :func:`~lagsplat.synth.coupled_carts_clip.render_coupled_carts`).
 
     Raises:
         ValueError: on a bad ``size`` or ``supersample``.

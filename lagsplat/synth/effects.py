@@ -46,7 +46,7 @@ and sampled at ``t_i = i / fps``.
 Clip
 ----
 ``n_episodes`` recordings of ``duration_s`` seconds, stored back to back as in
-:func:`~lagsplat.synth.coupled_carts.make_coupled_carts_clip`: episode ``e``
+:func:`~lagsplat.synth.coupled_carts_clip.make_coupled_carts_clip`: episode ``e``
 starts from its own seeded state (amplitude ``0.75..1 A``, random phase); the
 last ``held_out_episodes`` are held out. ``meta["latent"]`` holds the 1-D
 coordinate a one-dimensional chart reads (the angle ``x``, or the main cart's
