@@ -1,10 +1,10 @@
 """Throughput of the rasteriser backends (frames per second).
 
-Backends: ``cpu`` (numba tile kernels, :func:`lagsplat.render.rasterize.rasterize_cpu`),
+Backends: ``cpu`` (numba tile kernels, :func:`lagsplat.render.rasterize_cpu.rasterize_cpu`),
 ``torch`` (pure-torch tile culling, :func:`~lagsplat.render.rasterize.rasterize_tiles`),
 ``dense`` (the ``O(B K H W)`` reference, skipped where it would need more than
 ``--dense-limit-gb`` of memory) and, with ``--device cuda``, ``gsplat`` (gsplat's
-CUDA kernels, :func:`~lagsplat.render.rasterize.rasterize_gsplat`). The table
+CUDA kernels, :func:`~lagsplat.render.rasterize_gsplat.rasterize_gsplat`). The table
 also gives each backend's largest pixel difference from ``torch`` (the exact
 rule) on the same scene.
 
@@ -43,7 +43,9 @@ import torch  # noqa: E402
 import pandas as pd
 
 
-from lagsplat.render.rasterize import rasterize_cpu, rasterize_dense, rasterize_gsplat, rasterize_tiles
+from lagsplat.render.rasterize import rasterize_dense, rasterize_tiles
+from lagsplat.render.rasterize_cpu import rasterize_cpu
+from lagsplat.render.rasterize_gsplat import rasterize_gsplat
 from _common import Report, add_report_options, env_header, time_call  # this script's folder
 
 BACKENDS = {"cpu": rasterize_cpu, "torch": rasterize_tiles, "dense": rasterize_dense, "gsplat": rasterize_gsplat}

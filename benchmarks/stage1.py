@@ -150,7 +150,7 @@ def phase_shares(setting: str, steps: int) -> dict[str, float]:
     """Share of the wall time of ``steps`` Stage-1 steps spent in each labelled phase (after a warm-up run)."""
     from dataclasses import replace
 
-    from lagsplat.render import rasterize
+    from lagsplat.render import rasterize_cpu as rasterize
     from lagsplat.train import stage1
 
     clip, (cfg, d) = _clip(setting), _config(setting, steps)

@@ -23,7 +23,7 @@ Two brushes (``brush=``):
 * ``"visible"`` (default): what the click actually touches in the render,
   ``w_i ∝ sum_s k_sigma(s) T_i(x + s) a_i(x + s)``, the compositing weight of
   primitive ``i`` (its alpha times the transmittance ``T_i`` in front of it,
-  the rasteriser's rule of :mod:`lagsplat.render.rasterize`) summed over
+  the rasteriser's rule of :mod:`lagsplat.render.rule`) summed over
   brush samples ``s`` on a 5 x 5 grid of spacing ``sigma`` weighted by
   ``exp(-|s|^2 / 2 sigma^2)``, samples off the image dropped (primitives
   outside the frame are never seen, so the video leaves their ``J_i`` free).
@@ -156,7 +156,7 @@ class ForceTransport:
 
         ``T_i(p) a_i(p)`` with ``a_i`` the primitive's alpha at ``p`` and ``T_i``
         the transmittance of the primitives in front of it: the compositing rule
-        of :mod:`lagsplat.render.rasterize` (front to back in index order, same
+        of :mod:`lagsplat.render.rule` (front to back in index order, same
         dilation, support and alpha cut-offs).
 
         Args:
@@ -167,7 +167,7 @@ class ForceTransport:
                 below this are set to 0 (the visible brush's front surface);
                 0 keeps them all, so the weights sum to the rendered coverage.
         """
-        from lagsplat.render.rasterize import ALPHA_MAX, ALPHA_MIN, EPS2D, SUPPORT_SIGMA
+        from lagsplat.render.rule import ALPHA_MAX, ALPHA_MIN, EPS2D, SUPPORT_SIGMA
 
         cov = self.cov + EPS2D * torch.eye(2)
         sxx, sxy, syy = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]

@@ -17,15 +17,10 @@ import torch
 
 from lagsplat.render import cpu_kernels as ck
 from lagsplat.render import rasterize as R
-from lagsplat.render.rasterize import (
-    ALPHA_MAX,
-    ALPHA_MIN,
-    EPS2D,
-    rasterize,
-    rasterize_cpu,
-    rasterize_dense,
-    rasterize_tiles,
-)
+from lagsplat.render.rasterize import rasterize, rasterize_dense, rasterize_tiles
+from lagsplat.render.rasterize_cpu import rasterize_cpu
+from lagsplat.render.rasterize_gsplat import gsplat_available, rasterize_gsplat
+from lagsplat.render.rule import ALPHA_MAX, ALPHA_MIN, EPS2D, pixel_bounds, prepare_gaussians
 
 CULLED = {"tiles": rasterize_tiles, "cpu": rasterize_cpu}
 
@@ -348,8 +343,8 @@ def test_dense_over_compositing_follows_index_order() -> None:
 # ----------------------------------------------------------------------------- culling
 def _pairs(means, covs, opac, H, W, tile):
     B, K = opac.shape
-    _, _, _, _, r2, sxx, syy = R._prepare(means, covs, opac, torch.ones(K, 1), EPS2D)
-    x0, x1, y0, y1, valid = (v.reshape(-1).numpy() for v in R._pixel_bounds(means, r2, sxx, syy, H, W))
+    _, _, _, _, r2, sxx, syy = prepare_gaussians(means, covs, opac, torch.ones(K, 1), EPS2D)
+    x0, x1, y0, y1, valid = (v.reshape(-1).numpy() for v in pixel_bounds(means, r2, sxx, syy, H, W))
     ntx, nty = math.ceil(W / tile), math.ceil(H / tile)
     pairs, key_start = ck.bin_pairs(x0, x1, y0, y1, valid, K, ntx * nty, ntx, tile)
     return pairs, key_start, ntx, nty
@@ -433,7 +428,7 @@ def test_bad_shapes_raise(fn) -> None:
 
 
 # ----------------------------------------------------------------------------- gsplat (CUDA machines only)
-needs_gsplat = pytest.mark.skipif(not R._gsplat_available(), reason="needs the gsplat package and a CUDA device")
+needs_gsplat = pytest.mark.skipif(not gsplat_available(), reason="needs the gsplat package and a CUDA device")
 
 
 def _cuda(*ts):
@@ -452,7 +447,7 @@ def test_gsplat_equals_dense_where_the_rules_coincide(HW, B) -> None:
     opac = opac.clamp(max=0.34)
     bg = torch.tensor([0.2, 0.55, 0.9])
     ref = rasterize_dense(means, covs, opac, colors, H, W, bg)
-    out = R.rasterize_gsplat(*_cuda(means, covs, opac, colors), H, W, bg.cuda())
+    out = rasterize_gsplat(*_cuda(means, covs, opac, colors), H, W, bg.cuda())
     assert out.device.type == "cuda" and out.shape == ref.shape
     torch.testing.assert_close(out.cpu(), ref, atol=1e-4, rtol=0)
     up = torch.randn(B, 3, H, W, generator=torch.Generator().manual_seed(5))
@@ -473,15 +468,15 @@ def test_gsplat_departs_from_the_rule_only_by_its_documented_tails(monkeypatch) 
     means, covs, opac, colors = _scene(2, 64, H, W, seed=11)
     opac = opac.clamp(max=0.99)
     ref = rasterize_dense(means, covs, opac, colors, H, W)
-    out = R.rasterize_gsplat(*_cuda(means, covs, opac, colors), H, W).cpu()
+    out = rasterize_gsplat(*_cuda(means, covs, opac, colors), H, W).cpu()
     diff = (out - ref).abs()
-    prepare = R._prepare
+    prepare = prepare_gaussians
 
     def prepare_without_3sigma_cut(means, covs, opacities, colors, eps2d):
         B, K, conic, colors, _, sxx, syy = prepare(means, covs, opacities, colors, eps2d)
         return B, K, conic, colors, 2.0 * torch.log(255.0 * opacities.clamp_min(1e-30)), sxx, syy
 
-    monkeypatch.setattr(R, "_prepare", prepare_without_3sigma_cut)
+    monkeypatch.setattr(R, "prepare_gaussians", prepare_without_3sigma_cut)  # the name rasterize_dense calls
     tails = (out - rasterize_dense(means, covs, opac, colors, H, W)).abs()
     print(f"gsplat vs rule: max {float(diff.max()):.4f}, mean {float(diff.mean()):.2e}, "
           f"pixels > 1e-4: {float((diff > 1e-4).float().mean()):.3f}; vs rule without the 3-sigma cut: "
@@ -496,7 +491,7 @@ def test_auto_backend_picks_gsplat_for_cuda_tensors() -> None:
     means, covs, opac, colors = _cuda(*_scene(2, 30, H, W, seed=3))
     bg = torch.tensor([0.1, 0.2, 0.3]).cuda()
     auto = rasterize(means, covs, opac, colors, H, W, bg, backend="auto")
-    direct = R.rasterize_gsplat(means, covs, opac, colors, H, W, bg)
+    direct = rasterize_gsplat(means, covs, opac, colors, H, W, bg)
     assert torch.equal(auto, direct)
     torch_cuda = rasterize(means, covs, opac, colors, H, W, bg, backend="torch")
     assert torch_cuda.device.type == "cuda"

@@ -21,7 +21,7 @@ updated by ``Gb -= w * sum_c grad_c colour_c`` after each primitive. Each
 pair's gradient is reduced over its pixels in registers and written once; a
 second parallel pass (:func:`sum_pairs`) sums the pairs of each primitive.
 
-The compositing rule is the one stated in :mod:`lagsplat.render.rasterize`;
+The compositing rule is the one stated in :mod:`lagsplat.render.rule`;
 :func:`lagsplat.render.rasterize.rasterize_dense` is the reference it is
 tested against. All arrays are float32 / int64 NumPy arrays; ``N = B * K``
 flattened primitives.
