@@ -114,7 +114,7 @@ def stage_stage2(cfg: DictConfig) -> None:
         raise ValueError(f"{a.chart}: the chart {gate_summary(gate)}; Stage 2 not run (chart.gate=false runs it, its metrics marked)")
     inertia = None
     if s2.mass == "decoder":  # parameter-free inertia from the frozen Stage-1 decoder (paper Eq. 7)
-        from lagsplat.models.lagrangian import DecoderInertia
+        from lagsplat.models.inertia import DecoderInertia
 
         ae = a.load_stage1()
         inertia = DecoderInertia.from_decoder(ae.decoder, chart.W_inv, chart.mean, chart.height, chart.width)

@@ -16,7 +16,8 @@ from lagsplat.dynamics.integrators import actuation_schedule, rollout
 from lagsplat.timeseries import spectral_peak_frequency
 from lagsplat.models.decoder import ConditionedGaussians
 from lagsplat.models.icnn import ConcaveMap, ConvexPotential, IResNet
-from lagsplat.models.lagrangian import DecoderInertia, Lagrangian
+from lagsplat.models.inertia import DecoderInertia
+from lagsplat.models.lagrangian import Lagrangian
 from lagsplat.train.stage2 import Stage2Config, one_step_windows, train_stage2
 
 

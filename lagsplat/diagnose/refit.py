@@ -233,7 +233,7 @@ def _gauged(base: nn.Module, gauge: float) -> None:
     ``C = e^{s_M} L_C L_C^T + c0 I`` is scaled by ``g`` too, but the floor ``c0`` is fixed,
     so the learned part takes over what the floor gives up:
     ``L_C L_C^T <- L_C L_C^T(0) + (g - 1) c0 / e^{s_M'} I``, made constant (the last layer
-    of :class:`~lagsplat.models.lagrangian.CholeskyField` set to that Cholesky factor,
+    of :class:`~lagsplat.models.inertia.CholeskyField` set to that Cholesky factor,
     weights zero). Exact where the fitted field is constant; in practice it has
     collapsed (``L_C L_C^T`` ~ 1e-29 on the blind suite's end-stop clips, as the floor
     already over-damps), and there its gradient vanishes (softplus far below zero),

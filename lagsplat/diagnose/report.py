@@ -343,7 +343,7 @@ def diagnose_system(
     s2 = Stage2Config.from_mapping(ck["config"])
     inertia = None
     if s2.mass == "decoder":
-        from lagsplat.models.lagrangian import DecoderInertia
+        from lagsplat.models.inertia import DecoderInertia
 
         inertia = DecoderInertia.from_decoder(ae.decoder, chart.W_inv, chart.mean, chart.height, chart.width)
     mj = a.load_metrics()

@@ -56,7 +56,8 @@ from lagsplat.dynamics.fast_kernels import (
     rollout_kernel,
 )
 from lagsplat.models.icnn import ICNN, ConvexPotential, IResNet, spectral_norm_estimate
-from lagsplat.models.lagrangian import CholeskyField, Lagrangian
+from lagsplat.models.inertia import CholeskyField
+from lagsplat.models.lagrangian import Lagrangian
 
 __all__ = [
     "FastModel",

@@ -19,7 +19,8 @@ from lagsplat.io.clip import TRAIN
 from lagsplat.train.config import dataclass_from_mapping
 from lagsplat.train.device import resolve_device
 from lagsplat.train.progress import Progress
-from lagsplat.models.lagrangian import DecoderInertia, Lagrangian
+from lagsplat.models.inertia import DecoderInertia
+from lagsplat.models.lagrangian import Lagrangian
 
 __all__ = ["Stage2Config", "Mass", "Potential", "one_step_windows", "train_stage2", "save_stage2", "load_stage2"]
 

@@ -1,0 +1,124 @@
+"""Position-dependent inertia fields of the Lagrangian (paper §3.3 "Inertia", Eq. 7).
+
+:class:`CholeskyField`: a learned SPD mass matrix ``M(q) = L(q) L(q)^T + eps I``
+(``stage2.mass=learned``); :class:`DecoderInertia`: the parameter-free inertia
+read off the frozen Stage-1 decoder (``stage2.mass=decoder``). Used by
+:class:`lagsplat.models.lagrangian.Lagrangian`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from lagsplat.models.decoder import latent_gate
+
+__all__ = ["CholeskyField", "DecoderInertia"]
+
+
+class CholeskyField(nn.Module):
+    """``q -> L(q) L(q)^T``: an SPD-matrix field from an MLP Cholesky factor.
+
+    MLP ``d -> hidden -> d(d+1)/2`` (ELU), softplus on the diagonal. The last
+    layer starts at zero weight with diagonal bias ``softplus^-1(sqrt(init))``,
+    so the field starts constant at ``init * I``.
+
+    Shapes: ``q [B,d] -> [B,d,d]``.
+    """
+
+    def __init__(self, d: int, hidden: tuple[int, ...] = (64, 64), init: float = 0.2) -> None:
+        super().__init__()
+        layers: list[nn.Module] = []
+        w = d
+        for h in hidden:
+            layers += [nn.Linear(w, h), nn.ELU()]
+            w = h
+        last = nn.Linear(w, d * (d + 1) // 2)
+        nn.init.zeros_(last.weight)
+        self.d = d
+        ii, jj = torch.tril_indices(d, d)
+        self.register_buffer("ii", ii, persistent=False)
+        self.register_buffer("jj", jj, persistent=False)
+        with torch.no_grad():
+            last.bias.zero_()
+            s = torch.tensor(math.sqrt(init))
+            last.bias[ii == jj] = s + torch.log(-torch.expm1(-s))
+        self.net = nn.Sequential(*layers, last)
+
+    def forward(self, q: Tensor) -> Tensor:
+        """SPD matrix ``L L^T`` at each ``q``."""
+        raw = self.net(q)
+        diag = self.ii == self.jj
+        raw = torch.where(diag, F.softplus(raw), raw)
+        L = raw.new_zeros(q.shape[0], self.d, self.d)
+        L[:, self.ii, self.jj] = raw
+        return L @ L.transpose(-1, -2)
+
+
+class DecoderInertia(nn.Module):
+    """Parameter-free inertia pulled back through the decoder (paper Eq. 7, App. A.1).
+
+    ``M_hat(q) = sum_i w_hat_i(q) J_i^T J_i / s``, with ``J_i [2,d]`` the constant
+    Jacobian of primitive ``i``'s conditioned mean with respect to the
+    *whitened* chart coordinate, in pixels, ``w_hat_i(q)`` its latent opacity
+    (paper Eq. 4) normalised over primitives, and ``s`` the mean eigenvalue of
+    the sum at the chart origin (so ``M_hat(0)`` has trace ``d``; the mass
+    ``m`` of Eq. 7 is the model's ``exp(s_M)``, fixed from the observed
+    frequency). Everything is a frozen buffer: no learned parameter.
+
+    Built from a trained decoder with :meth:`from_decoder`; the empty
+    constructor (shapes only) is for loading a checkpoint.
+
+    Shapes: ``q [B,d] -> [B,d,d]``.
+    """
+
+    def __init__(self, n_gaussians: int, d: int) -> None:
+        super().__init__()
+        K = int(n_gaussians)
+        self.register_buffer("J", torch.zeros(K, 2, d))
+        self.register_buffer("mu_q", torch.zeros(K, d))
+        self.register_buffer("L_qq", torch.eye(d).expand(K, d, d).clone())
+        self.register_buffer("alpha", torch.ones(K))
+        self.register_buffer("W_inv", torch.eye(d))
+        self.register_buffer("mean", torch.zeros(d))
+        self.register_buffer("scale", torch.ones(()))
+
+    @classmethod
+    @torch.no_grad()
+    def from_decoder(cls, decoder: nn.Module, W_inv: Tensor, mean: Tensor, height: int, width: int) -> "DecoderInertia":
+        """Freeze the geometry of a :class:`~lagsplat.models.decoder.ConditionedGaussians`.
+
+        Args:
+            decoder: the trained Stage-1 decoder.
+            W_inv, mean: the chart's de-whitening, ``z = q @ W_inv + mean`` (``[d,d]``, ``[d]``).
+            height, width: training resolution (pixels), the units of ``J``.
+        """
+        g = decoder.geometry()
+        K, d = g.mu_q.shape
+        out = cls(K, d)
+        W_inv = torch.as_tensor(W_inv, dtype=torch.float32)
+        out.J.copy_(decoder.chart_kinematics(W_inv, mean, height, width)[1])
+        out.mu_q.copy_(g.mu_q)
+        out.L_qq.copy_(g.L_qq)
+        out.alpha.copy_(g.alpha)
+        out.W_inv.copy_(W_inv)
+        out.mean.copy_(torch.as_tensor(mean, dtype=torch.float32))
+        M0 = out._raw(torch.zeros(1, d))[0]
+        out.scale.fill_(float(torch.linalg.eigvalsh(M0).mean().clamp_min(1e-12)))
+        return out
+
+    def presence(self, q: Tensor) -> Tensor:
+        """``w_hat_i(q) [B,K]``, summing to 1 (latent opacity, paper Eq. 4, normalised)."""
+        w = self.alpha[None] * latent_gate(q @ self.W_inv + self.mean, self.mu_q, self.L_qq)
+        return w / w.sum(-1, keepdim=True).clamp_min(1e-12)
+
+    def _raw(self, q: Tensor) -> Tensor:
+        JtJ = torch.einsum("kai,kaj->kij", self.J, self.J)
+        return torch.einsum("bk,kij->bij", self.presence(q), JtJ)
+
+    def forward(self, q: Tensor) -> Tensor:
+        """``M_hat(q) [B,d,d]`` (before the floor and the mass ``m``)."""
+        return self._raw(q) / self.scale
