@@ -162,12 +162,13 @@ def temporal_curvature_penalty(z3: Tensor, z_batch: Tensor) -> Tensor:
     ``mean |z_{t+1} - 2 z_t + z_{t-1}|^2 / mean var(z_batch)``: small for a chart along
     which the object moves smoothly (about ``(2 pi / N)^4`` for an oscillation sampled at
     ``N`` frames per period), large where the encoder tears the chart (neighbouring
-    frames sent far apart). The spread is taken from the batch (detached), so the penalty
-    cannot be lowered by shrinking the chart.
+    frames sent far apart). Divided by the spread of the batch's encodings (with its
+    gradient), the penalty is scale-free: shrinking the chart does not lower it, and
+    its gradient spreads the chart apart as it smooths it.
 
     Args:
         z3: ``[3, n, d]`` encodings of frames ``t - 1``, ``t``, ``t + 1`` for ``n`` triplets.
-        z_batch: ``[B, d]`` encodings of the batch (detached by the caller), ``B >= 2``.
+        z_batch: ``[B, d]`` encodings of the batch, ``B >= 2``.
 
     Returns:
         Scalar tensor.

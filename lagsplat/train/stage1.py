@@ -192,7 +192,7 @@ def train_stage1(
                 loss = loss + cfg.w_static * static_motion_penalty(motion, static)
             if centres is not None and len(centres):
                 c = torch.as_tensor(rng.choice(centres, size=max(1, cfg.batch // 2)), device=dev)
-                loss = loss + cfg.w_temporal * temporal_curvature_penalty(enc(X[torch.cat([c - 1, c, c + 1])]).reshape(3, len(c), -1), z.detach())
+                loss = loss + cfg.w_temporal * temporal_curvature_penalty(enc(X[torch.cat([c - 1, c, c + 1])]).reshape(3, len(c), -1), z)
         with record_function("stage1.backward"):
             opt.zero_grad(set_to_none=True)
             loss.backward()
