@@ -10,7 +10,8 @@ from scipy.ndimage import gaussian_filter1d
 
 from lagsplat.io.clip import HELD_OUT, TRAIN
 from lagsplat.synth import GENERATORS, make_clip
-from lagsplat.synth.effects import EFFECTS, MAX_EXCURSION, SYSTEMS, sample_truth, simulate_effect
+from lagsplat.synth.effect_truth import EFFECTS, MAX_EXCURSION, SYSTEMS, sample_truth
+from lagsplat.synth.effects import simulate_effect
 from lagsplat.synth.effect_clips import blind_suite, make_effect_clip
 
 FPS = 240.0  # fine sampling, so that finite differences give the acceleration accurately

@@ -19,13 +19,8 @@ from lagsplat.synth._render import (
 )
 from lagsplat.synth.coupled_carts import CART_HEIGHT, CART_WIDTH
 from lagsplat.synth.coupled_carts_clip import render_coupled_carts
-from lagsplat.synth.effects import (
-    EFFECTS,
-    SYSTEMS,
-    EffectRun,
-    check_label,
-    simulate_effect,
-)
+from lagsplat.synth.effect_truth import EFFECTS, SYSTEMS, check_label
+from lagsplat.synth.effects import EffectRun, simulate_effect
 from lagsplat.synth.pendulum import BOB_RADIUS, PIVOT_Y, ROD_LENGTH
 
 __all__ = ["render_effect", "make_effect_clip", "blind_suite"]

@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from lagsplat.synth.effects import EFFECTS
+from lagsplat.synth.effect_truth import EFFECTS
 from lagsplat.synth.realistic.camera import add_camera_nuisances, render_frames, write_mp4
 from lagsplat.synth.realistic.motion import Motion, double_pendulum_motion, one_dof_motion
 

@@ -29,7 +29,8 @@ from typing import Any
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from lagsplat.synth.effects import NOMINAL_AMPLITUDE, simulate_effect
+from lagsplat.synth.effect_truth import NOMINAL_AMPLITUDE
+from lagsplat.synth.effects import simulate_effect
 
 __all__ = ["Motion", "CART_METRES", "one_dof_motion", "double_pendulum_motion", "acceleration_of", "GRAVITY"]
 
@@ -79,7 +80,7 @@ def one_dof_motion(system: str, effect: str, seed: int, fps: float, duration_s: 
 
     Args:
         system: ``pendulum``, ``spring_cart`` or ``torsion_disk``.
-        effect: a label of :data:`lagsplat.synth.effects.EFFECTS` (``actuation_delay`` needs a logged input: not here).
+        effect: a label of :data:`lagsplat.synth.effect_truth.EFFECTS` (``actuation_delay`` needs a logged input: not here).
         seed: draws the parameters and the release state.
         fps, duration_s: frame rate (Hz) and length (s) of the take.
         amplitude_deg: torsion disk only: the release amplitude, degrees.
