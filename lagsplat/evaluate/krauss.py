@@ -78,14 +78,12 @@ from lagsplat.evaluate.krauss_windows import (  # noqa: F401  (the protocol's pu
     KraussEvalConfig,
     ae_floor_frames,
     flat_intervals,
-    frequency_windows,
     leading_duplicates,
     mse_window_starts,
-    multistep_mse,
     n_states,
     peak_frequency,
-    rollout_zoh,
 )
+from lagsplat.evaluate.krauss_rollouts import frequency_windows, multistep_mse, rollout_zoh  # noqa: F401  (re-exported)
 from lagsplat.io.clip import HELD_OUT, Clip, ClipError
 
 __all__ = [
