@@ -103,3 +103,21 @@ def test_an_encoder_that_saturates_at_the_turning_points_fails():
     assert sat > 0.25
     gate = chart_gate(ae, clip, chart)
     assert not gate["checks"]["saturation"]["ok"] and any(r.startswith("saturation") for r in gate["reasons"])
+
+
+def test_stage1_retries_while_the_gate_fails_and_records_every_attempt():
+    import dataclasses
+
+    from lagsplat.synth.pendulum import make_pendulum_clip
+    from lagsplat.train.attempts import retry_config, train_stage1_gated
+    from lagsplat.train.stage1 import Stage1Config
+
+    clip = make_pendulum_clip(size=(24, 24), duration_s=6.0)
+    cfg = dataclasses.replace(Stage1Config(), n_gaussians=32, steps=2, recycle_warmup=1, recycle_every=1)  # two steps draw no motion
+    assert retry_config(cfg, 1).steps == 3 and retry_config(cfg, 1).n_gaussians == 48 and retry_config(cfg, 0) is cfg
+    model, hist, attempts = train_stage1_gated(clip, cfg, 1, seed=3, retries=1, chart_kwargs={"n_metric_samples": 8}, progress=False)
+    assert [a["seed"] for a in attempts] == [3, 1003] and [a["steps"] for a in attempts] == [2, 3]
+    assert all(not a["gate"]["passed"] for a in attempts) and sum(a["kept"] for a in attempts) == 1
+    kept = next(a for a in attempts if a["kept"])
+    assert len(kept["gate"]["reasons"]) == min(len(a["gate"]["reasons"]) for a in attempts)
+    assert model.decoder.K == kept["n_gaussians"]
