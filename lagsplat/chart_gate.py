@@ -54,7 +54,7 @@ class GateThresholds:
 
     max_speed_jump: float = 4.0
     min_decoder_motion: float = 1.0
-    min_coverage: float = 0.8
+    min_coverage: float = 0.5
     max_saturation: float = 0.25
 
 
