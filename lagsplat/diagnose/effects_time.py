@@ -14,7 +14,15 @@ import numpy as np
 from lagsplat.diagnose.effect_base import Effect, ratio
 from lagsplat.diagnose.spectrum import excluded_bands, frequency_allowed, residual_peaks
 
-__all__ = ["PeriodicForceEffect", "DriftEffect", "ActuationDelayEffect", "MissingDofEffect"]
+__all__ = ["PeriodicForceEffect", "DriftEffect", "ActuationDelayEffect", "MissingDofEffect", "peak_frequencies"]
+
+
+def peak_frequencies(res, r0, n: int) -> list[float]:
+    """Candidate frequencies (Hz): ``n`` steps across one clip-frequency bin (``+-1 / T``) around each of the
+    residual's 3 strongest allowed spectral peaks (:func:`residual_peaks`), those :func:`frequency_allowed` keeps."""
+    peaks = residual_peaks(r0, res.segment, res.dt, 3, exclude=excluded_bands(res))
+    T = max(len(st.t) for st in res.states) * res.dt
+    return [float(f + k / T) for f in peaks for k in np.linspace(-1.0, 1.0, n) if frequency_allowed(res, f + k / T)]
 
 
 class PeriodicForceEffect(Effect):
@@ -28,15 +36,7 @@ class PeriodicForceEffect(Effect):
 
     def grid(self, res, e, r0):
         """Frequencies within one clip-frequency bin of the residual's 3 strongest allowed peaks."""
-        peaks = residual_peaks(r0, res.segment, res.dt, 3, exclude=excluded_bands(res))
-        T = max(len(st.t) for st in res.states) * res.dt
-        out = []
-        for f in peaks:
-            for k in np.linspace(-1.0, 1.0, 11):
-                fk = f + k / T
-                if frequency_allowed(res, fk):
-                    out.append({"f_hz": float(fk)})
-        return out
+        return [{"f_hz": f} for f in peak_frequencies(res, r0, 11)]
 
     def refine(self, res, e, best):
         """Frequencies within ``0.2 / T`` of the best one in steps of ``0.01 / span`` (phase-locked over the clip)."""
@@ -149,17 +149,7 @@ class MissingDofEffect(Effect):
 
     def grid(self, res, e, r0):
         """Frequencies around the residual's 3 strongest allowed peaks, damping ratios 0 to 0.04."""
-        peaks = residual_peaks(r0, res.segment, res.dt, 3, exclude=excluded_bands(res))
-        T = max(len(st.t) for st in res.states) * res.dt
-        out = []
-        for f in peaks:
-            for k in np.linspace(-1.0, 1.0, 9):
-                fk = f + k / T
-                if not frequency_allowed(res, fk):
-                    continue
-                for z in (0.0, 0.0025, 0.005, 0.01, 0.02, 0.04):
-                    out.append({"f_hz": float(fk), "zeta": z})
-        return out
+        return [{"f_hz": f, "zeta": z} for f in peak_frequencies(res, r0, 9) for z in (0.0, 0.0025, 0.005, 0.01, 0.02, 0.04)]
 
     def refine(self, res, e, best):
         """Frequencies within ``0.25 / T`` and damping ratios around the best ones (``zeta <= 0.05``)."""
