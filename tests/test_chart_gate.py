@@ -115,9 +115,13 @@ def test_stage1_retries_while_the_gate_fails_and_records_every_attempt():
     clip = make_pendulum_clip(size=(24, 24), duration_s=6.0)
     cfg = dataclasses.replace(Stage1Config(), n_gaussians=32, steps=2, recycle_warmup=1, recycle_every=1)  # two steps draw no motion
     assert retry_config(cfg, 1).steps == 3 and retry_config(cfg, 1).n_gaussians == 48 and retry_config(cfg, 0) is cfg
+    assert retry_config(cfg, 1).w_temporal == 0.0 and retry_config(cfg, 1, torn=True).w_temporal == 1.0  # a tear turns the prior on
+    assert retry_config(dataclasses.replace(cfg, w_temporal=2.0), 1, torn=True).w_temporal == 2.0  # and never lowers it
     model, hist, attempts = train_stage1_gated(clip, cfg, 1, seed=3, retries=1, chart_kwargs={"n_metric_samples": 8}, progress=False)
     assert [a["seed"] for a in attempts] == [3, 1003] and [a["steps"] for a in attempts] == [2, 3]
     assert all(not a["gate"]["passed"] for a in attempts) and sum(a["kept"] for a in attempts) == 1
+    torn = not attempts[0]["gate"]["checks"]["continuity"]["ok"]
+    assert [a["w_temporal"] for a in attempts] == [0.0, 1.0 if torn else 0.0]
     kept = next(a for a in attempts if a["kept"])
     assert len(kept["gate"]["reasons"]) == min(len(a["gate"]["reasons"]) for a in attempts)
     assert model.decoder.K == kept["n_gaussians"]

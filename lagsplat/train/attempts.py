@@ -6,7 +6,13 @@ steps for a cluttered scene. :func:`train_stage1_gated` trains, builds the
 chart (paper §3.2) and runs the gate (:func:`lagsplat.chart_gate.chart_gate`);
 when the chart fails, it trains again with another seed, more steps and more
 Gaussians, up to ``retries`` times, and keeps the first attempt that passes
-(or, when none does, the one with the fewest failed checks).
+(or, when none does, the one with the fewest failed checks). A retry after a
+torn chart (the continuity check failed) also turns on the temporal prior
+(``Stage1Config.w_temporal``, :data:`TEAR_W_TEMPORAL`): on a large rotation or
+a small fast bob the encoder can map neighbouring frames far apart, and the
+second difference of consecutive encodings is what penalises exactly that. It
+stays off on a first attempt, because on a chart that does not tear it can
+shrink the decoder's motion (fewer moving pixels covered).
 """
 
 from __future__ import annotations
@@ -25,15 +31,23 @@ __all__ = ["retry_config", "train_stage1_gated"]
 
 #: Growth of the Stage-1 budget per retry: steps and Gaussians.
 STEP_GROWTH, GAUSSIAN_GROWTH = 1.5, 1.5
+#: Weight of the temporal prior on a retry after a torn chart (when the configured weight is lower).
+TEAR_W_TEMPORAL = 1.0
 
 
-def retry_config(cfg: Stage1Config, attempt: int) -> Stage1Config:
-    """The settings of retry ``attempt`` (0: ``cfg`` itself): steps and Gaussians grown by 1.5x per retry."""
+def retry_config(cfg: Stage1Config, attempt: int, torn: bool = False) -> Stage1Config:
+    """The settings of retry ``attempt`` (0: ``cfg`` itself).
+
+    Steps and Gaussians grow by 1.5x per retry; ``torn`` (an earlier attempt's chart failed the
+    continuity check) raises ``w_temporal`` to at least :data:`TEAR_W_TEMPORAL`.
+    """
     if attempt == 0:
         return cfg
+    w_temporal = max(cfg.w_temporal, TEAR_W_TEMPORAL) if torn else cfg.w_temporal
     return dataclasses.replace(
-        cfg, steps=int(round(cfg.steps * STEP_GROWTH**attempt)), n_gaussians=int(round(cfg.n_gaussians * GAUSSIAN_GROWTH**attempt))
-    )
+        cfg, steps=int(round(cfg.steps * STEP_GROWTH**attempt)), n_gaussians=int(round(cfg.n_gaussians * GAUSSIAN_GROWTH**attempt)),
+        w_temporal=w_temporal,
+    )  # fmt: skip
 
 
 def train_stage1_gated(
@@ -59,7 +73,7 @@ def train_stage1_gated(
     Returns:
         ``(model, history, attempts)``: the kept model and its training history; ``attempts``
         one entry per attempt: ``seed``, ``steps`` (at most), ``steps_run``, ``stopped`` (why it
-        stopped early, or ``None``), ``n_gaussians``, ``wall_s``, ``gate``
+        stopped early, or ``None``), ``n_gaussians``, ``w_temporal``, ``wall_s``, ``gate``
         (:func:`lagsplat.chart_gate.chart_gate`'s result) and ``kept``.
 
     Raises:
@@ -69,18 +83,20 @@ def train_stage1_gated(
         raise ValueError(f"stage1.retries must be >= 0, got {retries}")
     kw = dict(chart_kwargs or {})
     attempts: list[dict[str, Any]] = []
-    best = None
+    best, torn = None, False
     for k in range(retries + 1):
-        c = retry_config(cfg, k)
+        c = retry_config(cfg, k, torn=torn)
         s = seed + 1000 * k
         t0 = time.perf_counter()
         model, hist = train_stage1(clip, c, d, seed=s, progress=progress, device=device, label=f"{label} attempt {k + 1}" if k else label)
         gate = chart_gate(model, clip, build_chart(model, clip, seed=seed, **kw))  # the chart stage's own chart
         stopped = hist.get("stopped") or {}
         attempts.append({"seed": s, "steps": c.steps, "steps_run": stopped.get("step", c.steps), "stopped": stopped.get("reason"),
-                         "n_gaussians": c.n_gaussians, "wall_s": round(time.perf_counter() - t0, 1), "gate": gate, "kept": False})  # fmt: skip
+                         "n_gaussians": c.n_gaussians, "w_temporal": c.w_temporal, "wall_s": round(time.perf_counter() - t0, 1), "gate": gate, "kept": False})  # fmt: skip
         ran = f"{stopped['step']} of {c.steps} steps ({stopped['reason']})" if stopped else f"{c.steps} steps"
-        print(f"[lagsplat] {label}: attempt {k + 1} (seed {s}, {ran}, {c.n_gaussians} Gaussians): chart {gate_summary(gate)}", flush=True)
+        prior = f", temporal prior {c.w_temporal:g}" if c.w_temporal > 0 else ""
+        print(f"[lagsplat] {label}: attempt {k + 1} (seed {s}, {ran}, {c.n_gaussians} Gaussians{prior}): chart {gate_summary(gate)}", flush=True)
+        torn = torn or not gate["checks"]["continuity"]["ok"]
         score = len(gate["reasons"])
         if best is None or score < best[0]:
             best = (score, k, model, hist)
