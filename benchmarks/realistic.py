@@ -59,12 +59,19 @@ def run_clip(name: str, clips: Path, results: Path, threads: int, extra: list[st
     return r.returncode, (lines[-1] if lines else (r.stderr.strip().splitlines() or [""])[-1]), time.perf_counter() - t0
 
 
+def _commit() -> str:
+    """The repository's commit (short hash, ``+dirty`` when the tree has changes), or ``unknown``."""
+    git = lambda *a: subprocess.run(["git", *a], cwd=ROOT, capture_output=True, text=True, check=False).stdout.strip()  # noqa: E731
+    head = git("rev-parse", "--short", "HEAD")
+    return (head + ("+dirty" if git("status", "--porcelain", "--untracked-files=no") else "")) if head else "unknown"
+
+
 def row_of(name: str, clips: Path, results: Path, code: int, reason: str, wall_s: float) -> dict:
     """One scored row of the suite (see the module docstring)."""
     spec = clip_spec(name)
     art = Artifacts.for_run(results, name)
     n_train = art.load_clip().meta["split"]["n_train"] if art.clip.exists() else None  # the split the run chose
-    row = {**spec, "exit_code": code, "wall_s": round(wall_s, 1), "f_truth_hz": truth_frequency(clips / f"{name}.truth.npz", n_train), "n_train": n_train}
+    row = {**spec, "exit_code": code, "wall_s": round(wall_s, 1), "commit": _commit(), "load_1min": round(os.getloadavg()[0], 2), "f_truth_hz": truth_frequency(clips / f"{name}.truth.npz", n_train), "n_train": n_train}
     if art.chart.exists():  # the chart-quality gate, also for a run that stopped at it
         gate = art.load_chart().meta.get("gate") or {}
         row.update(gate_passed=gate.get("passed"), gate={k: round(v["value"], 4) for k, v in gate.get("checks", {}).items()})
@@ -111,9 +118,11 @@ def gather(rows: list[dict], out_md: Path, argv: list[str] | None = None) -> dic
         "wall_s_median": float(np.median([r["wall_s"] for r in rows])) if rows else None,
         "wall_s_max": float(max(r["wall_s"] for r in rows)) if rows else None,
     }  # fmt: skip
+    commits = sorted({r.get("commit", "unknown") for r in rows})
+    summary["commits"] = commits
     L = [f"{summary['n_clips']} clips over {len(summary['systems'])} systems: {summary['n_ok']} with metrics, "
          f"{summary['n_stopped']} stopped with a reason, {summary['n_crashed']} crashed; the chart passed the quality gate "
-         f"on {summary['n_gate_passed']}.", ""]  # fmt: skip
+         f"on {summary['n_gate_passed']}. Rows measured at commit {', '.join(commits)}.", ""]  # fmt: skip
     if summary["share_within_5pct_of_gate_passed"] is not None:
         L += [f"Of the clips whose chart passed the gate and that have metrics, {100 * summary['share_within_5pct_of_gate_passed']:.0f} % "
               "are within 5 % of the true frequency.", ""]  # fmt: skip
