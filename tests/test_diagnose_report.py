@@ -29,7 +29,7 @@ from lagsplat.diagnose.refit_terms import RefitModel, model_chart, refit_spec
 from lagsplat.diagnose.gap import common_noise_floor, energy_check, envelope_decay, gap_reduction, held_out_gap, noise_floor
 from lagsplat.diagnose.markdown import render_markdown
 from lagsplat.diagnose.report import DiagnoseConfig, diagnose_artifacts
-from lagsplat.diagnose.report_checks import held_out_check
+from lagsplat.diagnose.report_checks import held_out_check, reliability
 from lagsplat.diagnose.effect_terms import CoulombFriction, EndStop
 from lagsplat.diagnose.localise import localise
 from lagsplat.diagnose.where import REGIONS, WhereConfig, split_code
@@ -466,6 +466,37 @@ def test_report_writer_on_the_pushed_pendulum(tmp_path) -> None:
     if rep["verdict"] != "none":
         assert "no Stage-2 settings" in on_disk["refit"]["reason"]
     assert not list(out.glob(".*.tmp"))  # atomic writes leave no temporary file
+
+
+def test_a_chart_that_fails_the_gate_gets_no_verdict_and_keeps_the_ranking_as_evidence(tmp_path) -> None:
+    from lagsplat.diagnose.report import CANNOT_DIAGNOSE
+
+    ae, chart, model, clip = _pushed_pendulum()
+    chart.G_bar = _visibility(ae, chart)
+    chart.meta = {"gate": {"passed": False, "reasons": ["coverage: the decoded chart reproduces 0.1 of the moving pixels' variance (need > 0.5)"]}}
+    cfg = DiagnoseConfig(where=WhereConfig(n_image_frames=8))
+    rep = diagnose_artifacts(clip, ae, chart, model, None, tmp_path / "diagnosis", cfg, title="torn", system="test")
+    on_disk = json.loads((tmp_path / "diagnosis" / "report.json").read_text())
+    assert on_disk["verdict"] == rep["verdict"] == CANNOT_DIAGNOSE
+    assert on_disk["verdict_text"].startswith("cannot diagnose: chart-quality gate coverage")
+    ranked, _ = diagnose_chart(model, chart, TRAIN, cfg.sigma, **cfg.select)  # the evidence is the residual's own ranking, kept
+    assert on_disk["residual_ranking"]["winner"] == ranked.winner and on_disk["diagnosis"]["winner"] == ranked.winner
+    assert not on_disk["refit"]["done"] and on_disk["refit"]["reason"].startswith("cannot diagnose")
+    md = (tmp_path / "diagnosis" / "report.md").read_text()
+    assert "**Verdict: cannot diagnose: chart-quality gate coverage" in md and "not a finding" in md
+
+
+def test_reliability_reads_the_gate_when_the_chart_carries_one() -> None:
+    q = np.sin(np.linspace(0, 20, 400))[:, None]
+    chart = _line_chart(q, np.arange(400) / 30.0, np.zeros(400), floor=1e-3)
+    chart.meta = {"continuity_jump_ratio": 50.0}  # the older ratio: a bounce reads as a tear
+    assert not reliability(chart)["reliable"] and "chart_continuous" in reliability(chart)["checks"]
+    chart.meta["gate"] = {"passed": True, "reasons": []}  # the gate tells the bounce from a tear and passed it
+    rel = reliability(chart)
+    assert rel["reliable"] and set(rel["checks"]) == {"chart_gate"}
+    chart.meta["gate"] = {"passed": False, "reasons": ["continuity: chart speed jumps 17.8x (need < 4)"]}
+    rel = reliability(chart)
+    assert not rel["reliable"] and rel["reasons"] == ["chart-quality gate continuity: chart speed jumps 17.8x (need < 4)"]
 
 
 def test_markdown_of_a_refit_report_has_the_before_after_table() -> None:

@@ -46,8 +46,8 @@ def _reliability_lines(rel: Mapping[str, Any] | None) -> list[str]:
     """The warnings of :func:`~lagsplat.diagnose.report_checks.reliability` above the evidence (none when all checks pass)."""
     L: list[str] = []
     if rel and not rel["reliable"]:
-        L += ["**Unreliable**: the chart does not support a diagnosis (" + "; ".join(rel["reasons"]) + "). "
-              "Improve Stage 1 first; the verdict below is what the residual says, not a finding.", ""]  # fmt: skip
+        L += ["The chart does not support a diagnosis: improve Stage 1 first (a tighter crop, more steps or Gaussians, "
+              "docs/preparation.md). The ranking below is what the residual says, kept as evidence, not a finding.", ""]  # fmt: skip
     if rel and rel.get("cautions"):
         L += ["Caution: " + "; ".join(rel["cautions"]) + ". The identified model misses much of the training motion: a strong "
               "unmodelled effect, a Stage-2 failure or a distorted chart (the evidence below cannot tell these apart "
@@ -77,7 +77,10 @@ def verdict_section(rep: Mapping[str, Any]) -> list[str]:
     L += [f"**Verdict: {verdict}.**", ""]
     L += _reliability_lines(rep.get("reliability"))
     null = dg["null"]
-    if rep["verdict"] == "none":
+    if rep["verdict"] == "cannot_diagnose":
+        ranked = (rep.get("residual_ranking") or {}).get("text", "")
+        L.append(f"- the residual's own ranking (not a finding): {ranked}.")
+    elif rep["verdict"] == "none":
         L.append(
             "No candidate effect explains the residual of the identified model significantly beyond the model-class "
             "corrections (rule: physical, Delta BIC >= {min_delta_bic:g}, R2 >= {min_r2:g}, blocked-CV gain >= {min_cv_gain:g}).".format(**dg["settings"])

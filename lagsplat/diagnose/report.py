@@ -4,7 +4,9 @@
 ``stage1.pt``, ``chart.npz``, ``stage2.pt``, ``metrics.json``) and writes
 ``diagnosis/``:
 
-* ``report.json``: the verdict, the evidence (:meth:`Diagnosis.to_dict
+* ``report.json``: the verdict (``"cannot_diagnose"`` with its reason in
+  ``verdict_text`` when the chart fails its checks, :func:`reliability`; the
+  residual's ranking is kept in ``residual_ranking`` and the evidence), the evidence (:meth:`Diagnosis.to_dict
   <lagsplat.diagnose.diagnosis.Diagnosis.to_dict>`: every candidate's fit with
   coefficients and standard errors, ``Delta BIC``, ``R2``, CV gain, the
   signatures), where the gap shows (:mod:`lagsplat.diagnose.where`), the
@@ -69,7 +71,10 @@ from lagsplat.io.atomic import atomic_write, write_json
 from lagsplat.io.clip import HELD_OUT
 from lagsplat.io.common import jsonable
 
-__all__ = ["DiagnoseConfig", "diagnose_system", "diagnose_artifacts", "render_markdown", "write_report", "plot_gap", "reliability", "held_out_check"]
+#: ``report.json``'s verdict when the chart fails its checks (:func:`reliability`): no finding is read off it.
+CANNOT_DIAGNOSE = "cannot_diagnose"
+
+__all__ = ["CANNOT_DIAGNOSE", "DiagnoseConfig", "diagnose_system", "diagnose_artifacts", "render_markdown", "write_report", "plot_gap", "reliability", "held_out_check"]
 
 
 @dataclass
@@ -155,6 +160,9 @@ def _gap_record(before: dict[str, Any], metrics_json: Mapping[str, Any] | None) 
 
 def _no_refit_reason(run: _Run, diag: Any) -> str | None:
     """Why no refit is made (``None``: one is)."""
+    stage1 = reliability(run.chart)  # the Stage-1 checks only: a refit on a chart that fails them means nothing
+    if not stage1["reliable"]:
+        return "cannot diagnose: no refit on a chart that fails its checks"
     if diag.winner == "none":
         return "nothing significant: no refit"
     if not run.cfg.refit.enabled:
@@ -242,10 +250,13 @@ def _report_record(
     """The content of ``report.json`` (JSON-ready)."""
     chart, cfg = run.chart, run.cfg
     n_which = sum(len(s) for s in (chart.segments(which) if which is not None else [np.arange(len(chart.t))]))
+    rel = reliability(chart, run.stage2_history, diag)
+    ranked = "nothing significant" if diag.winner == "none" else ", ".join(diag.labels)
+    verdict, text = (diag.winner, ranked) if rel["reliable"] else (CANNOT_DIAGNOSE, "cannot diagnose: " + "; ".join(rel["reasons"]))
     report = {
-        "system": system, "title": title, "verdict": diag.winner,
-        "verdict_text": "nothing significant" if diag.winner == "none" else ", ".join(diag.labels),
-        "reliability": reliability(chart, run.stage2_history, diag),
+        "system": system, "title": title, "verdict": verdict, "verdict_text": text,
+        "residual_ranking": {"winner": diag.winner, "text": ranked},  # what the residual says; the verdict only when reliable
+        "reliability": rel,
         "summary": diag.summary(),
         "diagnosis": diag.to_dict(),
         "where": where.summary(),

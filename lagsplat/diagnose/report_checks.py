@@ -28,6 +28,11 @@ def reliability(chart: Any, stage2_history: Mapping[str, Any] | None = None, dia
     object and the model follows the chart; otherwise any candidate may win (or
     none). Checks:
 
+    * ``chart_gate``: when the chart carries the chart-quality gate's result
+      (``chart.meta["gate"]``, :func:`lagsplat.chart_gate.chart_gate`: continuity,
+      decoder motion, coverage of the moving pixels, encoder saturation), it
+      passed; its failed checks are the reasons. A chart from before the gate
+      is read by the two older checks instead:
     * ``chart_continuous``: the chart's jump statistic (``chart.meta["continuity_jump_ratio"]``,
       :func:`lagsplat.chart.chart_continuity`) below :data:`lagsplat.chart.FOLD_WARNING`;
     * ``decoder_shows_motion``: the image change of one standard deviation of ``q``
@@ -39,7 +44,8 @@ def reliability(chart: Any, stage2_history: Mapping[str, Any] | None = None, dia
       and the accepted effects is within ``unexplained_excess`` times the chart
       noise (:func:`~lagsplat.diagnose.select_effect`, ``null["unexplained"]``).
 
-    The first two (Stage 1) make the verdict ``reliable``. The last two are
+    The Stage-1 checks make the verdict ``reliable``; when one fails, the report's
+    verdict is "cannot diagnose" (:func:`lagsplat.diagnose.report.diagnose_artifacts`). The last two are
     cautions: a model that does not follow its training video, or a residual
     nothing explains, may come from a Stage-2 failure or a distorted chart, but
     also from a strong unmodelled effect (a missing degree of freedom does both),
@@ -52,13 +58,19 @@ def reliability(chart: Any, stage2_history: Mapping[str, Any] | None = None, dia
     from lagsplat.chart import FOLD_WARNING
 
     checks: dict[str, dict[str, Any]] = {}
-    jump = chart.meta.get("continuity_jump_ratio") if isinstance(chart.meta, Mapping) else None
+    meta = chart.meta if isinstance(chart.meta, Mapping) else {}
+    gate = meta.get("gate")
+    if gate is not None:  # the chart-quality gate supersedes the older jump ratio, which reads an impact as a tear
+        failed = list(gate.get("reasons", []))
+        checks["chart_gate"] = {"ok": bool(gate.get("passed")), "value": float(len(failed)), "threshold": 0.0,
+                                "text": "failed checks of the chart-quality gate", "reasons": failed}  # fmt: skip
+    jump = meta.get("continuity_jump_ratio") if gate is None else None
     if jump is not None:
         checks["chart_continuous"] = {"ok": bool(jump < FOLD_WARNING), "value": float(jump), "threshold": FOLD_WARNING,
                                       "text": "chart jump ratio (max |2nd difference| / median |1st difference|)"}  # fmt: skip
     lam = float(np.linalg.eigvalsh(0.5 * (chart.G_bar + chart.G_bar.T)).max())
     floor = float(chart.ae_floor_train)
-    if floor > 0:
+    if floor > 0 and gate is None:
         checks["decoder_shows_motion"] = {"ok": bool(lam > floor), "value": lam / floor, "threshold": 1.0,
                                           "text": "image MSE of one standard deviation of q / AE floor"}  # fmt: skip
     if stage2_history and stage2_history.get("selected_nrmse") is not None:
@@ -73,7 +85,8 @@ def reliability(chart: Any, stage2_history: Mapping[str, Any] | None = None, dia
     def why(k: str) -> str:
         return f"{checks[k]['text']} = {checks[k]['value']:.3g} (need {'>' if k == 'decoder_shows_motion' else '<'} {checks[k]['threshold']:g})"
 
-    reasons = [why(k) for k in ("chart_continuous", "decoder_shows_motion") if k in checks and not checks[k]["ok"]]
+    reasons = [f"chart-quality gate {r}" for r in checks.get("chart_gate", {}).get("reasons", [])]
+    reasons += [why(k) for k in ("chart_continuous", "decoder_shows_motion") if k in checks and not checks[k]["ok"]]
     cautions = [why(k) for k in ("model_follows_training", "residual_explained") if k in checks and not checks[k]["ok"]]
     return {"reliable": not reasons, "checks": checks, "reasons": reasons, "cautions": cautions}
 
