@@ -442,3 +442,36 @@ def test_a_periodic_force_too_small_to_move_the_object_is_not_a_finding() -> Non
     assert strict.winner != "periodic_force"
     rejected = next(f for f in strict.ranking if f.effect == "periodic_force")
     assert not rejected.practical and "below" in rejected.interpretation["below_practical_size"]
+
+
+def _first_periods(chart: Chart, periods: float) -> Chart:
+    """The first ``periods`` periods of ``chart``'s first training episode, all training frames (a short clip)."""
+    from lagsplat.timeseries import spectral_peak_frequency
+
+    seg = chart.segments(TRAIN)[0]
+    n = int(round(periods / spectral_peak_frequency(chart.q[seg], DT) / DT))
+    sl, I = seg[:n], np.eye(1)
+    return Chart(mean=np.zeros(1), W=I, W_inv=I, q=chart.q[sl], t=chart.t[sl] - chart.t[sl][0], split=np.full(n, TRAIN, np.int8), G_bar=I,
+                 A=I, ae_mse=np.zeros(n), ae_floor_train=0.0, ae_floor_held_out=0.0, height=64, width=64)  # fmt: skip
+
+
+def test_three_periods_of_training_frames_still_cross_validate() -> None:
+    # at two periods a block, three periods made one block: every CV gain read 0 and nothing could be significant
+    stop = _first_periods(_chart("cart", "end_stop", 0), 3.0)
+    diag, _ = diagnose_chart(_linear(stop), stop)
+    assert diag.settings["cv_folds"] >= 2 and diag.winner == "end_stop" and diag.ranking[0].cv_gain > 0.5
+    control = _first_periods(_chart("cart", "none", 0), 3.0)
+    diag, _ = diagnose_chart(_linear(control), control)
+    assert diag.settings["cv_folds"] >= 2 and diag.winner == "none"
+
+
+def test_a_residual_too_short_for_two_folds_says_so() -> None:
+    from lagsplat.diagnose.regression import Regression, blocked_folds, n_cv_folds
+
+    stop = _first_periods(_chart("cart", "end_stop", 0), 3.0)
+    _, res = diagnose_chart(_linear(stop), stop)
+    assert n_cv_folds(blocked_folds(res, 5, None)) == 3  # the short clip's blocks shrink to three
+    one = blocked_folds(res, 5, block_s=1e3)  # a block longer than the clip: one fold
+    assert n_cv_folds(one) == 1
+    reg = Regression(res, one, res.r, np.ones((res.n, 1)), ())
+    assert math.isnan(reg.cv_sse(None, False))

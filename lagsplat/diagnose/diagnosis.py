@@ -129,6 +129,8 @@ class Diagnosis:
         lines.append(f"residual / noise (null) = {self.null['excess_over_noise']:.2f}")
         if self.null.get("warning"):
             lines.append("warning: " + self.null["warning"])
+        if self.settings.get("cv_folds", 2) < 2:
+            lines.append(f"warning: {self.settings.get('n_samples')} residual samples make a single cross-validation block: no candidate can be significant")
         lines.append("ranking: " + ", ".join(f"{f.effect} ({f.delta_bic:.1f}{'' if f.physical else ', unphysical'})" for f in self.ranking))
         ev = self.evidence
         if "envelope" in ev and ev["envelope"].get("best"):

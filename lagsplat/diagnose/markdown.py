@@ -93,6 +93,9 @@ def verdict_section(rep: Mapping[str, Any]) -> list[str]:
              f"(null fit: {fmt_value(null['excess_over_noise'])}).")  # fmt: skip
     if null.get("warning"):
         L.append(f"- warning: {null['warning']}")
+    if dg["settings"].get("cv_folds", 2) < 2:
+        L.append(f"- warning: the {dg['settings'].get('n_samples')} residual samples make a single cross-validation block, so no candidate "
+                 "can be significant; a longer clip (more training periods) is needed.")  # fmt: skip
     choice = (rep.get("refit") or {}).get("choice")
     if choice:
         L.append(_choice_line(choice, rep["refit"].get("baseline_train_rollout_nrmse")))

@@ -20,7 +20,7 @@ from scipy.optimize import nnls
 
 from lagsplat.diagnose.residual_data import Residual
 
-__all__ = ["linear_features", "poly_features", "Regression", "blocked_folds"]
+__all__ = ["linear_features", "poly_features", "Regression", "blocked_folds", "n_cv_folds", "MIN_CV_BLOCKS"]
 
 
 def linear_features(res: Residual) -> np.ndarray:
@@ -139,8 +139,10 @@ class Regression:
         return n_eff * math.log(max(ssr, 1e-300) / self.N) + k * math.log(n_eff)
 
     def cv_sse(self, Zc: np.ndarray | None, positive: bool) -> float:
-        """Blocked cross-validation SSE of nuisance (+ candidate) fits."""
+        """Blocked cross-validation SSE of nuisance (+ candidate) fits; ``nan`` with a single fold."""
         Z = self.Zn if Zc is None else np.concatenate([self.Zn, Zc], 1)
+        if n_cv_folds(self.folds) < 2:
+            return float("nan")
         sse = 0.0
         for f in np.unique(self.folds):
             tr, te = self.folds != f, self.folds == f
@@ -162,27 +164,46 @@ class Regression:
         return sse
 
 
+#: Fewest contiguous blocks the cross-validation deals into folds: with fewer (a training part
+#: shorter than about six periods at two periods a block), the blocks shrink to reach it.
+MIN_CV_BLOCKS = 3
+#: Shortest block, samples.
+MIN_BLOCK_SAMPLES = 8
+
+
 def blocked_folds(res: Residual, n_folds: int, block_s: float | None) -> np.ndarray:
     """Interleaved fold label of each residual sample: contiguous blocks of ``block_s`` seconds.
 
     Args:
         res: the residual (its segments, frame interval and dominant frequency).
         n_folds: number of folds; blocks are dealt to them in turn across segments.
-        block_s: block length, s (default two dominant periods, or 40 frames without one;
-            at least 8 samples).
+        block_s: block length, s (default two dominant periods, or 40 frames without one,
+            shortened on a short residual so that there are at least :data:`MIN_CV_BLOCKS`
+            blocks; at least :data:`MIN_BLOCK_SAMPLES` samples).
 
     Returns:
-        int ``[n]`` fold of each sample.
+        int ``[n]`` fold of each sample. A single fold (:func:`n_cv_folds` 1) means the residual
+        is too short to cross-validate: every fit's CV gain is then undefined.
     """
+    segs = list(res.segment_slices())
     if block_s is None:
         f = res.f_dominant_hz
         block_s = 2.0 / f if math.isfinite(f) and f > 0 else 40 * res.dt
-    L = max(8, int(round(block_s / res.dt)))
+        L = max(MIN_BLOCK_SAMPLES, int(round(block_s / res.dt)))
+        if sum(max(1, len(idx) // L) for idx in segs) < MIN_CV_BLOCKS:  # a short clip: shorter blocks, not one fold
+            L = max(MIN_BLOCK_SAMPLES, max(len(idx) for idx in segs) // MIN_CV_BLOCKS)
+    else:
+        L = max(MIN_BLOCK_SAMPLES, int(round(block_s / res.dt)))
     out = np.empty(res.n, int)
     b = 0
-    for idx in res.segment_slices():
+    for idx in segs:
         nb = max(1, len(idx) // L)
         blk = np.minimum(np.arange(len(idx)) * nb // len(idx), nb - 1)
         out[idx] = (b + blk) % n_folds
         b += nb
     return out
+
+
+def n_cv_folds(folds: np.ndarray) -> int:
+    """Number of distinct folds of :func:`blocked_folds`' labels (below 2: no cross-validation)."""
+    return int(len(np.unique(folds)))

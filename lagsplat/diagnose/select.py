@@ -82,8 +82,11 @@ candidates) and passes all of
   the model leaves (effect size, so that a long clean clip does not promote a
   negligible misfit),
 * a blocked cross-validation gain ``1 - CV_SSE / CV_SSE_null >= min_cv_gain``
-  (contiguous blocks of about two periods, ``n_folds`` interleaved folds; the
-  nonlinear parameters are the ones chosen on all data).
+  (contiguous blocks of about two periods, shorter on a short clip so that
+  there are at least three, ``n_folds`` interleaved folds; the nonlinear
+  parameters are the ones chosen on all data). A residual too short for two
+  folds has no CV gain (``nan``, ``settings["cv_folds"] < 2``): nothing is
+  significant and the report says why.
 
 Otherwise the verdict is ``"none"`` ("nothing significant"). With
 ``max_effects > 1`` the search is repeated with the winners' features added
@@ -120,7 +123,7 @@ from lagsplat.diagnose.candidates import candidate_design, fit_candidates
 from lagsplat.diagnose.diagnosis import CandidateFit, Diagnosis
 from lagsplat.diagnose.effect_base import Effect
 from lagsplat.diagnose.effects import EFFECTS, get_effect
-from lagsplat.diagnose.regression import Regression, blocked_folds, linear_features
+from lagsplat.diagnose.regression import Regression, blocked_folds, linear_features, n_cv_folds
 from lagsplat.diagnose.residual_data import Residual
 from lagsplat.diagnose.signatures import directions, signatures
 
@@ -218,7 +221,7 @@ def select_effect(
     _unexplained(null, prob_null, bool(accepted), unexplained_excess)
     settings = {
         **rule, **thresholds, "max_effects": max_effects,
-        "n_folds": n_folds, "candidates": [e.name for e in effs], "sigma_frames": res.sigma, "spacing": res.spacing,
+        "n_folds": n_folds, "cv_folds": n_cv_folds(probs[True].folds), "candidates": [e.name for e in effs], "sigma_frames": res.sigma, "spacing": res.spacing,
         "n_samples": res.n, "n_segments": res.n_segments, "n_directions": len(dirs[True]),
         "sigma_frames_out_of_class": wide.sigma, "spacing_out_of_class": wide.spacing, "n_samples_out_of_class": wide.n,
     }  # fmt: skip
