@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from lagsplat.io.clip import ClipError
-from lagsplat.prepare import MIN_OBJECT_PX, analyse_motion, prepare_video
+from lagsplat.prepare import MIN_OBJECT_PX, analyse_motion, image_winding, prepare_video
 
 
 def _scene(T: int = 90, W: int = 320, H: int = 240, amplitude: float = 60.0, x0: float = 200.0, noise: float = 3.0, seed: int = 0) -> np.ndarray:
@@ -61,8 +61,39 @@ def test_a_clip_without_motion_is_refused():
 
 def test_an_object_leaving_the_frame_is_refused():
     frames = _scene(T=120, amplitude=140.0, x0=250.0)  # the square swings out past the right border
-    with pytest.raises(ClipError, match="leaves the frame"):
+    with pytest.raises(ClipError, match="out.mp4: outside the model class: the moving object leaves the frame"):
         analyse_motion(frames[:, ::2, ::2], "out.mp4")
+
+
+def _bar(angles: np.ndarray, size: int = 96, seed: int = 0) -> np.ndarray:
+    """A bar with a dot at one end turning about the centre of a noisy textured frame, one frame per angle (rad)."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[:size, :size]
+    bg = np.where(((xx // 12) + (yy // 12)) % 2, 160, 100).astype(np.float32)
+    out = []
+    for a in angles:
+        img = bg.copy()
+        c = size // 2
+        p = (int(c + 30 * np.cos(a)), int(c + 30 * np.sin(a)))
+        img = cv2.line(img, (int(c - 30 * np.cos(a)), int(c - 30 * np.sin(a))), p, 30.0, 4)
+        img = cv2.circle(img, p, 5, 240.0, -1)
+        img += rng.normal(0, 3.0, img.shape)
+        out.append(np.repeat(np.clip(img, 0, 255).astype(np.uint8)[..., None], 3, -1))
+    return np.stack(out)
+
+
+def test_a_rotation_is_told_from_an_oscillation_by_how_its_image_winds():
+    t = np.arange(240) / 30.0
+    swing = _bar(np.radians(120) * np.cos(2 * np.pi * 0.7 * t))  # +-120 degrees: an oscillation, retracing its arc
+    spin = _bar(2 * np.pi * 0.5 * t)  # four turns in one direction
+    grey = lambda f: f.astype(np.float32).mean(-1) / 255.0  # noqa: E731
+    changing = lambda f: grey(f).std(0) > 0.05  # noqa: E731
+    net_s, tot_s = image_winding(grey(swing), changing(swing))
+    net_r, tot_r = image_winding(grey(spin), changing(spin))
+    assert abs(net_s) < 0.2 * tot_s and abs(net_r) > 3.5 and abs(net_r) > 0.9 * tot_r  # an arc retraced; a loop run round
+    analyse_motion(swing, "swing.mp4")  # an oscillation passes
+    with pytest.raises(ClipError, match=r"spin.mp4: outside the model class: the object turns about a point"):
+        analyse_motion(spin, "spin.mp4")
 
 
 def test_ingest_applies_auto_and_records_it(tmp_path):

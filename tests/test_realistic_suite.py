@@ -15,7 +15,7 @@ import lagsplat.synth.realistic.camera  # noqa: E402,F401  (sets MUJOCO_GL=egl b
 
 mujoco = pytest.importorskip("mujoco")
 
-from lagsplat.synth.realistic import clip_spec, make_clip, motion_of, realistic_suite  # noqa: E402
+from lagsplat.synth.realistic import clip_spec, make_clip, motion_of, outside_class_clips, realistic_suite  # noqa: E402
 from lagsplat.synth.realistic.camera import render_frames  # noqa: E402
 from lagsplat.timeseries import spectral_peak_frequency  # noqa: E402
 
@@ -91,3 +91,18 @@ def test_a_clip_is_deterministic_and_has_what_real_video_has(tmp_path, gl_ok) ->
     red = (fa[..., 0].astype(int) - fa[..., 1] > 60).any(0)
     swept = cv2.dilate(red.astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool)
     assert (moving & ~swept).sum() > 20
+
+
+@pytest.mark.parametrize("entry", outside_class_clips(), ids=lambda e: e["name"])
+def test_motions_outside_the_model_class_are_named_in_one_line(entry, gl_ok, tmp_path) -> None:
+    from lagsplat.io.clip import ClipError
+    from lagsplat.prepare import prepare_video
+
+    m = motion_of(entry, fps=30.0, duration_s=12.0)
+    assert np.all(np.diff(m.q[:, 0]) >= 0) and not math.isfinite(m.f0_hz)  # no rest state to oscillate about
+    mp4 = make_clip(entry["name"], tmp_path)
+    why = {"rotation": "the object turns about a point", "leaves_frame": "the moving object leaves the frame"}[entry["outside_class"]]
+    with pytest.raises(ClipError) as err:
+        prepare_video(mp4)
+    msg = str(err.value)
+    assert msg.startswith(f"{mp4}: outside the model class: {why}") and "\n" not in msg

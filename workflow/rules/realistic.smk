@@ -6,10 +6,11 @@
 #   snakemake -c2 realistic_suite --config realistic_dir=/scratch/clips
 #
 # Config key: realistic_dir (default data/cache/realistic; not committed). One job per clip, each logged.
-from lagsplat.synth.realistic import realistic_suite
+from lagsplat.synth.realistic import outside_class_clips, realistic_suite
 
 REALISTIC_DIR = str(config.get("realistic_dir", "data/cache/realistic"))
 REALISTIC_CLIPS = [e["name"] for e in realistic_suite()]
+OUTSIDE_CLASS_CLIPS = [e["name"] for e in outside_class_clips()]  # rendered with the suite; the pipeline must stop on them
 
 
 rule realistic_clip:
@@ -20,16 +21,16 @@ rule realistic_clip:
     log:
         f"{RESULTS}/logs/realistic/{{clip}}.log",
     wildcard_constraints:
-        clip="|".join(re.escape(c) for c in REALISTIC_CLIPS),
+        clip="|".join(re.escape(c) for c in REALISTIC_CLIPS + OUTSIDE_CLASS_CLIPS),
     threads: 1
     shell:
         f"python -m lagsplat.synth.realistic --clip {{wildcards.clip}} --out {REALISTIC_DIR} > {{log}} 2>&1"
 
 
 rule realistic_suite:
-    """Every clip of the realistic suite."""
+    """Every clip of the realistic suite, and the clips of motions outside the model class."""
     input:
-        [f"{REALISTIC_DIR}/{c}.mp4" for c in REALISTIC_CLIPS],
+        [f"{REALISTIC_DIR}/{c}.mp4" for c in REALISTIC_CLIPS + OUTSIDE_CLASS_CLIPS],
 
 
 REALISTIC_ROWS = f"{RESULTS}/benchmarks/realistic"

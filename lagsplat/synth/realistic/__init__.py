@@ -32,9 +32,9 @@ import numpy as np
 
 from lagsplat.synth.effect_truth import EFFECTS
 from lagsplat.synth.realistic.camera import add_camera_nuisances, render_frames, write_mp4
-from lagsplat.synth.realistic.motion import Motion, double_pendulum_motion, one_dof_motion
+from lagsplat.synth.realistic.motion import Motion, double_pendulum_motion, one_dof_motion, slide_out_motion, spin_down_motion
 
-__all__ = ["realistic_suite", "clip_spec", "make_clip", "motion_of", "SIZES"]
+__all__ = ["realistic_suite", "outside_class_clips", "clip_spec", "make_clip", "motion_of", "SIZES"]
 
 SIZES = {"128": (128, 128), "640x480": (640, 480)}
 """Resolutions, name -> (width, height)."""
@@ -67,13 +67,30 @@ def realistic_suite() -> list[dict[str, Any]]:
     return out
 
 
+def outside_class_clips() -> list[dict[str, Any]]:
+    """Clips of motions outside the model class, which the pipeline must name and stop on, not fit.
+
+    A disk spinning down (``torsion_disk-spin_down-s0-128``: a rotation of a few turns, no rest
+    state it oscillates about) and a cart pushed out of view (``spring_cart-slide_out-s0-128``).
+    Each entry's ``outside_class`` says which (``rotation``, ``leaves_frame``). They are not
+    part of :func:`realistic_suite` (no frequency to score); ``realistic_suite`` (the Snakemake
+    target) renders them too.
+    """
+    return [
+        {"name": "torsion_disk-spin_down-s0-128", "system": "torsion_disk", "effect": "spin_down", "variant": "s0", "size": "128", "seed": 0,
+         "outside_class": "rotation"},
+        {"name": "spring_cart-slide_out-s0-128", "system": "spring_cart", "effect": "slide_out", "variant": "s0", "size": "128", "seed": 0,
+         "outside_class": "leaves_frame"},
+    ]  # fmt: skip
+
+
 def clip_spec(name: str) -> dict[str, Any]:
-    """The suite entry called ``name``.
+    """The entry called ``name`` (:func:`realistic_suite` or :func:`outside_class_clips`).
 
     Raises:
         KeyError: naming the unknown clip and how to list the known ones.
     """
-    for e in realistic_suite():
+    for e in realistic_suite() + outside_class_clips():
         if e["name"] == name:
             return e
     raise KeyError(f"unknown realistic clip {name!r} (python -m lagsplat.synth.realistic --list)")
@@ -82,6 +99,10 @@ def clip_spec(name: str) -> dict[str, Any]:
 def motion_of(spec: dict[str, Any], fps: float = 30.0, duration_s: float = 12.0) -> Motion:
     """The ground-truth motion of one suite entry (:mod:`lagsplat.synth.realistic.motion`)."""
     system, variant = spec["system"], spec["variant"]
+    if spec["effect"] == "spin_down":
+        return spin_down_motion(spec["seed"], fps, duration_s)
+    if spec["effect"] == "slide_out":
+        return slide_out_motion(spec["seed"], fps, duration_s)
     if system == "double_pendulum":
         return double_pendulum_motion(spec["seed"], fps, duration_s, float(variant[1:]))
     amp = float(variant[1:]) if system == "torsion_disk" else 60.0

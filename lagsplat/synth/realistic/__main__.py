@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from lagsplat.synth.realistic import make_clip, realistic_suite
+from lagsplat.synth.realistic import make_clip, outside_class_clips, realistic_suite
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -16,7 +16,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", help="output folder: <clip>.mp4 and <clip>.truth.npz")
     args = p.parse_args(argv)
     if args.list:
-        print("\n".join(e["name"] for e in realistic_suite()))
+        print("\n".join(e["name"] for e in realistic_suite() + outside_class_clips()))
         return 0
     if not args.clip or not args.out:
         p.print_usage(sys.stderr)

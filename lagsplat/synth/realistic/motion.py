@@ -14,6 +14,14 @@ integrated there; a clip keeps the first recording of
 * ``double_pendulum``: two equal point-mass pendulums in series, no effect,
   integrated here (DOP853, ``rtol`` 1e-10), light linear joint damping.
 
+Two motions outside the model class (no rest state to oscillate about), for
+the checks that must name them rather than fit them:
+
+* ``spin_down_motion``: the torsion disk without its spring, spun up and left
+  to stop under viscous and dry friction (a rotation of several turns);
+* ``slide_out_motion``: the cart without its spring, pushed so that it rolls
+  out of the camera's view.
+
 The hidden force is ``x'' - (-w0^2 g(x) - 2 zeta w0 x')`` per frame, ``x''``
 from the integrated velocity by fourth-order central differences (:func:`acceleration_of`): what the nominal
 damped oscillator of the clip's ``f0`` and ``zeta`` does not explain (zero,
@@ -32,7 +40,7 @@ from scipy.integrate import solve_ivp
 from lagsplat.synth.effect_truth import NOMINAL_AMPLITUDE
 from lagsplat.synth.effects import simulate_effect
 
-__all__ = ["Motion", "CART_METRES", "one_dof_motion", "double_pendulum_motion", "acceleration_of", "GRAVITY"]
+__all__ = ["Motion", "CART_METRES", "one_dof_motion", "double_pendulum_motion", "spin_down_motion", "slide_out_motion", "acceleration_of", "GRAVITY"]
 
 CART_METRES = 1.0
 """Metres per frame width of the effect library's cart coordinate."""
@@ -142,3 +150,46 @@ def double_pendulum_motion(seed: int, fps: float, duration_s: float, amplitude_d
     q, qd = sol.y[:2].T, sol.y[2:].T
     truth = {"system": "double_pendulum", "effect": "none", "length_m": l_, "zeta": zeta, "amplitude_deg": float(amplitude_deg), "f0_hz": w_slow / (2 * math.pi)}
     return Motion(t, q, qd, np.zeros(n), w_slow / (2 * math.pi), truth)
+
+
+def _friction_stop(v0: float, c: float, mu: float, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Position and velocity under ``x'' = -c x' - mu sign(x')`` from ``(0, v0 > 0)``: ``(x [T], x' [T])``, at rest after the stop."""
+    k = mu / c
+    t_stop = math.log((v0 + k) / k) / c
+    ts = np.minimum(t, t_stop)
+    v = np.where(t < t_stop, (v0 + k) * np.exp(-c * ts) - k, 0.0)
+    x = (v0 + k) * (1 - np.exp(-c * ts)) / c - k * ts
+    return x, v
+
+
+def spin_down_motion(seed: int, fps: float, duration_s: float) -> Motion:
+    """The torsion disk with no spring, spun up to about 0.9 turns/s and stopping after about 7 s (module docstring).
+
+    ``q`` is the disk's angle (rad), monotone; ``hidden`` the friction's angular acceleration;
+    ``f0_hz`` is ``nan`` (there is no natural frequency).
+    """
+    rng = np.random.default_rng([int(seed), 5, 3])
+    w0 = 2 * math.pi * rng.uniform(0.8, 1.0)
+    c, t_stop = 0.2, rng.uniform(6.5, 7.5)
+    mu = w0 * c / (math.exp(c * t_stop) - 1)
+    t = np.arange(int(round(duration_s * fps))) / fps
+    x, v = _friction_stop(w0, c, mu, t)
+    hidden = np.where(v > 0, -c * v - mu, 0.0)
+    truth = {"system": "torsion_disk", "effect": "spin_down", "omega0_rad_s": w0, "viscous_per_s": c, "coulomb_rad_s2": mu,
+             "stop_s": t_stop, "turns": float(x[-1] / (2 * math.pi)), "f0_hz": float("nan"), "outside_class": "rotation"}  # fmt: skip
+    return Motion(t, x[:, None], v[:, None], hidden, float("nan"), truth)
+
+
+def slide_out_motion(seed: int, fps: float, duration_s: float) -> Motion:
+    """The spring cart with no spring, pushed from 0.3 m left of centre at about 0.6 m/s: it rolls out of view (module docstring).
+
+    ``q`` is the cart's position (m); ``hidden`` the rolling friction's acceleration; ``f0_hz`` is ``nan``.
+    """
+    rng = np.random.default_rng([int(seed), 5, 4])
+    v0, c, mu = rng.uniform(0.55, 0.65), 0.05, 0.01
+    t = np.arange(int(round(duration_s * fps))) / fps
+    x, v = _friction_stop(v0, c, mu, t)
+    hidden = np.where(v > 0, -c * v - mu, 0.0)
+    truth = {"system": "spring_cart", "effect": "slide_out", "v0_m_s": v0, "viscous_per_s": c, "coulomb_m_s2": mu,
+             "f0_hz": float("nan"), "outside_class": "leaves_frame"}  # fmt: skip
+    return Motion(t, (x - 0.3)[:, None], v[:, None], hidden, float("nan"), truth)
