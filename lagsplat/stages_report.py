@@ -88,10 +88,12 @@ def stage_diagnose(cfg: DictConfig) -> None:
     title = str(cfg.system.get("title", cfg.system.name)) + (f" [{cfg.variant}]" if cfg.get("variant") else "")
     a = artifacts_of(cfg)
     rep = diagnose_system(a, dc, EvalConfig(**plain(cfg.evaluate)), title, bool(cfg.progress))
-    red = (rep["gap"].get("reduction") or {}).get("eps_q")
+    gap = rep.get("gap") or {}  # none when the run stopped at the chart-quality gate
+    red = (gap.get("reduction") or {}).get("eps_q")
     print(
-        f"{cfg.system.name}: {rep['verdict_text']}; held-out eps_q {rep['gap']['before']['eps_q']:.4f}"
-        + (f" -> {rep['gap']['after']['eps_q']:.4f} ({100 * red:+.0f} %)" if red is not None else "")
+        f"{cfg.system.name}: {rep['verdict_text']}"
+        + (f"; held-out eps_q {gap['before']['eps_q']:.4f}" if gap.get("before") else "")
+        + (f" -> {gap['after']['eps_q']:.4f} ({100 * red:+.0f} %)" if red is not None else "")
         + f"; report: {a.report_md}"
     )
     from lagsplat.io.atomic import atomic_write

@@ -562,3 +562,29 @@ def test_cli_diagnose_stage_on_a_tiny_system(tmp_path) -> None:
     rep = json.loads((d / "diagnosis" / "report.json").read_text())
     assert rep["system"] == "toy_tiny" and (d / "diagnosis" / "report.md").exists() and (d / "diagnosis" / "config.yaml").exists()
     assert sorted(p.name for p in d.iterdir()) == ["chart.npz", "clip.npz", "diagnosis", "stage1.pt", "stage2.pt"]  # writes only diagnosis/
+
+
+def test_cli_diagnose_on_a_run_stopped_at_the_gate_says_cannot_diagnose(tmp_path) -> None:
+    """No ``stage2.pt`` and a chart that failed the gate: the verdict is "cannot diagnose" with the gate's reasons."""
+    from lagsplat.io.clip import save_clip
+    from lagsplat.models.autoencoder import AutoEncoder, save_stage1
+    from lagsplat.models.encoder import CpAEEncoder
+
+    ae, chart, _, clip = _pushed_pendulum()
+    chart.meta = {"gate": {"passed": False, "reasons": ["continuity: chart speed jumps 17.8x between neighbouring steps at frame 633 (need < 4)"]}}
+    d = tmp_path / "toy_tiny"
+    save_clip(d / "clip.npz", clip)
+    save_stage1(d / "stage1.pt", AutoEncoder(CpAEEncoder(1, (2, 2, 2), 12), ae.decoder, ae.height, ae.width), {"backend": "auto"}, {}, 1)
+    save_chart(d / "chart.npz", chart)
+    r = subprocess.run([sys.executable, "-m", "lagsplat", "diagnose", "system=toy_tiny", f"results_dir={tmp_path}", "threads=1", "progress=false"],
+                       cwd=ROOT, capture_output=True, text=True, timeout=600, check=False)  # fmt: skip
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "toy_tiny: cannot diagnose: chart-quality gate continuity" in r.stdout
+    rep = json.loads((d / "diagnosis" / "report.json").read_text())
+    assert rep["verdict"] == "cannot_diagnose" and rep["diagnosis"] is None and not rep["refit"]["done"]
+    assert "**Verdict: cannot diagnose: chart-quality gate continuity" in (d / "diagnosis" / "report.md").read_text()
+    chart.meta = {"gate": {"passed": True, "reasons": []}}  # a chart that passes: Stage 2 is missing, and the error says so
+    save_chart(d / "chart.npz", chart)
+    r = subprocess.run([sys.executable, "-m", "lagsplat", "diagnose", "system=toy_tiny", f"results_dir={tmp_path}", "threads=1", "progress=false"],
+                       cwd=ROOT, capture_output=True, text=True, timeout=600, check=False)  # fmt: skip
+    assert r.returncode != 0 and "stage2.pt" in r.stderr

@@ -64,7 +64,7 @@ from lagsplat.diagnose.refit import (
 from lagsplat.diagnose.refit_choice import choose_by_refit
 from lagsplat.diagnose.refit_io import save_refit
 from lagsplat.diagnose.refit_terms import refit_spec
-from lagsplat.diagnose.report_checks import held_out_check, reliability
+from lagsplat.diagnose.report_checks import held_out_check, no_model_report, reliability
 from lagsplat.diagnose.where import WhereConfig, split_code
 from lagsplat.diagnose.where_plots import plot_where
 from lagsplat.io.atomic import atomic_write, write_json
@@ -342,13 +342,24 @@ def diagnose_system(
     Returns:
         The report.
 
+    A run stopped at the chart-quality gate (no ``stage2.pt``, the chart failing its
+    checks) gets the verdict "cannot diagnose" with the reasons
+    (:func:`~lagsplat.diagnose.report_checks.no_model_report`).
+
     Raises:
         FileNotFoundError: naming the first missing artifact.
     """
     from lagsplat.train.stage2 import Stage2Config
 
     a = artifacts if isinstance(artifacts, Artifacts) else Artifacts.at(artifacts)
-    a.require("clip", "stage1", "chart", "stage2")
+    a.require("clip", "stage1", "chart")
+    if not a.stage2.exists() and not reliability(chart := a.load_chart())["reliable"]:  # stopped at the chart-quality gate
+        rep, md = no_model_report(chart, a.system_dir.name, title)
+        write_json(a.diagnosis / DIAGNOSIS_FILES["report_json"], rep)
+        with atomic_write(a.diagnosis / DIAGNOSIS_FILES["report_md"]) as tmp:
+            tmp.write_text(md)
+        return rep
+    a.require("stage2")
     clip, ae, chart = a.load_clip(), a.load_stage1(), a.load_chart()
     model, ck = a.load_stage2()
     s2 = Stage2Config.from_mapping(ck["config"])

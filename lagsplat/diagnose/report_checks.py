@@ -18,7 +18,7 @@ import numpy as np
 
 from lagsplat.diagnose.markdown import fmt_pct
 
-__all__ = ["reliability", "CHECK_METRICS", "held_out_check"]
+__all__ = ["reliability", "CHECK_METRICS", "held_out_check", "no_model_report"]
 
 
 def reliability(chart: Any, stage2_history: Mapping[str, Any] | None = None, diagnosis: Any | None = None) -> dict[str, Any]:
@@ -127,3 +127,24 @@ def held_out_check(gap: Mapping[str, Any], effects: Sequence[str]) -> dict[str, 
         "what the training frames point to is not confirmed on the held-out frames"
     )
     return {"confirmed": bool(ok), "text": text}
+
+
+def no_model_report(chart: Any, system: str, title: str = "") -> tuple[dict[str, Any], str]:
+    """``(report.json content, report.md text)`` of a run stopped before Stage 2 by a chart that fails its checks.
+
+    Nothing but the chart's checks (:func:`reliability`) is read: there is no identified model
+    to take a residual from. The verdict is ``"cannot_diagnose"`` with the reasons.
+
+    Raises:
+        ValueError: if the chart passes its checks (a run that stopped for another reason needs Stage 2 first).
+    """
+    rel = reliability(chart)
+    if rel["reliable"]:
+        raise ValueError(f"{system}: the chart passes its checks; run Stage 2 before the diagnosis")
+    text = "cannot diagnose: " + "; ".join(rel["reasons"])
+    rep = {"system": system, "title": title or system, "verdict": "cannot_diagnose", "verdict_text": text, "reliability": rel,
+           "residual_ranking": None, "diagnosis": None, "gap": None, "refit": {"done": False, "reason": "no identified model: Stage 2 was not run"}}  # fmt: skip
+    md = "\n".join([f"# Sim-to-real gap diagnosis: {title or system}", "", f"**Verdict: {text}.**", "",
+                     "The run stopped before Stage 2 because the chart does not support a model, so there is no residual to read. "
+                     "Improve Stage 1 first (a tighter crop, more steps or Gaussians; docs/preparation.md).", ""])  # fmt: skip
+    return rep, md
