@@ -44,11 +44,11 @@ def truth_frequency(truth_npz: Path, n_train: int | None = None) -> float:
     return float(spectral_peak_frequency(ho, float(np.median(np.diff(t)))))
 
 
-def run_clip(name: str, clips: Path, results: Path, threads: int, extra: list[str]) -> tuple[int, str, float]:
-    """Run the pipeline on one clip; returns ``(exit code, last stderr line, wall seconds)``."""
+def run_clip(name: str, clips: Path, results: Path, threads: int, extra: list[str], stage: str = "all") -> tuple[int, str, float]:
+    """Run the pipeline (``stage``: ``all``, or ``diagnose`` on its artifacts) on one clip; returns ``(exit code, last stderr line, wall seconds)``."""
     spec = clip_spec(name)
     d = 2 if spec["system"] == "double_pendulum" else 1
-    cmd = [sys.executable, "-m", "lagsplat", "all", "system=realistic", f"system.name={name}", f"system.title={name}",
+    cmd = [sys.executable, "-m", "lagsplat", stage, "system=realistic", f"system.name={name}", f"system.title={name}",
            f"system.source.path={clips / (name + '.mp4')}", f"system.d={d}", f"results_dir={results}", f"threads={threads}",
            "progress=false", *extra]  # fmt: skip
     t0 = time.perf_counter()
@@ -99,6 +99,22 @@ def row_of(name: str, clips: Path, results: Path, code: int, reason: str, wall_s
     return row
 
 
+def diagnosis_of(name: str, results: Path, code: int, reason: str, wall_s: float) -> dict:
+    """The diagnosis's fields of a row: the truth, the verdict, and the held-out gap reduction of the refit.
+
+    ``diagnosis_ok``: the verdict names the clip's effect (``none`` for a clip without one); a chart
+    that failed the gate must read ``cannot_diagnose``, which is then counted apart, not as right.
+    """
+    spec = clip_spec(name)
+    rj = Artifacts.for_run(results, name).report_json
+    rep = json.loads(rj.read_text()) if code == 0 and rj.exists() else None
+    if rep is None:
+        return {"diagnosis_status": "crashed", "diagnosis_reason": reason, "diagnosis_wall_s": round(wall_s, 1)}
+    red = ((rep.get("gap") or {}).get("reduction") or {}).get("eps_q")
+    return {"diagnosis_status": "ok", "truth_effect": spec["effect"], "verdict": rep["verdict"], "verdict_text": rep["verdict_text"],
+            "diagnosis_ok": rep["verdict"] == spec["effect"], "gap_reduction_eps_q": red, "diagnosis_wall_s": round(wall_s, 1)}  # fmt: skip
+
+
 def gather(rows: list[dict], out_md: Path, argv: list[str] | None = None) -> dict:
     """Write the summary table (Markdown) and the JSON record beside it; returns the summary.
 
@@ -118,6 +134,19 @@ def gather(rows: list[dict], out_md: Path, argv: list[str] | None = None) -> dic
         "wall_s_median": float(np.median([r["wall_s"] for r in rows])) if rows else None,
         "wall_s_max": float(max(r["wall_s"] for r in rows)) if rows else None,
     }  # fmt: skip
+    dg = [r for r in rows if r.get("diagnosis_status") == "ok"]
+    if dg:
+        passed = [r for r in dg if r.get("gate_passed")]
+        ctrl = [r for r in passed if r["truth_effect"] == "none"]
+        reds = [r["gap_reduction_eps_q"] for r in passed if r["truth_effect"] != "none" and r.get("gap_reduction_eps_q") is not None]
+        summary["diagnosis"] = {
+            "n_diagnosed": len(dg), "n_on_passed_charts": len(passed),
+            "top1": float(np.mean([r["diagnosis_ok"] for r in passed])) if passed else None,
+            "controls_flagged": sum(r["verdict"] not in ("none", "cannot_diagnose") for r in ctrl), "n_controls": len(ctrl),
+            "failed_gate_read_cannot_diagnose": sum(r["verdict"] == "cannot_diagnose" for r in dg if r.get("gate_passed") is False),
+            "n_failed_gate": sum(r.get("gate_passed") is False for r in dg),
+            "median_gap_reduction_eps_q": float(np.median(reds)) if reds else None,
+        }  # fmt: skip
     commits = sorted({r.get("commit", "unknown") for r in rows})
     summary["commits"] = commits
     L = [f"{summary['n_clips']} clips over {len(summary['systems'])} systems: {summary['n_ok']} with metrics, "
@@ -129,16 +158,23 @@ def gather(rows: list[dict], out_md: Path, argv: list[str] | None = None) -> dic
     if len(e):
         L += [f"Frequency error against the truth: median {100 * summary['eps_freq_truth_median']:.2f} %, 90th percentile "
               f"{100 * summary['eps_freq_truth_p90']:.2f} %, within 5 %: {100 * summary['share_within_5pct']:.0f} % of the clips with metrics.", ""]  # fmt: skip
+    if "diagnosis" in summary:
+        D = summary["diagnosis"]
+        top1 = "n/a" if D["top1"] is None else f"{100 * D['top1']:.0f} %"
+        red = "n/a" if D["median_gap_reduction_eps_q"] is None else f"{100 * D['median_gap_reduction_eps_q']:+.0f} %"
+        L += [f"Diagnosis ({D['n_diagnosed']} clips): top-1 {top1} over the {D['n_on_passed_charts']} whose chart passed the gate; "
+              f"controls flagged {D['controls_flagged']}/{D['n_controls']}; charts that failed the gate read cannot_diagnose "
+              f"{D['failed_gate_read_cannot_diagnose']}/{D['n_failed_gate']}; median held-out eps_q change after the refit {red}.", ""]  # fmt: skip
     L += [f"Wall time per clip: median {summary['wall_s_median']:.0f} s, max {summary['wall_s_max']:.0f} s.", "",
-          "| clip | status | gate | attempts | f_truth (Hz) | f_sim (Hz) | eps_freq vs truth | eps_q | eps_I / eps_AE | continuity | coverage | saturation | reason |",
-          "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+          "| clip | status | gate | attempts | f_truth (Hz) | f_sim (Hz) | eps_freq vs truth | eps_q | eps_I / eps_AE | continuity | coverage | saturation | verdict | reason |",
+          "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     fmt = lambda v, f: "" if v is None else format(v, f)  # noqa: E731
     for r in sorted(rows, key=lambda r: r["name"]):
         g = r.get("gate") or {}
         gate = {True: "passed", False: "failed"}.get(r.get("gate_passed"), "")
         L.append(f"| {r['name']} | {r['status']} | {gate} | {r.get('stage1_attempts', '')} | {r['f_truth_hz']:.3f} | {fmt(r.get('f_sim_hz'), '.3f')} | "
                  f"{fmt(r.get('eps_freq_truth'), '.2%')} | {fmt(r.get('eps_q'), '.3f')} | {fmt(r.get('eps_I_over_AE'), '.2f')} | "
-                 f"{fmt(g.get('continuity'), '.1f')} | {fmt(g.get('coverage'), '.2f')} | {fmt(g.get('saturation'), '.2f')} | {r.get('reason', '').replace('|', chr(92) + '|')} |")  # fmt: skip
+                 f"{fmt(g.get('continuity'), '.1f')} | {fmt(g.get('coverage'), '.2f')} | {fmt(g.get('saturation'), '.2f')} | {r.get('verdict', '')} | {r.get('reason', '').replace('|', chr(92) + '|')} |")  # fmt: skip
     rep = Report("Realistic suite (MuJoCo-rendered clips) against the ground truth", out_md, __file__, argv)
     rep.block("\n".join(L), echo=False)  # the command line and the environment go under the title
     rep.write(timings="wall time per clip as measured by the per-clip jobs (`--clip ... --row`)")
@@ -154,6 +190,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--results", type=Path, default=ROOT / "results" / "realistic")
     ap.add_argument("--row", type=Path, help="where the clip's row goes (JSON)")
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--diagnose", action="store_true", help="also run the diagnosis (python -m lagsplat diagnose) and score its verdict; "
+                    "with an existing --row, only the diagnosis, on the cached artifacts")
     ap.add_argument("--gather", nargs="+", type=Path, help="rows to summarise")
     ap.add_argument("--out", type=Path, default=ROOT / "results" / "benchmarks" / "realistic.md")
     ap.add_argument("extra", nargs="*", help="Hydra overrides for every stage, e.g. stage1.steps=500")
@@ -164,9 +202,16 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if not a.clip or not a.row:
         ap.error("give --clip and --row, or --gather")
-    code, reason, wall = run_clip(a.clip, a.clips, a.results, a.threads, a.extra)
-    row = row_of(a.clip, a.clips, a.results, code, reason, wall)
-    write_json(a.row, row)
+    if a.row.exists() and a.diagnose:  # the pipeline's row is there: the diagnosis only, on its artifacts
+        row = json.loads(a.row.read_text())
+    else:
+        code, reason, wall = run_clip(a.clip, a.clips, a.results, a.threads, a.extra)
+        row = row_of(a.clip, a.clips, a.results, code, reason, wall)
+        write_json(a.row, row)
+    if a.diagnose and Artifacts.for_run(a.results, a.clip).chart.exists():
+        code, reason, wall = run_clip(a.clip, a.clips, a.results, a.threads, a.extra, stage="diagnose")
+        row.update(diagnosis_of(a.clip, a.results, code, reason, wall), diagnosis_commit=_commit())
+        write_json(a.row, row)
     print(json.dumps(row))
     return 0
 

@@ -5,7 +5,8 @@
 #   snakemake -c2 realistic_suite                                   # every clip, into the cache folder
 #   snakemake -c2 realistic_suite --config realistic_dir=/scratch/clips
 #
-# Config key: realistic_dir (default data/cache/realistic; not committed). One job per clip, each logged.
+# Config keys: realistic_dir (default data/cache/realistic; not committed); realistic_args (extra flags of
+# every scoring job, e.g. "--diagnose": the diagnosis too, scored against the clip's effect). One job per clip, each logged.
 from lagsplat.synth.realistic import outside_class_clips, realistic_suite
 
 REALISTIC_DIR = str(config.get("realistic_dir", "data/cache/realistic"))
@@ -48,10 +49,12 @@ rule realistic_row:
         f"{RESULTS}/logs/realistic_runs/{{clip}}.log",
     wildcard_constraints:
         clip="|".join(re.escape(c) for c in REALISTIC_CLIPS),
+    params:
+        extra=str(config.get("realistic_args", "")),
     threads: 2
     shell:
         f"python benchmarks/realistic.py --clip {{wildcards.clip}} --clips {REALISTIC_DIR} --results {RESULTS}/realistic "
-        f"--threads {{threads}} --row {{output}} > {{log}} 2>&1"
+        f"--threads {{threads}} --row {{output}} {{params.extra}} > {{log}} 2>&1"
 
 
 rule realistic_scores:
