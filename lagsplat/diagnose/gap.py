@@ -245,6 +245,8 @@ def noise_floor(chart: Any, model: nn.Module, eval_cfg: Any | None = None, n_dra
         ch.q = chart.q.copy()
         ch.q[ho] = clean + rng.standard_normal(clean.shape) * noise
         m = _evaluate_latent(ch, model, cfg, source)
+        if m["eps_q"]["value"] is None or m["eps_freq"]["value"] is None:  # the clean motion is at rest: no floor to read
+            return out
         draws.append((m["eps_q"]["value"], m["eps_freq"]["value"]))
     a = np.array(draws)
     out.update(eps_q=float(a[:, 0].mean()), eps_freq=float(a[:, 1].mean()), eps_q_sd=float(a[:, 0].std()), eps_freq_sd=float(a[:, 1].std()))

@@ -40,6 +40,7 @@ from lagsplat.io.clip import HELD_OUT, Clip, ClipError
 from lagsplat.models.lagrangian import Lagrangian
 from lagsplat.models.autoencoder import AutoEncoder
 from lagsplat.evaluate.common import decode_mse, decoded_psnr_ssim, metric_entry
+from lagsplat.evaluate.rest import held_out_rest, rest_metrics
 
 __all__ = ["EvalConfig", "evaluate"]
 
@@ -72,6 +73,10 @@ def evaluate(clip: Clip, ae: AutoEncoder, chart: Chart, model: Lagrangian, cfg: 
         The ``metrics`` mapping of ``metrics.json`` (name -> entry with value,
         definition, horizon, units).
 
+    When the object is at rest in the held-out frames (a motion stopped by dry
+    friction), the oscillation metrics are ``None`` and the rest is scored instead
+    (:mod:`lagsplat.evaluate.rest`: ``held_out_at_rest``, ``rest_time_s``, ``eps_rest``).
+
     Raises:
         ClipError: if the held-out segment is shorter than two natural periods
             (plus the 3 frames the initial state needs).
@@ -86,6 +91,9 @@ def evaluate(clip: Clip, ae: AutoEncoder, chart: Chart, model: Lagrangian, cfg: 
     q_s = timeseries.gaussian_smooth(chart.q[ho], cfg.sigma)
     u_ho = chart.u[ho]  # measured actuation drives every rollout (paper Eq. 6); [n, 0] if none
     n = len(q_s)
+    rest = held_out_rest(chart, G, cfg.sigma)
+    if rest is not None:  # the motion stopped before the held-out part: nothing oscillates there to score
+        return {**rest_metrics(clip, ae, chart, model, cfg, G, rest), **_modes(clip, chart, model)}
     if n < 16:
         raise ClipError(f"{source}: held-out segment has {n} frames, too short to measure a frequency")
     f_enc = timeseries.spectral_peak_frequency(metrics.project(q_s, top), dt)
@@ -157,6 +165,32 @@ def evaluate(clip: Clip, ae: AutoEncoder, chart: Chart, model: Lagrangian, cfg: 
             "all frames",
             "ratio",
         )
+    out.update(_modes(clip, chart, model))
+    if "f_observed_hz" in clip.meta.get("truth", {}):
+        f_true = float(clip.meta["truth"]["f_observed_hz"])
+        out["f_truth_hz"] = metric_entry(f_true, "generator's true frequency on the held-out segment (lagsplat.synth)", "", "Hz")
+        out["eps_freq_truth"] = metric_entry(abs(np.nanmean(f_sim_w) - f_true) / f_true, "|f_sim - f_truth| / f_truth", "", "fraction")
+    # the image-quality numbers the field reports beside the MSE ratio, on the same rollout windows (scikit-image)
+    psnr, ssim = decoded_psnr_ssim(ae, chart, pred[finite].reshape(-1, chart.d), frames, cfg.render_batch)
+    fin = np.isfinite(psnr)
+    out["psnr_db"] = metric_entry(
+        float(psnr[fin].mean()) if fin.any() else float("nan"),
+        "PSNR of decode(q_sim) against the real frames, pixels in [0,1] (skimage.metrics.peak_signal_noise_ratio), mean over states",
+        horizon,
+        "dB",
+    )
+    out["ssim"] = metric_entry(
+        float(np.nanmean(ssim)) if np.isfinite(ssim).any() else float("nan"),
+        "SSIM of decode(q_sim) against the real frames (skimage.metrics.structural_similarity, 7 x 7 window, channel mean), mean over states",
+        horizon,
+        "1 = identical",
+    )
+    return out
+
+
+def _modes(clip: Clip, chart: Chart, model: Lagrangian) -> dict[str, dict]:
+    """The model's linearised modes at rest, and their errors against the clip's known truth when it has one."""
+    out: dict[str, dict] = {}
     modes = model.modal_analysis()
     out["f_modes_hz"] = metric_entry(
         modes["f_hz"].tolist(),
@@ -175,23 +209,4 @@ def evaluate(clip: Clip, ae: AutoEncoder, chart: Chart, model: Lagrangian, cfg: 
         out["eps_modes_zeta"] = metric_entry(
             (np.abs(modes["zeta"] - z_t) / z_t).tolist(), "|zeta_mode - zeta_mode_truth| / zeta_mode_truth per mode", "rest state", "fraction"
         )
-    if "f_observed_hz" in truth:
-        f_true = float(truth["f_observed_hz"])
-        out["f_truth_hz"] = metric_entry(f_true, "generator's true frequency on the held-out segment (lagsplat.synth)", "", "Hz")
-        out["eps_freq_truth"] = metric_entry(abs(np.nanmean(f_sim_w) - f_true) / f_true, "|f_sim - f_truth| / f_truth", "", "fraction")
-    # the image-quality numbers the field reports beside the MSE ratio, on the same rollout windows (scikit-image)
-    psnr, ssim = decoded_psnr_ssim(ae, chart, pred[finite].reshape(-1, chart.d), frames, cfg.render_batch)
-    fin = np.isfinite(psnr)
-    out["psnr_db"] = metric_entry(
-        float(psnr[fin].mean()) if fin.any() else float("nan"),
-        "PSNR of decode(q_sim) against the real frames, pixels in [0,1] (skimage.metrics.peak_signal_noise_ratio), mean over states",
-        horizon,
-        "dB",
-    )
-    out["ssim"] = metric_entry(
-        float(np.nanmean(ssim)) if np.isfinite(ssim).any() else float("nan"),
-        "SSIM of decode(q_sim) against the real frames (skimage.metrics.structural_similarity, 7 x 7 window, channel mean), mean over states",
-        horizon,
-        "1 = identical",
-    )
     return out

@@ -12,6 +12,16 @@ from lagsplat.io.atomic import atomic_write
 __all__ = ["physical_rows", "physical_table", "ablation_rows", "ablation_table", "seed_rows", "seed_table"]
 
 
+def _pct(x: float | None) -> float | None:
+    """``100 x``, or ``None`` (a metric not measured: held-out frames at rest, :mod:`lagsplat.evaluate.rest`)."""
+    return None if x is None else 100 * x
+
+
+def _tex(x: float | None, fmt: str) -> str:
+    """A number as a LaTeX math cell, or ``--`` when it was not measured (``None`` or NaN)."""
+    return "--" if x is None or x != x else f"${x:{fmt}}$"
+
+
 def _read_metrics(path: Path, kind: str) -> tuple[dict, dict]:
     """Load one ``metrics.json``: the whole document and its metric values by name.
 
@@ -50,7 +60,7 @@ def physical_rows(inputs: list[Path]) -> pd.DataFrame:
             {
                 "system": m["title"],
                 "d": m["d"],
-                "eps_freq_pct": 100 * v["eps_freq"],
+                "eps_freq_pct": _pct(v["eps_freq"]),
                 "eps_q": v["eps_q"],
                 "eps_I_over_AE": v["eps_I_over_AE"],
                 "eps_AE_1e-4": 1e4 * v["eps_AE"],
@@ -71,7 +81,7 @@ def physical_table(inputs: list[Path], out_tex: Path) -> tuple[Path, Path]:
     df = physical_rows(inputs)
     out_tex = Path(out_tex)
     body = "\n".join(
-        f"{r.system} & {r.d} & ${r.eps_freq_pct:.1f}$ & ${r.eps_q:.3f}$ & ${r.eps_I_over_AE:.1f}$ & ${r['eps_AE_1e-4']:.2f}$ \\\\"
+        f"{r.system} & {r.d} & {_tex(r.eps_freq_pct, '.1f')} & {_tex(r.eps_q, '.3f')} & ${r.eps_I_over_AE:.1f}$ & ${r['eps_AE_1e-4']:.2f}$ \\\\"
         for _, r in df.iterrows()
     )
     tex = (
@@ -109,7 +119,7 @@ def ablation_rows(inputs: list[Path]) -> pd.DataFrame:
             "mass": s2.get("mass", ""),
             "potential": s2.get("potential", ""),
             "eps_q": v["eps_q"],
-            "eps_freq_pct": 100 * v["eps_freq"],
+            "eps_freq_pct": _pct(v["eps_freq"]),
             "eps_I_over_AE": v["eps_I_over_AE"],
             "f_modes_hz": _fmt_list(v.get("f_modes_hz", [])),
             "zeta_modes": _fmt_list(v.get("zeta_modes", [])),
@@ -130,7 +140,7 @@ def ablation_table(inputs: list[Path], out_tex: Path) -> tuple[Path, Path]:
     head += " & $\\max\\varepsilon_f$ (\\%) & $\\max\\varepsilon_\\zeta$ (\\%)" if truth else ""
     lines = []
     for _, r in df.iterrows():
-        cells = [r.variant.replace("_", "\\_"), r.mass, r.potential, f"${r.eps_q:.3f}$", f"${r.eps_freq_pct:.1f}$", f"${r.eps_I_over_AE:.2f}$", r.f_modes_hz, r.zeta_modes]
+        cells = [r.variant.replace("_", "\\_"), r.mass, r.potential, _tex(r.eps_q, ".3f"), _tex(r.eps_freq_pct, ".1f"), f"${r.eps_I_over_AE:.2f}$", r.f_modes_hz, r.zeta_modes]
         if truth:
             cells += [f"${r.max_eps_mode_freq_pct:.1f}$", f"${r.max_eps_mode_zeta_pct:.0f}$"]
         lines.append(" & ".join(str(c) for c in cells) + " \\\\")

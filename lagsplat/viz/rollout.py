@@ -33,16 +33,20 @@ def metrics_line(metrics: dict) -> str:
 
 def held_out_frequency(metrics: dict) -> float:
     """The encoded held-out frequency (Hz) a ``metrics.json`` block gives: the paper protocol's
-    ``f_enc_segment_hz`` (whole held-out segment), else the mean over windows ``f_enc_hz`` (both protocols).
+    ``f_enc_segment_hz`` (whole held-out segment), else the mean over windows ``f_enc_hz`` (both protocols),
+    else (held-out frames at rest, :mod:`lagsplat.evaluate.rest`) the model's slowest mode ``f_modes_hz``.
 
     Raises:
-        ValueError: if neither is present and finite.
+        ValueError: if none is present and finite.
     """
     for key in ("f_enc_segment_hz", "f_enc_hz"):
         v = (metrics.get(key) or {}).get("value")
         if v is not None and np.isfinite(v) and v > 0:
             return float(v)
-    raise ValueError("metrics.json has no finite f_enc_segment_hz or f_enc_hz: evaluate the run first")
+    modes = [f for f in (metrics.get("f_modes_hz") or {}).get("value") or [] if f is not None and np.isfinite(f) and f > 0]
+    if modes:
+        return float(min(modes))
+    raise ValueError("metrics.json has no finite f_enc_segment_hz, f_enc_hz or f_modes_hz: evaluate the run first")
 
 
 def rollout_figure(artifacts: Artifacts | str | Path, title: str = "", provenance: str = "", sigma: float = 1.0) -> Path:
