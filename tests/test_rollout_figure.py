@@ -74,5 +74,5 @@ def test_rollout_figure_of_a_protocol_without_f_enc_segment_hz(tmp_path, monkeyp
     assert any(abs(line.get_xdata()[0] - t_start) < 0.01 for line in ax.get_lines() if line.get_linestyle() == "--")
 
     (art.metrics).write_text(json.dumps({"metrics": {"eps_q": {"value": 0.05}}}))
-    with pytest.raises(ValueError, match="f_enc_segment_hz or f_enc_hz"):
+    with pytest.raises(ValueError, match="f_enc_segment_hz, f_enc_hz or f_modes_hz"):
         rollout_viz.rollout_figure(art)

@@ -285,7 +285,9 @@ def test_the_rollout_figure_states_its_key_metrics_in_plain_words() -> None:
     assert metrics_line({"mse_0p5s": {"value": 1.5e-3}, "eps_freq": {"value": None}}) == "MSE(0.5 s) 1.50e-03  (held-out frames)"
     assert held_out_frequency(m) == 0.8  # the soft-robot protocol writes no f_enc_segment_hz
     assert held_out_frequency({"f_enc_segment_hz": {"value": 0.7}, **m}) == 0.7
-    with pytest.raises(ValueError, match="f_enc_segment_hz or f_enc_hz"):
+    # held-out frames at rest: no encoded frequency, the model's slowest mode instead
+    assert held_out_frequency({"f_enc_hz": {"value": None}, "f_modes_hz": {"value": [1.4, 0.6, None]}}) == 0.6
+    with pytest.raises(ValueError, match="f_enc_segment_hz, f_enc_hz or f_modes_hz"):
         held_out_frequency({"eps_q": {"value": 0.1}})
 
 
