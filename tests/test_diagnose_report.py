@@ -24,6 +24,7 @@ from lagsplat.chart import Chart, save_chart
 from lagsplat.diagnose import diagnose_chart
 from lagsplat.diagnose.refit import RefitConfig, add_control, refit
 from lagsplat.diagnose.refit_choice import choose_by_refit
+from lagsplat.diagnose.select import signature_confirmed
 from lagsplat.diagnose.refit_io import load_refit, save_refit
 from lagsplat.diagnose.refit_terms import RefitModel, model_chart, refit_spec
 from lagsplat.diagnose.gap import common_noise_floor, energy_check, envelope_decay, gap_reduction, held_out_gap, noise_floor
@@ -307,6 +308,10 @@ def test_the_winner_is_confirmed_by_its_refit_or_replaced_by_a_rival_whose_refit
     rc = RefitConfig(epochs=8)
     sig = [f.effect for f in diag.ranking if f.significant]
     assert sig[:1] == ["coulomb"] and len(sig) >= 2
+    # its linear envelope confirms the friction: no rival's refit overrules it ...
+    assert signature_confirmed(diag.effects[0]) and choose_by_refit(chart, model, cfg, diag, 1.0, rc) == (diag, [], None)
+    for f in diag.ranking:  # ... so the branches below are those of a winner without that confirmation
+        f.signature_support = 0.0
     assert choose_by_refit(chart, model, cfg, diag, None, rc) == (diag, [], None)  # no baseline: nothing compared
     lone = dataclasses.replace(diag, ranking=[f if f.effect == "coulomb" else dataclasses.replace(f, significant=False) for f in diag.ranking])
     assert choose_by_refit(chart, model, cfg, lone, 1.0, rc) == (lone, [], None)  # one significant candidate: nothing to choose

@@ -114,6 +114,9 @@ def fit_candidate(prob: Regression, eff: Effect, dirs: Sequence[np.ndarray], ext
     if not ok:
         fit.interpretation["below_practical_size"] = why
     fit.interpretation["fitted_against"] = "model linearisation" if eff.in_class else "fitted model"
+    fit.signature_support, reading = eff.signature_support(res.meta.get("signatures") or {})
+    if reading:
+        fit.interpretation["signature"] = reading
     return fit
 
 

@@ -29,6 +29,9 @@ class CandidateFit:
         ssr: weighted sum of squared residuals (noise units); ``k``: parameter count.
         bic: information criterion; ``delta_bic``: ``BIC_null - bic`` (higher is better).
         r2: share of the null residual explained; ``cv_gain``: blocked-CV gain over the null.
+        signature_support: evidence of the chart-invariant signatures for this effect, on the ``Delta BIC``
+            scale (:meth:`~lagsplat.diagnose.effect_base.Effect.signature_support`); ``evidence``:
+            ``delta_bic`` plus it (what the ranking and the decision read).
         physical: sign constraints satisfied (and the fit is not degenerate).
         significant: passes the significance rule (see module docstring).
         practical: large enough physically (:meth:`~lagsplat.diagnose.effect_base.Effect.practical`; always true for out-of-class effects).
@@ -50,12 +53,18 @@ class CandidateFit:
     delta_bic: float = 0.0
     r2: float = 0.0
     cv_gain: float = 0.0
+    signature_support: float = 0.0
     physical: bool = True
     significant: bool = False
     practical: bool = True
     force: np.ndarray | None = field(default=None, repr=False)
     design: np.ndarray | None = field(default=None, repr=False)
     interpretation: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def evidence(self) -> float:
+        """``delta_bic`` plus the signatures' support (never less than ``delta_bic``)."""
+        return float(self.delta_bic + max(self.signature_support, 0.0))
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-serialisable record (without the per-sample force)."""
@@ -70,6 +79,8 @@ class CandidateFit:
             "delta_bic": float(self.delta_bic),
             "r2": float(self.r2),
             "cv_gain": float(self.cv_gain),
+            "signature_support": float(self.signature_support),
+            "evidence": self.evidence,
             "physical": bool(self.physical),
             "practical": bool(self.practical),
             "significant": bool(self.significant),

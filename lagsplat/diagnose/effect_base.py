@@ -105,6 +105,18 @@ class Effect:
         """
         return True, ""
 
+    def signature_support(self, evidence: dict[str, Any]) -> tuple[float, str]:
+        """Evidence for this effect in the chart-invariant signatures, beside the regression: ``(support, reading)``.
+
+        ``support`` is on the scale of ``Delta BIC`` (:func:`~lagsplat.diagnose.signatures.signatures`:
+        the envelope's ``support`` and the rest's), and :func:`~lagsplat.diagnose.select.decide` adds it
+        to the candidate's own. Most effects leave no signature of that kind: ``(0, "")``.
+
+        Args:
+            evidence: :func:`~lagsplat.diagnose.signatures.signatures` of the residual.
+        """
+        return 0.0, ""
+
     # ------------------------------------------------------------------ helpers
     @staticmethod
     def coords(st: SegmentState, e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

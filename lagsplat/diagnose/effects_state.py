@@ -51,6 +51,23 @@ class CoulombEffect(Effect):
         vs = params["v_s"]
         return (lambda st: -np.tanh(self.coords(st, e)[1] / vs)), ["mu"]
 
+    def signature_support(self, evidence):
+        """A linear envelope (the amplitude falls by ``4 mu / k`` per cycle) and a rest off the centre of the oscillation.
+
+        The two are read from different parts of the recording (the turning points while it moves,
+        the position once it has stopped), so their evidence adds.
+        """
+        env = (evidence.get("envelope") or {}).get("support") or {}
+        rest = evidence.get("rest") or {}
+        lin, off = max(0.0, float(env.get("linear", 0.0))), float(rest.get("support", 0.0))
+        parts = []
+        if lin > 0:
+            parts.append(f"the turning points fall linearly (evidence {lin:.1f} over an exponential decay)")
+        if off > 0:
+            parts.append(f"the motion stops {abs(rest['offset_over_noise']):.1f} noise levels off the centre of its oscillation "
+                         f"at t = {rest['rest_time_s']:.2f} s (evidence {off:.1f})")
+        return lin + off, "; ".join(parts)
+
     def interpret(self, coef, se, params, res, e, scale):
         """The friction level, its share of the restoring force at the rms amplitude and the amplitude lost per cycle."""
         mu = float(coef[0])
@@ -78,6 +95,11 @@ class QuadraticDragEffect(Effect):
             return -np.abs(v) * v
 
         return phi, ["c2"]
+
+    def signature_support(self, evidence):
+        """A hyperbolic envelope: the decay rate grows with the amplitude (``1 / A`` falls linearly in time)."""
+        hyp = max(0.0, float(((evidence.get("envelope") or {}).get("support") or {}).get("hyperbolic", 0.0)))
+        return hyp, (f"the turning points fall hyperbolically (evidence {hyp:.1f} over an exponential decay)" if hyp > 0 else "")
 
     def interpret(self, coef, se, params, res, e, scale):
         """``c2`` and its equivalent viscous damping at the speed amplitude, relative to the model's."""

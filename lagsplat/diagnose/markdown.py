@@ -114,11 +114,13 @@ def evidence_section(rep: Mapping[str, Any]) -> list[str]:
     if st.get("sigma_frames_out_of_class") is not None:  # the two regressions' smoothing (lagsplat.diagnose.select, "Band of the out-of-class regression")
         smooth = (f"; in-class candidates (end stop, cubic stiffness) on the residual smoothed over {fmt_value(st['sigma_frames'], '.2f')} frames, "
                   f"the other candidates over {fmt_value(st['sigma_frames_out_of_class'], '.2f')}")  # fmt: skip
-    L += ["", "## Evidence", "", f"Ranking (first round; Delta BIC against the nuisance-only fit, higher is better{smooth}):", "",
-          "| effect | Delta BIC | R2 | CV gain | physical | significant | coefficients (value +- s.e.) |", "|---|---|---|---|---|---|---|"]  # fmt: skip
+    L += ["", "## Evidence", "", f"Ranking (first round; Delta BIC against the nuisance-only fit, plus the support of the candidate's own signature "
+          f"(envelope, rest position), higher is better{smooth}):", "",
+          "| effect | Delta BIC | signature | R2 | CV gain | physical | significant | coefficients (value +- s.e.) |", "|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for c in dg["ranking"]:
         coefs = "; ".join(f"{n} = {fmt_value(v['value'])} +- {fmt_value(v['se'], '.2g')}" for n, v in c["coefficients"].items())
-        L.append(f"| {c['effect']} | {fmt_value(c['delta_bic'], '.1f')} | {fmt_value(c['r2'], '.2f')} | {fmt_value(c['cv_gain'], '.2f')} | {fmt_value(c['physical'])} | {fmt_value(c['significant'])} | {coefs} |")
+        L.append(f"| {c['effect']} | {fmt_value(c['delta_bic'], '.1f')} | {fmt_value(c.get('signature_support', 0.0), '.1f')} | {fmt_value(c['r2'], '.2f')} | "
+                 f"{fmt_value(c['cv_gain'], '.2f')} | {fmt_value(c['physical'])} | {fmt_value(c['significant'])} | {coefs} |")  # fmt: skip
     if len(dg["ranking"]) > 1:
         a, b = dg["ranking"][0], dg["ranking"][1]
         L += ["", f"Margin of the first over the second: Delta BIC {fmt_value(a['delta_bic'] - b['delta_bic'], '.1f')}, CV gain {fmt_value(a['cv_gain'] - b['cv_gain'], '.2f')}."]
@@ -127,7 +129,15 @@ def evidence_section(rep: Mapping[str, Any]) -> list[str]:
     env = ev.get("envelope", {})
     if env.get("best"):
         ratios = ", ".join(f"{k} {fmt_value(v, '.2f')}" for k, v in (env.get("sse_ratio_to_best") or {}).items())
-        L.append(f"- envelope of the decay: best **{env['best']}** ({env['n_turning_points']} turning points; SSE / best: {ratios})")
+        sup = env.get("support") or {}
+        over = f"; evidence over exponential: linear {fmt_value(sup['linear'], '.1f')}, hyperbolic {fmt_value(sup['hyperbolic'], '.1f')}" if sup else ""
+        L.append(f"- envelope of the decay: best **{env['best']}** ({env['n_turning_points']} turning points; SSE / best: {ratios}{over})")
+    rest = ev.get("rest") or {}
+    if rest.get("at_rest"):
+        L.append(f"- rest: the motion stops at t = {fmt_value(rest['rest_time_s'], '.2f')} s, {fmt_value(abs(rest['offset_over_noise']), '.1f')} chart-noise levels "
+                 f"off the centre of its oscillation (evidence for dry friction {fmt_value(rest['support'], '.1f')}; a viscous decay rests at its centre)")  # fmt: skip
+    elif rest:
+        L.append("- rest: the motion does not come to rest in these frames")
     fr = ev.get("frequency", {})
     if "slope_amp2" in fr:
         L.append(f"- frequency vs amplitude^2: z = {fmt_value(fr['z_amp2'], '.1f')} (shift at the largest amplitude {fmt_pct(fr['relative_shift_at_max_amplitude'])}); "

@@ -9,6 +9,7 @@ from typing import Any
 from torch import nn
 
 from lagsplat.diagnose.refit import RefitConfig, RefitResult, refit
+from lagsplat.diagnose.select import signature_confirmed
 
 __all__ = ["choose_by_refit"]
 
@@ -34,7 +35,9 @@ def choose_by_refit(
     dry-friction clip a cubic-stiffness refit can follow the training video
     better than the friction's, by correcting the model's frequency), so it never
     ranks candidates whose refits help: it only rejects a winner whose refit
-    makes the model follow its own training video worse. Held-out frames are not read. Applies when
+    makes the model follow its own training video worse. Neither does it overrule a winner that its
+    own chart-invariant signature confirms (:func:`~lagsplat.diagnose.select.signature_confirmed`: a
+    linear envelope and an off-centre rest for dry friction). Held-out frames are not read. Applies when
     there is one accepted effect (``max_effects = 1``, the default) and at least two
     significant candidates with a Stage-2 refit (a missing degree of freedom has
     none and is never compared).
@@ -59,6 +62,8 @@ def choose_by_refit(
     refittable = [f for f in diagnosis.ranking if f.significant and f.effect != "missing_dof"]
     if baseline_nrmse is None or len(effects) != 1 or effects[0].effect == "missing_dof" or len(refittable) < 2:
         return diagnosis, [], None
+    if signature_confirmed(effects[0], float(diagnosis.settings.get("min_delta_bic", 10.0))):
+        return diagnosis, [], None  # its own signature confirms the winner: no rival's rollout error overrules it
     quiet = dataclasses.replace(cfg, control=False)
     first = effects[0]
     order = [first, *[f for f in refittable if f.effect != first.effect]]

@@ -97,9 +97,23 @@ Evidence
 :func:`~lagsplat.diagnose.signatures.signatures` reads the physical signatures off the trajectory: the
 envelope of the free decay (linear: dry friction; exponential: viscous;
 hyperbolic: quadratic drag), the dependence of the period-by-period frequency on
-amplitude (Duffing: hardening / softening, end stop) and on time (drift), and
+amplitude (Duffing: hardening / softening, end stop) and on time (drift), where
+the motion comes to rest (off the centre of the oscillation: dry friction), and
 the residual's spectral peaks against the model's modal frequencies (periodic
 force, missing degree of freedom).
+
+The envelope and the rest count as evidence the way a physicist reads a decay:
+each candidate says how much its own signature is present
+(:meth:`~lagsplat.diagnose.effect_base.Effect.signature_support`, on the ``Delta BIC``
+scale: the turning points' information criterion of a linear or hyperbolic
+envelope over the exponential one, and ``z^2 - log N`` of an off-centre rest),
+and that support is added to the candidate's ``Delta BIC`` (its *evidence*) for
+the ranking and the significance rule. The turning points are a few numbers
+read off the trajectory, not the residual force the regression fits, so a
+near-resonant periodic force that mimics a linear decay in the residual gains
+nothing from them. A signature that alone reaches ``min_delta_bic`` replaces
+the cross-validation's positive gain (it must merely not lose), and its effect
+is not overruled by a rival's refit (:func:`~lagsplat.diagnose.refit_choice.choose_by_refit`).
 
 Steps
 -----
@@ -127,7 +141,7 @@ from lagsplat.diagnose.regression import Regression, blocked_folds, linear_featu
 from lagsplat.diagnose.residual_data import Residual
 from lagsplat.diagnose.signatures import directions, signatures
 
-__all__ = ["select_effect", "rank_candidates", "decide"]
+__all__ = ["select_effect", "rank_candidates", "decide", "signature_confirmed"]
 
 
 def select_effect(
@@ -214,6 +228,7 @@ def select_effect(
     # the chart-invariant signatures, read before the fits: a cubic stiffness must also show in the timing
     ev = signatures(res, model_freqs_hz=model_freqs_hz)
     res.meta["frequency_signature"] = ev["frequency"]
+    res.meta["signatures"] = wide.meta["signatures"] = ev  # read by the candidates' signature_support
     probs, prob_null, prob_model = _regressions(res, wide, n_folds, block_s)
     dirs = {k: directions(p.res) for k, p in probs.items()}
     nuisance, null = _null_summary(res, wide, probs, prob_null)
@@ -254,10 +269,12 @@ def _forward_selection(
 
 
 def rank_candidates(fits: list[CandidateFit], probs: dict[bool, Regression], min_delta_bic: float, min_r2: float) -> list[CandidateFit]:
-    """Order the fits by decreasing ``Delta BIC`` and cross-validate where it can matter (the *rank* step).
+    """Order the fits by decreasing evidence and cross-validate where it can matter (the *rank* step).
 
-    The blocked cross-validation gain (module docstring) is the costly part: it is computed for
-    the top 3 and for every physical fit passing ``min_delta_bic`` and ``min_r2``; the others keep
+    The evidence is ``Delta BIC`` plus the signatures' support (:attr:`CandidateFit.evidence
+    <lagsplat.diagnose.diagnosis.CandidateFit.evidence>`; module docstring, "Evidence"). The blocked
+    cross-validation gain is the costly part: it is computed for the top 3 and for every physical fit
+    whose evidence passes ``min_delta_bic`` and whose ``R2`` passes ``min_r2``; the others keep
     ``cv_gain = 0`` (they cannot be significant).
 
     Args:
@@ -268,10 +285,10 @@ def rank_candidates(fits: list[CandidateFit], probs: dict[bool, Regression], min
     Returns:
         ``fits`` (the same list), best first, with ``cv_gain`` set.
     """
-    fits.sort(key=lambda f: f.delta_bic, reverse=True)
+    fits.sort(key=lambda f: f.evidence, reverse=True)
     cv_ref: dict[bool, float] = {}
     for i, fit in enumerate(fits):
-        if not (i < 3 or (fit.physical and fit.delta_bic >= min_delta_bic and fit.r2 >= min_r2)):
+        if not (i < 3 or (fit.physical and fit.evidence >= min_delta_bic and fit.r2 >= min_r2)):
             continue
         eff = get_effect(fit.effect)
         prob = probs[eff.in_class]
@@ -284,8 +301,12 @@ def rank_candidates(fits: list[CandidateFit], probs: dict[bool, Regression], min
 def decide(fits: Sequence[CandidateFit], min_delta_bic: float, min_r2: float, min_cv_gain: float) -> CandidateFit | None:
     """Mark the significant fits and return the winner, the best significant one (the *decide* step).
 
-    A fit is significant when it is physical, of physical size and passes ``Delta BIC >= min_delta_bic``,
-    ``R2 >= min_r2`` and ``cv_gain >= min_cv_gain`` (module docstring, "Ranking and significance").
+    A fit is significant when it is physical, of physical size and passes ``evidence >= min_delta_bic``
+    (``Delta BIC`` plus the signatures' support), ``R2 >= min_r2`` and ``cv_gain >= min_cv_gain``
+    (module docstring, "Ranking and significance"). A fit whose signatures alone reach
+    ``min_delta_bic`` (:func:`signature_confirmed`) has been checked on evidence the regression did
+    not use: its cross-validation need only not lose (``cv_gain >= 0``, or undefined on a clip too
+    short for two folds).
 
     Args:
         fits: ranked fits (:func:`rank_candidates`); their ``significant`` flag is set.
@@ -294,11 +315,14 @@ def decide(fits: Sequence[CandidateFit], min_delta_bic: float, min_r2: float, mi
         The first significant fit, or ``None`` (nothing significant).
     """
     for fit in fits:
-        fit.significant = (
-            fit.physical and fit.practical
-            and fit.delta_bic >= min_delta_bic and fit.r2 >= min_r2 and fit.cv_gain >= min_cv_gain
-        )
+        cv_ok = fit.cv_gain >= min_cv_gain or (signature_confirmed(fit, min_delta_bic) and not fit.cv_gain < 0)
+        fit.significant = fit.physical and fit.practical and fit.evidence >= min_delta_bic and fit.r2 >= min_r2 and cv_ok
     return next((f for f in fits if f.significant), None)
+
+
+def signature_confirmed(fit: CandidateFit, min_delta_bic: float = 10.0) -> bool:
+    """Whether the chart-invariant signatures alone give ``fit`` very strong evidence (``signature_support >= min_delta_bic``)."""
+    return bool(fit.signature_support >= min_delta_bic)
 
 
 def _regressions(res: Residual, wide: Residual, n_folds: int, block_s: float | None) -> tuple[dict[bool, Regression], Regression, Regression]:

@@ -82,7 +82,76 @@ def _envelope(res: Residual, p: np.ndarray) -> dict[str, Any]:
         out["sse_ratio_to_best"] = {k: float(v / max(forms[best], 1e-300)) for k, v in forms.items()}
     else:
         out["best"] = None
+    out["support"] = _envelope_support(out, len(a), len(segs))
     return out
+
+
+#: fewest turning points (beyond one intercept per segment) for an envelope to count as evidence
+MIN_TURNING_POINTS = 4
+
+
+def _envelope_support(env: dict[str, Any], n: int, n_segments: int) -> dict[str, float]:
+    """The evidence of the turning points for a linear or a hyperbolic envelope over the exponential (viscous) one.
+
+    The three fits have the same parameters (an intercept per segment, one rate), so the
+    difference of their information criteria is ``n log(SSE_exp / SSE_form)`` (Gaussian errors of
+    unknown variance): positive favours the form, on the scale of the regressions' ``Delta BIC``
+    (10: very strong, Kass & Raftery 1995). Zero with fewer than :data:`MIN_TURNING_POINTS`
+    turning points beyond the intercepts.
+    """
+    out = {"linear": 0.0, "hyperbolic": 0.0}
+    if n - n_segments < MIN_TURNING_POINTS:
+        return out
+    exp_sse = env["exponential"]["sse"]
+    for form in out:
+        sse = env[form]["sse"]
+        if math.isfinite(sse) and sse > 0 and math.isfinite(exp_sse) and exp_sse > 0:
+            out[form] = float(n * math.log(exp_sse / sse))
+    return out
+
+
+def _rest(res: Residual, p: np.ndarray) -> dict[str, Any]:
+    """Where the motion along ``p`` comes to rest, and how far from the centre of its oscillation.
+
+    Per segment, the rest is the last stretch (at least half a dominant period, and the
+    segment's end) whose whole range stays within ``6`` chart-noise levels, after an oscillation
+    larger than ``10`` noise levels. The centre is the median midpoint of the last four pairs of
+    consecutive turning points. A viscous decay comes to rest at its centre; dry friction sticks
+    anywhere within ``+- mu / k`` of it (an *off-centre* rest). The evidence is ``z^2 - log N``,
+    ``z`` the offset in noise levels (a one-parameter test on the rest position), ``N`` the
+    samples at rest; ``0`` when nothing rests.
+    """
+    f = res.f_dominant_hz
+    period = int(round(1.0 / (f * res.dt))) if math.isfinite(f) and f > 0 else 30
+    gap = max(1, int(0.35 * period))
+    noise = float(np.max(res.noise_q))
+    best: dict[str, Any] = {"at_rest": False, "support": 0.0}
+    for idx in res.segment_slices():
+        pk, tk = p[idx], res.t[idx]
+        if len(pk) < 2 * period or np.ptp(pk) < 10 * noise:
+            continue
+        # the earliest start from which the rest of the segment stays within the band
+        hi, lo = np.maximum.accumulate(pk[::-1])[::-1], np.minimum.accumulate(pk[::-1])[::-1]
+        still = np.flatnonzero(hi - lo <= 6 * noise)
+        if not len(still) or len(pk) - still[0] < max(period // 2, 3):
+            continue
+        i0 = int(still[0])
+        from scipy.signal import find_peaks
+
+        ext = np.sort(np.concatenate([find_peaks(pk[:i0], distance=gap)[0], find_peaks(-pk[:i0], distance=gap)[0]]))
+        if len(ext) < 2:
+            continue
+        mids = 0.5 * (pk[ext[1:]] + pk[ext[:-1]])[-4:]
+        centre, rest = float(np.median(mids)), float(np.mean(pk[i0:]))
+        z = (rest - centre) / max(noise, 1e-300)
+        n_rest = len(pk) - i0
+        support = max(0.0, z * z - math.log(n_rest))
+        if support >= best["support"]:
+            best = {
+                "at_rest": True, "rest_time_s": float(tk[i0]), "rest_position": rest, "centre": centre, "offset": rest - centre,
+                "offset_over_noise": float(z), "last_amplitude": float(np.max(np.abs(pk[ext] - centre))), "support": float(support),
+            }  # fmt: skip
+    return best
 
 
 def _frequency(res: Residual, p: np.ndarray) -> dict[str, Any]:
@@ -139,6 +208,11 @@ def signatures(res: Residual, model_freqs_hz: Sequence[float] | None = None, dir
       or a mode the model lacks).
     * ``asymmetry``: ratio of the largest excursions on either side of the
       median (a one-sided stop clips one side).
+    * ``rest``: where the motion comes to rest and its offset from the centre of the
+      oscillation (dry friction sticks off-centre).
+
+    The envelope's ``support`` and the rest's ``support`` are evidence on the ``Delta BIC``
+    scale that the candidates read (:meth:`~lagsplat.diagnose.effect_base.Effect.signature_support`).
 
     Args:
         res: the residual.
@@ -165,4 +239,5 @@ def signatures(res: Residual, model_freqs_hz: Sequence[float] | None = None, dir
     pc = p - np.median(p)
     hi, lo = float(np.quantile(pc, 0.995)), float(-np.quantile(pc, 0.005))
     out["asymmetry"] = {"upper": hi, "lower": lo, "ratio": float(max(hi, lo) / max(min(hi, lo), 1e-300))}
+    out["rest"] = _rest(res, p)
     return out

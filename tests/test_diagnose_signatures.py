@@ -1,0 +1,107 @@
+"""The chart-invariant signatures as evidence (lagsplat.diagnose.signatures, select.decide, refit_choice).
+
+A linear envelope of the turning points and a rest off the centre of the oscillation are how a
+physicist tells dry friction from viscous damping; the diagnosis adds their evidence to the
+candidate's Delta BIC. The trajectories here are integrated directly (no Stage 1): a 0.8 Hz
+oscillator with dry friction, which sticks at -0.94 mu / k, and one with viscous damping only.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from lagsplat.chart import Chart
+from lagsplat.diagnose import diagnose_chart, fit_linear_oscillator
+from lagsplat.diagnose.diagnosis import CandidateFit, Diagnosis
+from lagsplat.diagnose.refit_choice import choose_by_refit
+from lagsplat.diagnose.select import decide, signature_confirmed
+from lagsplat.io.clip import TRAIN
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
+DT = 1 / 30.0
+
+
+def _oscillator(x0: float, mu_over_k: float, zeta: float, duration_s: float = 12.0, f_hz: float = 0.8) -> tuple[Chart, np.ndarray]:
+    """``x'' = -w^2 x - 2 zeta w x' - w^2 (mu / k) sign(x')``, sticking once ``|x| <= mu / k`` at a reversal; a 1-D chart of it."""
+    w, sub = 2 * math.pi * f_hz, 20
+    h = DT / sub
+    x, v, xs = x0, 0.0, []
+    for _ in range(int(round(duration_s / DT))):
+        xs.append(x)
+        for _ in range(sub):
+            if v == 0.0 and abs(x) <= mu_over_k:
+                continue  # stuck: static friction holds the spring
+            v_new = v + h * (-w * w * x - 2 * zeta * w * v - w * w * mu_over_k * np.sign(v if v != 0.0 else -x))
+            if v != 0.0 and np.sign(v_new) != np.sign(v) and abs(x) <= mu_over_k:
+                v_new = 0.0
+            v, x = v_new, x + h * v_new
+    x = np.asarray(xs)
+    q = x / x.std() + 0.01 * np.random.default_rng(0).standard_normal(len(x))
+    n, I = len(q), np.eye(1)
+    chart = Chart(mean=np.zeros(1), W=I, W_inv=I, q=q[:, None], t=np.arange(n) * DT, split=np.full(n, TRAIN, np.int8), G_bar=I,
+                  A=I, ae_mse=np.zeros(n), ae_floor_train=0.0, ae_floor_held_out=0.0, height=64, width=64)  # fmt: skip
+    return chart, x
+
+
+def _diagnose(chart: Chart) -> Diagnosis:
+    model = fit_linear_oscillator([chart.q[s] for s in chart.segments(TRAIN)], DT)
+    return diagnose_chart(model, chart)[0]
+
+
+def test_dry_friction_shows_a_linear_envelope_and_an_off_centre_rest() -> None:
+    chart, x = _oscillator(1.05, 0.035, 0.005)
+    assert x[-1] == pytest.approx(-0.94 * 0.035, abs=0.003)  # the truth: stuck off-centre, within mu / k
+    diag = _diagnose(chart)
+    env, rest = diag.evidence["envelope"], diag.evidence["rest"]
+    assert env["best"] == "linear" and env["support"]["linear"] >= 10 and env["support"]["hyperbolic"] < 0
+    assert rest["at_rest"] and abs(rest["offset_over_noise"]) > 5 and rest["support"] > 10
+    assert 7.0 < rest["rest_time_s"] < 9.0
+    assert rest["rest_position"] == pytest.approx(x[-1] / x.std(), abs=0.01)  # chart units
+    coulomb = next(f for f in diag.ranking if f.effect == "coulomb")
+    assert coulomb.signature_support == pytest.approx(env["support"]["linear"] + rest["support"])
+    assert coulomb.evidence == pytest.approx(coulomb.delta_bic + coulomb.signature_support)
+    assert "fall linearly" in coulomb.interpretation["signature"] and "off the centre" in coulomb.interpretation["signature"]
+    assert diag.winner == "coulomb" and signature_confirmed(coulomb)
+    record = coulomb.to_dict()
+    assert record["signature_support"] == pytest.approx(coulomb.signature_support) and record["evidence"] == pytest.approx(coulomb.evidence)
+
+
+def test_a_viscous_decay_gives_dry_friction_no_support() -> None:
+    chart, _ = _oscillator(1.0, 0.0, 0.08)
+    diag = _diagnose(chart)
+    env = diag.evidence["envelope"]
+    assert env["best"] == "exponential" and env["support"]["linear"] < -10 and env["support"]["hyperbolic"] < -10
+    assert diag.evidence["rest"]["support"] < 3  # it comes to rest at its centre
+    coulomb = next(f for f in diag.ranking if f.effect == "coulomb")
+    assert not signature_confirmed(coulomb) and coulomb.signature_support < 3
+    assert diag.winner == "none"
+
+
+def _fit(effect: str, delta_bic: float, cv_gain: float, support: float, r2: float = 0.3) -> CandidateFit:
+    return CandidateFit(effect, {}, np.ones(1), ["c"], np.ones(1), np.full(1, 0.1), 1.0, 1, 0.0, delta_bic=delta_bic, r2=r2,
+                        cv_gain=cv_gain, signature_support=support)  # fmt: skip
+
+
+def test_decide_adds_the_signature_to_the_evidence_and_a_confirmed_one_replaces_the_cv_gain() -> None:
+    rule = {"min_delta_bic": 10.0, "min_r2": 0.1, "min_cv_gain": 0.02}
+    assert decide([_fit("coulomb", 6.0, 0.3, 5.0)], **rule) is not None  # 6 + 5 >= 10
+    assert decide([_fit("coulomb", 6.0, 0.3, 3.0)], **rule) is None
+    # a single short block of cross-validation (no gain) is enough when the signature alone is very strong
+    assert decide([_fit("coulomb", 12.0, 0.0, 12.0)], **rule) is not None
+    assert decide([_fit("coulomb", 12.0, float("nan"), 12.0)], **rule) is not None  # too short for two folds
+    assert decide([_fit("coulomb", 12.0, 0.0, 9.0)], **rule) is None
+    assert decide([_fit("coulomb", 12.0, -0.1, 30.0)], **rule) is None  # out of sample it loses: not significant
+    assert decide([_fit("coulomb", 30.0, 0.5, 30.0, r2=0.05)], **rule) is None  # R2 still applies
+
+
+def test_a_signature_confirmed_winner_is_not_overruled_by_a_rival_refit() -> None:
+    """The refit choice would refit both and could take the rival; a confirmed winner is kept without a refit."""
+    winner, rival = _fit("coulomb", 21.5, 0.4, 25.0), _fit("periodic_force", 18.0, 0.5, 0.0)
+    winner.significant = rival.significant = True
+    diag = Diagnosis("coulomb", [winner], [winner, rival], {}, {}, {}, {"min_delta_bic": 10.0})
+    out, rows, result = choose_by_refit(None, None, None, diag, baseline_nrmse=0.1)
+    assert out is diag and rows == [] and result is None
