@@ -115,7 +115,8 @@ def _envelope_fit(t: np.ndarray, a: np.ndarray, form: str) -> tuple[np.ndarray, 
 
 
 def _envelope_at(c: np.ndarray, t: float, form: str) -> float:
-    return float(c[0] + c[1] * t) if form == "linear" else float(math.exp(c[0] + c[1] * t))
+    """The fitted envelope at ``t``; a linear one stops at zero (the motion has come to rest), so a decay is at most 100 %."""
+    return max(0.0, float(c[0] + c[1] * t)) if form == "linear" else float(math.exp(c[0] + c[1] * t))
 
 
 @torch.no_grad()

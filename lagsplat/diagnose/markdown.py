@@ -49,9 +49,7 @@ def _reliability_lines(rel: Mapping[str, Any] | None) -> list[str]:
         L += ["The chart does not support a diagnosis: improve Stage 1 first (a tighter crop, more steps or Gaussians, "
               "docs/preparation.md). The ranking below is what the residual says, kept as evidence, not a finding.", ""]  # fmt: skip
     if rel and rel.get("cautions"):
-        L += ["Caution: " + "; ".join(rel["cautions"]) + ". The identified model misses much of the training motion: a strong "
-              "unmodelled effect, a Stage-2 failure or a distorted chart (the evidence below cannot tell these apart "
-              "unless a candidate explains the residual).", ""]  # fmt: skip
+        L += ["Caution: " + "; ".join(rel["cautions"]) + ".", ""]
     return L
 
 
@@ -59,6 +57,13 @@ def _choice_line(choice: list[Mapping[str, Any]], base: float | None) -> str:
     """How the refits decided between significant candidates (:func:`~lagsplat.diagnose.refit_choice.choose_by_refit`)."""
     rows = ", ".join(f"{c['effect']} {fmt_value(c['train_rollout_nrmse'], '.3f')}" for c in choice)
     won, first = next(c for c in choice if c["chosen"]), choice[0]
+    if first["train_rollout_nrmse"] is None:  # a winner with no Stage-2 refit (a missing degree of freedom)
+        rival = choice[1]
+        how = "is taken" if won is rival else f"is not taken: {first['effect']} stands"
+        return (f"- the Delta-BIC winner {first['effect']} has no Stage-2 refit, and the residual cannot tell it from {rival['effect']} "
+                f"(evidence within 2); a model refit with {rival['effect']} follows the training video "
+                f"{'better' if rival['beats_identified'] else 'no better'} than the identified model (training-rollout NRMSE "
+                f"{fmt_value(rival['train_rollout_nrmse'], '.3f')} against {fmt_value(base, '.3f')}, paper §3.3), so {rival['effect']} {how}.")  # fmt: skip
     if won is not first:
         how = f"is not confirmed (its refit follows the training video worse than the identified model), {won['effect']} is taken instead"
     elif first["beats_identified"]:
@@ -83,7 +88,7 @@ def verdict_section(rep: Mapping[str, Any]) -> list[str]:
     elif rep["verdict"] == "none":
         L.append(
             "No candidate effect explains the residual of the identified model significantly beyond the model-class "
-            "corrections (rule: physical, Delta BIC >= {min_delta_bic:g}, R2 >= {min_r2:g}, blocked-CV gain >= {min_cv_gain:g}).".format(**dg["settings"])
+            "corrections (rule: physical, Delta BIC plus its signature's support >= {min_delta_bic:g}, R2 >= {min_r2:g}, blocked-CV gain >= {min_cv_gain:g}).".format(**dg["settings"])
         )
     else:
         for e in dg["effects"]:
@@ -241,7 +246,9 @@ def gap_section(rep: Mapping[str, Any]) -> list[str]:
         L.append(row + " |")
     env_b = gap["before"].get("envelope") or {}
     if env_b.get("form"):
-        L.append(f"\nEnvelope: {env_b['form']} fit; the encoded held-out video loses {fmt_pct(env_b['decay_encoded'])[1:]} of its amplitude over the segment"
+        dec = env_b["decay_encoded"]
+        change = f"gains {fmt_pct(-dec)[1:]}" if dec < 0 else f"loses {fmt_pct(dec)[1:]}" + (" (it comes to rest)" if dec >= 0.995 else "")
+        L.append(f"\nEnvelope: {env_b['form']} fit; the encoded held-out video {change} of its amplitude over the segment"
                  + ("" if env_b.get("reliable") else " (too little decay for a reliable relative error)") + ".")  # fmt: skip
     fl = gap["before"].get("floor") or {}
     if fl.get("eps_q") is not None:

@@ -35,7 +35,9 @@ def choose_by_refit(
     dry-friction clip a cubic-stiffness refit can follow the training video
     better than the friction's, by correcting the model's frequency), so it never
     ranks candidates whose refits help: it only rejects a winner whose refit
-    makes the model follow its own training video worse. Neither does it overrule a winner that its
+    makes the model follow its own training video worse. A missing degree of freedom, which no refit can
+    confirm, gives way to a significant rival with a Stage-2 remedy that the residual cannot tell apart from
+    it (evidence within 2) when that rival's refit beats the identified model. Neither does it overrule a winner that its
     own chart-invariant signature confirms (:func:`~lagsplat.diagnose.select.signature_confirmed`: a
     linear envelope and an off-centre rest for dry friction). Held-out frames are not read. Applies when
     there is one accepted effect (``max_effects = 1``, the default) and at least two
@@ -60,7 +62,9 @@ def choose_by_refit(
     cfg = cfg or RefitConfig()
     effects = list(getattr(diagnosis, "effects", []))
     refittable = [f for f in diagnosis.ranking if f.significant and f.effect != "missing_dof"]
-    if baseline_nrmse is None or len(effects) != 1 or effects[0].effect == "missing_dof" or len(refittable) < 2:
+    if baseline_nrmse is not None and len(effects) == 1 and effects[0].effect == "missing_dof":
+        return _rival_of_a_missing_dof(chart, model, stage2_cfg, diagnosis, baseline_nrmse, cfg, inertia, refittable)
+    if baseline_nrmse is None or len(effects) != 1 or len(refittable) < 2:
         return diagnosis, [], None
     if signature_confirmed(effects[0], float(diagnosis.settings.get("min_delta_bic", 10.0))):
         return diagnosis, [], None  # its own signature confirms the winner: no rival's rollout error overrules it
@@ -82,3 +86,30 @@ def choose_by_refit(
     rows[k]["chosen"] = True
     chosen = diagnosis if k == 0 else dataclasses.replace(diagnosis, winner=order[k].effect, effects=[order[k]])
     return chosen, rows, fits[k]
+
+
+#: Evidence difference below which the residual cannot tell two candidates apart ("not worth more than a bare mention", Kass & Raftery 1995)
+INDISTINGUISHABLE = 2.0
+
+
+def _rival_of_a_missing_dof(
+    chart: Any, model: nn.Module, stage2_cfg: Any, diagnosis: Any, baseline_nrmse: float, cfg: RefitConfig, inertia: Any,
+    refittable: list[Any],
+) -> tuple[Any, list[dict[str, Any]], RefitResult | None]:
+    """A missing degree of freedom has no Stage-2 remedy, so no refit can confirm it. A significant rival that
+    has one and that the residual cannot tell apart from it (evidence within :data:`INDISTINGUISHABLE`) is refit,
+    and taken when its refit follows the training video better than the identified model; otherwise the
+    missing degree of freedom stands (``rows`` records the rival's refit either way)."""
+    first = diagnosis.effects[0]
+    close = [f for f in refittable if f.evidence >= first.evidence - INDISTINGUISHABLE]
+    if not close:
+        return diagnosis, [], None
+    rival = close[0]
+    r = refit(chart, model, stage2_cfg, dataclasses.replace(diagnosis, winner=rival.effect, effects=[rival]), dataclasses.replace(cfg, control=False), inertia)
+    err = float(r.history.get("selected_nrmse", math.inf)) if r is not None else math.inf
+    beats = err < baseline_nrmse
+    rows = [{"effect": first.effect, "delta_bic": float(first.delta_bic), "train_rollout_nrmse": None, "beats_identified": None, "chosen": not beats},
+            {"effect": rival.effect, "delta_bic": float(rival.delta_bic), "train_rollout_nrmse": err, "beats_identified": beats, "chosen": beats}]  # fmt: skip
+    if not beats:
+        return diagnosis, rows, None
+    return dataclasses.replace(diagnosis, winner=rival.effect, effects=[rival]), rows, r

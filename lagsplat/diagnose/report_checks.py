@@ -18,7 +18,15 @@ import numpy as np
 
 from lagsplat.diagnose.markdown import fmt_pct
 
-__all__ = ["reliability", "CHECK_METRICS", "held_out_check", "no_model_report"]
+__all__ = ["reliability", "CHECK_METRICS", "CAUTION_MEANING", "held_out_check", "no_model_report"]
+
+#: What each failed caution of :func:`reliability` means, in the report's words
+CAUTION_MEANING = {
+    "model_follows_training": "the identified model misses much of the training motion (a strong unmodelled effect, "
+    "a Stage-2 failure or a distorted chart; the evidence below cannot tell these apart unless a candidate explains the residual)",
+    "residual_explained": "the residual stays well above the chart noise after the model-class corrections and any effect found "
+    "(the model misfits within its own class, e.g. a distorted chart, or the effect is not in the library)",
+}
 
 
 def reliability(chart: Any, stage2_history: Mapping[str, Any] | None = None, diagnosis: Any | None = None) -> dict[str, Any]:
@@ -87,12 +95,29 @@ def reliability(chart: Any, stage2_history: Mapping[str, Any] | None = None, dia
 
     reasons = [f"chart-quality gate {r}" for r in checks.get("chart_gate", {}).get("reasons", [])]
     reasons += [why(k) for k in ("chart_continuous", "decoder_shows_motion") if k in checks and not checks[k]["ok"]]
-    cautions = [why(k) for k in ("model_follows_training", "residual_explained") if k in checks and not checks[k]["ok"]]
+    cautions = [f"{why(k)}: {CAUTION_MEANING[k]}" for k in ("model_follows_training", "residual_explained") if k in checks and not checks[k]["ok"]]
     return {"reliable": not reasons, "checks": checks, "reasons": reasons, "cautions": cautions}
 
 
 #: Gap metrics the held-out check reads (the trajectory and the image; frequency and envelope are reported beside).
 CHECK_METRICS = ("eps_q", "image_excess")
+
+#: Smallest relative change of a gap metric that counts (a smaller one prints as "+0 %")
+MIN_RELATIVE_CHANGE = 0.01
+
+#: A change of eps_q counts only beyond this many standard deviations of the chart-noise floor
+FLOOR_SDS = 2.0
+
+
+def _beyond_floor(gap: Mapping[str, Any], key: str, ref: str) -> bool:
+    """Whether the refit's ``key`` is below ``gap[ref]``'s by more than the noise: :data:`MIN_RELATIVE_CHANGE`,
+    and for ``eps_q`` also :data:`FLOOR_SDS` standard deviations of the chart-noise floor (``before["floor"]["eps_q_sd"]``)."""
+    b, a = (gap.get(ref) or {}).get(key), (gap.get("after") or {}).get(key)
+    if b is None or a is None or not (math.isfinite(b) and math.isfinite(a)) or b <= 0:
+        return False
+    sd = ((gap.get("before") or {}).get("floor") or {}).get(f"{key}_sd")
+    floor_ok = sd is None or not math.isfinite(sd) or (b - a) > FLOOR_SDS * sd
+    return bool((b - a) / b >= MIN_RELATIVE_CHANGE and floor_ok)
 
 
 def held_out_check(gap: Mapping[str, Any], effects: Sequence[str]) -> dict[str, Any] | None:
@@ -100,7 +125,9 @@ def held_out_check(gap: Mapping[str, Any], effects: Sequence[str]) -> dict[str, 
 
     Confirmed when, for each of :data:`CHECK_METRICS`, the refit model's held-out gap is
     below the identified model's and below the control fine-tune's (same settings, no term),
-    so that what the term buys is not what more training buys. The held-out frames
+    so that what the term buys is not what more training buys, each by more than the noise:
+    :data:`MIN_RELATIVE_CHANGE` (1 %) and, for ``eps_q``, :data:`FLOOR_SDS` standard deviations
+    of the chart-noise floor (:func:`~lagsplat.diagnose.gap.noise_floor`). The held-out frames
     decide nothing upstream: the verdict was taken on the training frames.
 
     Args:
@@ -115,7 +142,8 @@ def held_out_check(gap: Mapping[str, Any], effects: Sequence[str]) -> dict[str, 
     vals = [red.get(k) for k in CHECK_METRICS] + ([red_c.get(k) for k in CHECK_METRICS] if gap.get("control") else [])
     if not red or any(v is None for v in vals):
         return None
-    ok = all(v > 0 for v in vals)
+    refs = ("before", "control") if gap.get("control") else ("before",)
+    ok = all(_beyond_floor(gap, k, ref) for k in CHECK_METRICS for ref in refs)
     name = ", ".join(effects)
     nums = "; ".join(
         f"{k.replace('_', ' ')} {fmt_pct(red[k])}" + (f" (vs the control fine-tune {fmt_pct(red_c[k])})" if gap.get("control") else "")
@@ -123,7 +151,7 @@ def held_out_check(gap: Mapping[str, Any], effects: Sequence[str]) -> dict[str, 
     )
     text = (
         f"the refit with {name} shrinks the held-out gap ({nums})" if ok
-        else f"the refit with {name} does not shrink the held-out gap beyond more training ({nums}): "
+        else f"the refit with {name} does not shrink the held-out gap beyond the chart noise and more training ({nums}): "
         "what the training frames point to is not confirmed on the held-out frames"
     )
     return {"confirmed": bool(ok), "text": text}

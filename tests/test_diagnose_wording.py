@@ -1,0 +1,135 @@
+"""The diagnosis report says only what its numbers support (lagsplat.diagnose.report_checks, markdown, refit_choice).
+
+Each case is one the report got wrong on a real or independently rendered clip: a refit
+"confirmed" by a 0.005 % change, an amplitude "lost" by 191 %, a caution about the training
+motion printed for a model that follows it, and a rival with a Stage-2 remedy never refit
+because the winner (a missing degree of freedom) has none.
+"""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+
+import lagsplat.diagnose.refit_choice as refit_choice
+from lagsplat.chart import Chart
+from lagsplat.diagnose.diagnosis import CandidateFit, Diagnosis
+from lagsplat.diagnose.gap import gap_reduction
+from lagsplat.diagnose.markdown import render_markdown
+from lagsplat.diagnose.report_checks import held_out_check, reliability
+
+
+def _gap(before: dict, after: dict, control: dict | None, sd: float | None = None) -> dict:
+    before = {**before, "floor": {"eps_q": 0.01, "eps_q_sd": sd}} if sd is not None else before
+    return {"before": before, "after": after, "control": control, "reduction": gap_reduction(before, after),
+            "reduction_vs_control": gap_reduction(control, after) if control else None}  # fmt: skip
+
+
+def test_a_refit_is_confirmed_only_beyond_the_noise() -> None:
+    before, ctrl = {"eps_q": 0.1, "image_excess": 1.0}, {"eps_q": 0.1, "image_excess": 1.0}
+    tiny = {"eps_q": 0.1 * (1 - 5e-5), "image_excess": 0.5}  # eps_q moved by 0.005 %: printed "+0 %"
+    check = held_out_check(_gap(before, tiny, ctrl), ["coulomb"])
+    assert not check["confirmed"] and "does not shrink the held-out gap beyond the chart noise" in check["text"]
+    five = {"eps_q": 0.095, "image_excess": 0.5}  # 5 % better, a change of 0.005 ...
+    assert not held_out_check(_gap(before, five, ctrl, sd=0.004), ["coulomb"])["confirmed"]  # ... within 2 sd of the floor
+    assert held_out_check(_gap(before, five, ctrl, sd=0.001), ["coulomb"])["confirmed"]  # ... beyond it
+    assert held_out_check(_gap(before, five, None, sd=0.001), ["coulomb"])["confirmed"]  # no control fine-tune: against before only
+
+
+def _report(envelope: dict, cautions: list[str] | None = None) -> dict:
+    gap = {"eps_q": 0.1, "eps_freq": 0.01, "envelope_decay_error": 0.4, "image_excess": 1.0, "envelope": envelope}
+    return {
+        "title": "t", "system": "s", "verdict": "none", "verdict_text": "nothing significant",
+        "reliability": {"reliable": True, "checks": {}, "reasons": [], "cautions": cautions or []},
+        "diagnosis": {"null": {"excess_over_noise": 1.2}, "effects": [], "ranking": [], "evidence": {},
+                      "settings": {"min_delta_bic": 10.0, "min_r2": 0.1, "min_cv_gain": 0.02}},
+        "where": {"notes": []},
+        "gap": {"definition": {"frames": "held-out frames"}, "before": gap, "after": None, "control": None, "reduction": None, "reduction_vs_control": None},
+        "refit": {"done": False, "reason": "nothing significant"}, "config": {"refit": {"init": "fitted", "epochs": 40, "floor_scale": 4.0}},
+        "frames": {"diagnosis_split": "train", "n_diagnosis_frames": 10, "n_held_out_frames": 5, "held_out_used_for": "the gap only"},
+    }  # fmt: skip
+
+
+def test_the_envelope_line_says_gain_loss_or_rest() -> None:
+    md = render_markdown(_report({"form": "exponential", "decay_encoded": -0.25, "reliable": True}))
+    assert "the encoded held-out video gains 25 % of its amplitude" in md
+    md = render_markdown(_report({"form": "linear", "decay_encoded": 1.0, "reliable": True}))
+    assert "loses 100 % (it comes to rest) of its amplitude" in md
+    md = render_markdown(_report({"form": "linear", "decay_encoded": 0.4, "reliable": True}))
+    assert "loses 40 % of its amplitude" in md and "comes to rest" not in md
+
+
+def test_a_linear_envelope_never_decays_by_more_than_all_of_it() -> None:
+    """A linear fit crosses zero before the segment ends when the motion stops (the '191 %' of a real cart)."""
+    from lagsplat.diagnose.gap import envelope_decay
+    from lagsplat.diagnose.oscillator import LinearOscillator
+    from lagsplat.io.clip import HELD_OUT
+
+    dt, n = 1 / 30, 300
+    t = np.arange(n) * dt
+    amp = np.maximum(1.0 - t / 4.0, 0.0)  # linear decay to rest at 4 s of a 10 s segment
+    q = (amp * np.cos(2 * np.pi * 0.8 * t))[:, None]
+    I = np.eye(1)
+    chart = Chart(mean=np.zeros(1), W=I, W_inv=I, q=q, t=t, split=np.full(n, HELD_OUT, np.int8), G_bar=I, A=I, ae_mse=np.zeros(n),
+                  ae_floor_train=0.0, ae_floor_held_out=0.0, height=8, width=8)  # fmt: skip
+    w = 2 * np.pi * 0.8
+    model = LinearOscillator(np.array([[w * w]]), np.array([[0.5]]), np.zeros(1))
+    env = envelope_decay(chart, model)
+    assert env["form"] == "linear" and env["decay_encoded"] == pytest.approx(1.0)
+
+
+def test_a_caution_says_what_failed() -> None:
+    q = np.sin(np.linspace(0, 20, 400))[:, None]
+    I = np.eye(1)
+    chart = Chart(mean=np.zeros(1), W=I, W_inv=I, q=q, t=np.arange(400) / 30.0, split=np.zeros(400, np.int8), G_bar=I, A=I,
+                  ae_mse=np.zeros(400), ae_floor_train=1e-3, ae_floor_held_out=0.0, height=8, width=8,
+                  meta={"gate": {"passed": True, "reasons": []}})  # fmt: skip
+    diag = Diagnosis("none", [], [], {"excess_over_noise": 9.0, "excess_after_effects": 9.0, "unexplained": True}, {}, {}, {"unexplained_excess": 4.0})
+    rel = reliability(chart, {"selected_nrmse": 0.11}, diag)
+    assert rel["reliable"] and len(rel["cautions"]) == 1
+    assert "residual stays well above the chart noise" in rel["cautions"][0] and "misses much of the training motion" not in rel["cautions"][0]
+    md = render_markdown({**_report({}), "reliability": rel})
+    assert "misses much of the training motion" not in md and "residual stays well above the chart noise" in md
+    rel = reliability(chart, {"selected_nrmse": 0.8}, None)
+    assert rel["cautions"] and "misses much of the training motion" in rel["cautions"][0]
+
+
+def _fit(effect: str, delta_bic: float) -> CandidateFit:
+    f = CandidateFit(effect, {}, np.ones(1), ["c"], np.ones(1), np.full(1, 0.1), 1.0, 1, 0.0, delta_bic=delta_bic, r2=0.3, cv_gain=0.3)
+    f.significant = True
+    return f
+
+
+class _Refit:
+    def __init__(self, nrmse: float) -> None:
+        self.history = {"selected_nrmse": nrmse}
+
+
+def test_a_rival_of_a_missing_dof_with_a_remedy_is_refit(monkeypatch) -> None:
+    """Delta BIC 10.8 (missing dof) against 10.0 (end stop): the residual cannot tell them apart, the refit decides."""
+    dof, stop = _fit("missing_dof", 10.8), _fit("end_stop", 10.0)
+    diag = Diagnosis("missing_dof", [dof], [dof, stop], {}, {}, {}, {"min_delta_bic": 10.0})
+    refit_nrmse = {"value": 0.1}
+    seen: list[str] = []
+
+    def fake_refit(chart, model, cfg, d, rc, inertia=None):
+        seen.append(d.winner)
+        assert rc.control is False
+        return _Refit(refit_nrmse["value"])
+
+    monkeypatch.setattr(refit_choice, "refit", fake_refit)
+    chosen, rows, made = refit_choice.choose_by_refit(None, None, None, diag, 0.2)
+    assert seen == ["end_stop"] and chosen.winner == "end_stop" and chosen.effects == [stop] and made is not None
+    assert [(r["effect"], r["chosen"]) for r in rows] == [("missing_dof", False), ("end_stop", True)]
+    md_line = render_markdown({**_report({}), "verdict": "end_stop", "refit": {"done": False, "reason": "x", "choice": rows,
+                                                                              "baseline_train_rollout_nrmse": 0.2}})
+    assert "has no Stage-2 refit, and the residual cannot tell it from end_stop" in md_line and "so end_stop is taken" in md_line
+    refit_nrmse["value"] = 0.3  # its refit follows the training video worse than the identified model
+    chosen, rows, made = refit_choice.choose_by_refit(None, None, None, diag, 0.2)
+    assert chosen is diag and made is None and [r["chosen"] for r in rows] == [True, False]
+    far = Diagnosis("missing_dof", [dof], [dof, _fit("end_stop", 5.0)], {}, {}, {}, {"min_delta_bic": 10.0})
+    seen.clear()
+    assert refit_choice.choose_by_refit(None, None, None, far, 0.2) == (far, [], None) and seen == []  # clearly behind: not refit
+    assert copy.deepcopy(rows)  # the rows are plain data (report.json)
