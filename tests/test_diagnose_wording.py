@@ -133,3 +133,24 @@ def test_a_rival_of_a_missing_dof_with_a_remedy_is_refit(monkeypatch) -> None:
     seen.clear()
     assert refit_choice.choose_by_refit(None, None, None, far, 0.2) == (far, [], None) and seen == []  # clearly behind: not refit
     assert copy.deepcopy(rows)  # the rows are plain data (report.json)
+
+
+def test_a_held_out_part_too_short_for_the_gap_leaves_the_diagnosis_standing(tmp_path) -> None:
+    """The diagnosis reads the training frames only: a held-out segment too short to score is said, not fatal."""
+    from lagsplat.diagnose import fit_linear_oscillator
+    from lagsplat.diagnose.report import diagnose_artifacts
+    from lagsplat.io.clip import HELD_OUT, TRAIN
+
+    dt, n, n_train = 1 / 30, 330, 300
+    t = np.arange(n) * dt
+    q = (np.exp(-0.1 * t) * np.cos(2 * np.pi * 0.8 * t) + 0.01 * np.random.default_rng(0).standard_normal(n))[:, None]
+    split = np.where(np.arange(n) < n_train, TRAIN, HELD_OUT).astype(np.int8)  # 1 s held out: two periods need 2.5 s
+    I = np.eye(1)
+    chart = Chart(mean=np.zeros(1), W=I, W_inv=I, q=q, t=t, split=split, G_bar=I, A=I, ae_mse=np.zeros(n), ae_floor_train=0.0,
+                  ae_floor_held_out=0.0, height=8, width=8, meta={"gate": {"passed": True, "reasons": []}})  # fmt: skip
+    model = fit_linear_oscillator([q[:n_train]], dt)
+    rep = diagnose_artifacts(None, None, chart, model, None, tmp_path / "diagnosis", system="short")
+    assert rep["verdict"] == "none" and "held-out segment" in rep["gap"]["unavailable"]
+    assert rep["refit"]["reason"].startswith("no held-out gap to score a refit on")
+    md = (tmp_path / "diagnosis" / "report.md").read_text()
+    assert "Not measured: " in md and "stands without it" in md

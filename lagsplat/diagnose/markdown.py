@@ -233,6 +233,8 @@ def gap_section(rep: Mapping[str, Any]) -> list[str]:
     """The held-out gap before and after the refit, with the envelope and the chart-noise floor."""
     L: list[str] = []
     gap = rep["gap"]
+    if gap.get("unavailable"):
+        return ["", "## Held-out gap", "", f"Not measured: {gap['unavailable']}. The diagnosis above reads the training frames only and stands without it."]
     fr_def = gap["definition"]["frames"]
     L += ["", "## Held-out gap", "", fr_def[:1].upper() + fr_def[1:] + ".", ""]
     cols = ["before"] + (["after"] if gap["after"] else []) + (["control"] if gap["control"] else [])

@@ -68,7 +68,7 @@ from lagsplat.diagnose.report_checks import held_out_check, no_model_report, rel
 from lagsplat.diagnose.where import WhereConfig, split_code
 from lagsplat.diagnose.where_plots import plot_where
 from lagsplat.io.atomic import atomic_write, write_json
-from lagsplat.io.clip import HELD_OUT
+from lagsplat.io.clip import HELD_OUT, ClipError
 from lagsplat.io.common import jsonable
 
 #: ``report.json``'s verdict when the chart fails its checks (:func:`reliability`): no finding is read off it.
@@ -317,10 +317,16 @@ def diagnose_artifacts(
     timings["where_s"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    gap = _gap_record(run.gap(chart, model), metrics_json)
     runs = {"identified model (before)": (model, chart)}
-    diag, refit_rec = _refit_step(run, diag, gap, runs, timings)
-    _gap_figure(run, runs, figures, refit_rec["done"], title or system)
+    try:
+        gap = _gap_record(run.gap(chart, model), metrics_json)
+    except ClipError as e:  # the diagnosis reads the training frames only: it stands without a held-out gap
+        gap = {"unavailable": str(e), "before": None, "after": None, "control": None, "reduction": None, "reduction_vs_control": None}
+        refit_rec = {"done": False, "reason": f"no held-out gap to score a refit on ({e})"}
+        (run.out / DIAGNOSIS_FILES["refit"]).unlink(missing_ok=True)  # an earlier run's refit no longer applies
+    else:
+        diag, refit_rec = _refit_step(run, diag, gap, runs, timings)
+        _gap_figure(run, runs, figures, refit_rec["done"], title or system)
     timings["gap_and_refit_s"] = time.perf_counter() - t0
 
     report = _report_record(run, diag, where, gap, refit_rec, figures, which, timings, title, system)
