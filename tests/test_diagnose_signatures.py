@@ -105,3 +105,22 @@ def test_a_signature_confirmed_winner_is_not_overruled_by_a_rival_refit() -> Non
     diag = Diagnosis("coulomb", [winner], [winner, rival], {}, {}, {}, {"min_delta_bic": 10.0})
     out, rows, result = choose_by_refit(None, None, None, diag, baseline_nrmse=0.1)
     assert out is diag and rows == [] and result is None
+
+
+def test_the_report_leads_with_what_tells_the_candidates_apart() -> None:
+    from lagsplat.diagnose.reading import distinguishing_lines, indistinguishable
+
+    chart, _ = _oscillator(1.05, 0.035, 0.005)
+    lines = distinguishing_lines(_diagnose(chart).to_dict())
+    assert lines[0].startswith("- decay shape: linear (dry friction), evidence")
+    assert any(s.startswith("- rest: the motion stops at t = ") and "off the centre" in s for s in lines)
+    assert any(s.startswith("- residual spectrum: ") for s in lines) and any("frequency" in s for s in lines)
+    # three periods of a viscous decay: the envelope cannot tell the forms apart, and says so
+    short, _ = _oscillator(1.0, 0.0, 0.03, duration_s=3.75)
+    lines = distinguishing_lines(_diagnose(short).to_dict())
+    assert "turning points cannot tell a linear (dry friction), a hyperbolic (quadratic drag) and an exponential" in lines[0]
+    assert any("too few to read it against amplitude and time" in s for s in lines)
+    rank = [{"effect": "quadratic_drag", "delta_bic": 12.0, "physical": True}, {"effect": "coulomb", "delta_bic": 10.5, "physical": True},
+            {"effect": "drift", "delta_bic": 11.0, "physical": False}, {"effect": "end_stop", "delta_bic": 3.0, "physical": True}]  # fmt: skip
+    assert indistinguishable(rank) == ["quadratic_drag", "coulomb"]
+    assert indistinguishable(rank, min_evidence=20.0) == [] and indistinguishable(rank[:1]) == []

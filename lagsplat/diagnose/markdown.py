@@ -11,6 +11,7 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
+from lagsplat.diagnose.reading import distinguishing_lines
 from lagsplat.diagnose.refit import GAP_METRICS
 
 __all__ = ["render_markdown", "fmt_value", "fmt_pct", "GAP_LABELS"]
@@ -104,6 +105,8 @@ def verdict_section(rep: Mapping[str, Any]) -> list[str]:
     choice = (rep.get("refit") or {}).get("choice")
     if choice:
         L.append(_choice_line(choice, rep["refit"].get("baseline_train_rollout_nrmse")))
+    if rep["verdict"] != "cannot_diagnose" and dg.get("evidence"):
+        L += ["", "What tells the candidates apart on this clip:", "", *distinguishing_lines(dg)]
     check = (rep.get("gap") or {}).get("held_out_check")
     if check:
         L.append(f"- held-out check: {check['text']}.")

@@ -8,6 +8,7 @@ from typing import Any
 
 from torch import nn
 
+from lagsplat.diagnose.reading import INDISTINGUISHABLE
 from lagsplat.diagnose.refit import RefitConfig, RefitResult, refit
 from lagsplat.diagnose.select import signature_confirmed
 
@@ -87,9 +88,6 @@ def choose_by_refit(
     chosen = diagnosis if k == 0 else dataclasses.replace(diagnosis, winner=order[k].effect, effects=[order[k]])
     return chosen, rows, fits[k]
 
-
-#: Evidence difference below which the residual cannot tell two candidates apart ("not worth more than a bare mention", Kass & Raftery 1995)
-INDISTINGUISHABLE = 2.0
 
 
 def _rival_of_a_missing_dof(

@@ -1,0 +1,114 @@
+"""What tells the candidate effects apart on one clip, in a physicist's words (the head of ``report.md``).
+
+Reads the ``diagnosis`` record of ``report.json`` (:meth:`lagsplat.diagnose.diagnosis.Diagnosis.to_dict`):
+the chart-invariant signatures of :func:`~lagsplat.diagnose.signatures.signatures` (the decay's shape,
+the frequency against amplitude and time, where the motion comes to rest, the residual's spectrum)
+and the ranking's evidence, and says which candidates the data cannot tell apart (paper §3.3, the
+diagnosis; the physics of each signature is in :mod:`lagsplat.diagnose.effects`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+__all__ = ["distinguishing_lines", "indistinguishable", "INDISTINGUISHABLE", "STRONG_Z"]
+
+#: Evidence difference below which two candidates cannot be told apart ("not worth more than a bare mention", Kass & Raftery 1995)
+INDISTINGUISHABLE = 2.0
+
+#: |z| of a frequency slope that counts as a dependence (on amplitude or on time)
+STRONG_Z = 3.0
+
+_FORM = {"linear": "linear (dry friction)", "hyperbolic": "hyperbolic (quadratic drag)", "exponential": "exponential (viscous damping, what the model has)"}
+
+
+def _num(x: Any) -> float:
+    return float(x) if isinstance(x, (int, float)) and math.isfinite(x) else float("nan")
+
+
+def _decay(env: Mapping[str, Any]) -> str:
+    n, sup = int(env.get("n_turning_points") or 0), env.get("support") or {}
+    if not env.get("best") or not sup or max(abs(_num(sup.get("linear"))), abs(_num(sup.get("hyperbolic")))) < INDISTINGUISHABLE:
+        return (f"decay shape: {n} turning points cannot tell a linear (dry friction), a hyperbolic (quadratic drag) and an "
+                "exponential (viscous) decay apart")  # fmt: skip
+    best = env["best"]
+    if best == "exponential":
+        return f"decay shape: exponential (viscous damping, what the model has) over linear and hyperbolic ({n} turning points)"
+    return f"decay shape: {_FORM[best]}, evidence {_num(sup.get(best)):.1f} over an exponential decay ({n} turning points)"
+
+
+def _frequency(fr: Mapping[str, Any]) -> list[str]:
+    if "z_amp2" not in fr:
+        return [f"frequency: {fr.get('n_periods', 0)} periods are too few to read it against amplitude and time"]
+    za, zt = _num(fr["z_amp2"]), _num(fr["z_time"])
+    if abs(za) >= STRONG_Z:
+        amp = (f"frequency {'rises' if za > 0 else 'falls'} with the amplitude ({100 * _num(fr['relative_shift_at_max_amplitude']):+.1f} % at the "
+               f"largest, z = {za:.1f}): a {'hardening spring or a stop' if za > 0 else 'softening restoring force'}")  # fmt: skip
+    else:
+        amp = f"frequency independent of the amplitude (z = {za:.1f})"
+    if abs(zt) >= STRONG_Z:
+        time = f"it drifts over the recording ({100 * _num(fr['relative_change_over_span']):+.1f} %, z = {zt:.1f})"
+    else:
+        time = f"no drift in time (z = {zt:.1f})"
+    return [f"{amp}; {time}"]
+
+
+def _rest(rest: Mapping[str, Any]) -> str:
+    if not rest:
+        return ""
+    if not rest.get("at_rest"):
+        return "rest: the motion does not come to rest in these frames"
+    z = abs(_num(rest.get("offset_over_noise")))
+    where = "off the centre of its oscillation (dry friction sticks off-centre)" if rest.get("support", 0) > 0 else "at the centre of its oscillation"
+    return f"rest: the motion stops at t = {_num(rest['rest_time_s']):.2f} s, {z:.1f} chart-noise levels {where}"
+
+
+def _spectrum(sp: Mapping[str, Any]) -> str:
+    if not sp:
+        return ""
+    extra = sp.get("unexplained_peaks_hz") or []
+    if extra:
+        return "residual spectrum: peaks the model lacks at " + ", ".join(f"{f:.3g}" for f in extra) + " Hz (a periodic force or a hidden mode)"
+    return "residual spectrum: no peak outside the model's modes and their harmonics"
+
+
+def indistinguishable(ranking: list[Mapping[str, Any]], min_evidence: float = 0.0) -> list[str]:
+    """Names of the physical candidates whose evidence is within :data:`INDISTINGUISHABLE` of the best one's.
+
+    Args:
+        ranking: the ``ranking`` records (``effect``, ``delta_bic``, ``evidence`` when present, ``physical``).
+        min_evidence: the best one must reach this for the question to arise (nothing is "told apart" from noise).
+
+    Returns:
+        The names, best first; empty when fewer than two.
+    """
+    ev = [(r["effect"], _num(r.get("evidence", r.get("delta_bic")))) for r in ranking if r.get("physical", True)]
+    ev = [(n, e) for n, e in ev if math.isfinite(e)]
+    if not ev:
+        return []
+    top = max(e for _, e in ev)
+    if top < min_evidence:
+        return []
+    close = [n for n, e in sorted(ev, key=lambda x: -x[1]) if e >= top - INDISTINGUISHABLE]
+    return close if len(close) > 1 else []
+
+
+def distinguishing_lines(dg: Mapping[str, Any]) -> list[str]:
+    """The markdown bullets of "What tells the candidates apart on this clip" for a ``diagnosis`` record.
+
+    Args:
+        dg: ``report.json["diagnosis"]``.
+
+    Returns:
+        Lines starting with ``"- "``: the decay shape, the frequency against amplitude and time, the
+        rest, the residual spectrum, and the candidates the data cannot tell apart (if any).
+    """
+    ev = dg.get("evidence") or {}
+    lines = [_decay(ev.get("envelope") or {}), *_frequency(ev.get("frequency") or {}), _rest(ev.get("rest") or {}), _spectrum(ev.get("spectrum") or {})]
+    st = dg.get("settings") or {}
+    close = indistinguishable(dg.get("ranking") or [], 0.5 * float(st.get("min_delta_bic", 10.0)))
+    if close:
+        lines.append(f"the residual cannot tell {', '.join(close[:-1])} and {close[-1]} apart (evidence within {INDISTINGUISHABLE:g} of each other)")
+    return ["- " + s for s in lines if s]
