@@ -7,6 +7,7 @@
 #
 # Config keys: realistic_dir (default data/cache/realistic; not committed); realistic_args (extra flags of
 # every scoring job, e.g. "--diagnose": the diagnosis too, scored against the clip's effect). One job per clip, each logged.
+#   snakemake -c2 realistic_short_scores   # the diagnosis with the training part cut to three periods (after realistic_scores)
 from lagsplat.synth.realistic import outside_class_clips, realistic_suite
 
 REALISTIC_DIR = str(config.get("realistic_dir", "data/cache/realistic"))
@@ -66,5 +67,39 @@ rule realistic_scores:
         json=f"{RESULTS}/benchmarks/realistic.json",
     log:
         f"{RESULTS}/logs/benchmarks/realistic.log",
+    shell:
+        "python benchmarks/realistic.py --gather {input} --out {output.md} > {log} 2>&1"
+
+
+REALISTIC_SHORT_ROWS = f"{RESULTS}/benchmarks/realistic_short"
+
+
+rule realistic_short_row:
+    """The diagnosis on one realistic clip whose training part is cut to three true periods (benchmarks/realistic.py,
+    "Short clips"): the full run's Stage-1 autoencoder, the split moved, ingest to diagnosis again."""
+    input:
+        row=f"{REALISTIC_ROWS}/{{clip}}.json",
+        truth=f"{REALISTIC_DIR}/{{clip}}.truth.npz",
+    output:
+        f"{REALISTIC_SHORT_ROWS}/{{clip}}.json",
+    log:
+        f"{RESULTS}/logs/realistic_short_runs/{{clip}}.log",
+    wildcard_constraints:
+        clip="|".join(re.escape(c) for c in REALISTIC_CLIPS),
+    threads: 2
+    shell:
+        f"python benchmarks/realistic.py --clip {{wildcards.clip}} --clips {REALISTIC_DIR} --from-results {RESULTS}/realistic "
+        f"--results {RESULTS}/realistic_short --train-periods 3 --threads {{threads}} --row {{output}} > {{log}} 2>&1"
+
+
+rule realistic_short_scores:
+    """The diagnosis on the realistic suite cut to three training periods: results/benchmarks/realistic_short.md and .json."""
+    input:
+        [f"{REALISTIC_SHORT_ROWS}/{c}.json" for c in REALISTIC_CLIPS],
+    output:
+        md=f"{RESULTS}/benchmarks/realistic_short.md",
+        json=f"{RESULTS}/benchmarks/realistic_short.json",
+    log:
+        f"{RESULTS}/logs/benchmarks/realistic_short.log",
     shell:
         "python benchmarks/realistic.py --gather {input} --out {output.md} > {log} 2>&1"

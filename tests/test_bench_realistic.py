@@ -1,0 +1,54 @@
+"""The realistic suite's scoring (benchmarks/realistic.py): the diagnosis's verdict against the clip's effect, and the summary."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import pytest
+
+
+@pytest.fixture(scope="module")
+def bench():
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "realistic.py"
+    spec = importlib.util.spec_from_file_location("bench_realistic", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _report(results: Path, name: str, verdict: str, reduction: float | None = None) -> None:
+    d = results / name / "diagnosis"
+    d.mkdir(parents=True)
+    rep = {"verdict": verdict, "verdict_text": verdict, "gap": {"reduction": {"eps_q": reduction}}}
+    (d / "report.json").write_text(json.dumps(rep))
+
+
+def test_a_hardening_spring_read_as_nothing_significant_counts_and_the_strict_reading_is_kept(bench, tmp_path) -> None:
+    cases = {"spring_cart-cubic_stiffness-s0-128": ("none", True, False), "pendulum-cubic_stiffness-s1-128": ("cubic_stiffness", True, True),
+             "spring_cart-coulomb-s0-128": ("none", False, False), "pendulum-none-s0-128": ("none", True, True),
+             "pendulum-drift-s0-128": ("periodic_force", False, False)}  # fmt: skip
+    for name, (verdict, ok, exact) in cases.items():
+        _report(tmp_path, name, verdict, 0.4)
+        row = bench.diagnosis_of(name, tmp_path, 0, "", 1.0)
+        assert (row["verdict"], row["diagnosis_ok"], row["diagnosis_exact"], row["gap_reduction_eps_q"]) == (verdict, ok, exact, 0.4), name
+    assert bench.diagnosis_of("pendulum-none-s1-128", tmp_path, 1, "lagsplat diagnose: boom", 1.0)["diagnosis_status"] == "crashed"
+
+
+def test_the_summary_counts_controls_gate_failures_and_names_short_clips(bench, tmp_path) -> None:
+    base = {"status": "ok", "f_truth_hz": 1.0, "eps_freq_truth": 0.01, "wall_s": 100.0, "diagnosis_status": "ok", "train_periods": 3.0}
+    rows = [
+        {**base, "name": "pendulum-none-s0-128", "system": "pendulum", "gate_passed": True, "truth_effect": "none", "verdict": "coulomb", "diagnosis_ok": False},
+        {**base, "name": "pendulum-coulomb-s0-128", "system": "pendulum", "gate_passed": True, "truth_effect": "coulomb", "verdict": "coulomb",
+         "diagnosis_ok": True, "gap_reduction_eps_q": 0.6},
+        {**base, "name": "spring_cart-drift-s0-128", "system": "spring_cart", "gate_passed": False, "truth_effect": "drift", "verdict": "cannot_diagnose",
+         "diagnosis_ok": False},
+    ]  # fmt: skip
+    s = bench.gather(rows, tmp_path / "short.md", [])
+    D = s["diagnosis"]
+    assert D["top1"] == 0.5 and D["controls_flagged"] == 1 and D["n_controls"] == 1
+    assert (D["failed_gate_read_cannot_diagnose"], D["n_failed_gate"]) == (1, 1) and D["median_gap_reduction_eps_q"] == 0.6
+    md = (tmp_path / "short.md").read_text()
+    assert md.startswith("# Realistic suite (MuJoCo-rendered clips) against the ground truth, training frames cut to 3 periods")
+    assert json.loads((tmp_path / "short.json").read_text())["summary"]["n_clips"] == 3
