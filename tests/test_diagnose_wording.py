@@ -154,3 +154,28 @@ def test_a_held_out_part_too_short_for_the_gap_leaves_the_diagnosis_standing(tmp
     assert rep["refit"]["reason"].startswith("no held-out gap to score a refit on")
     md = (tmp_path / "diagnosis" / "report.md").read_text()
     assert "Not measured: " in md and "stands without it" in md
+
+
+def test_an_effect_size_in_pixels_of_the_video() -> None:
+    """Through the decoder's kinematics (mu_i(q) = c_i + J_i q): a stop's position and the friction's loss per cycle in px."""
+    import torch
+
+    from lagsplat.diagnose.pixels import add_pixel_sizes, object_position_px, px_per_unit, to_source_px
+    from lagsplat.force import ForceTransport
+
+    c = torch.tensor([[10.0, 20.0], [12.0, 20.0], [14.0, 20.0], [30.0, 30.0], [31.0, 30.0], [32.0, 30.0]])
+    J = torch.zeros(6, 2, 1)
+    J[:3, 0, 0] = 2.0  # the object moves 2 px in x per chart unit; the background does not move
+    K = len(c)
+    tr = ForceTransport(c, J, torch.ones(K), torch.zeros(K, 1), 1e3 * torch.ones(K, 1, 1), torch.eye(1), torch.zeros(1))
+    assert object_position_px(tr, np.array([1.5])) == pytest.approx([15.0, 20.0], abs=1e-4)
+    assert px_per_unit(tr, np.array([1.0])) == pytest.approx(2.0)
+    meta = {"crop": [40, 8, 110, 101], "resize": [48, 64]}
+    assert to_source_px(np.array([15.0, 20.0]), meta) == pytest.approx([40 + 15 * 70 / 48, 8 + 20 * 93 / 64])
+    assert to_source_px(np.array([1.0, 1.0]), {}) is None
+    stop = CandidateFit("end_stop", {}, np.ones(1), ["k_stop"], np.ones(1), np.ones(1), 1.0, 1, 0.0, interpretation={"s_stop": 1.5, "text": "one-sided stop"})
+    fric = CandidateFit("coulomb", {}, np.ones(1), ["mu"], np.ones(1), np.ones(1), 1.0, 1, 0.0, interpretation={"amplitude_loss_per_cycle": 0.5, "text": "dry friction"})
+    add_pixel_sizes(Diagnosis("end_stop", [stop, fric], [], {}, {}, {}, {}), tr, meta)
+    assert stop.interpretation["in_pixels"]["stop_xy_px"] == pytest.approx([15.0, 20.0], abs=1e-4)
+    assert "the object touches the stop at (15, 20) px of the working frame, (62, 37) px of the source video" in stop.interpretation["text"]
+    assert fric.interpretation["in_pixels"]["amplitude_loss_per_cycle_px"] == pytest.approx(1.0) and "(1.0 px of motion per cycle)" in fric.interpretation["text"]

@@ -53,6 +53,7 @@ from lagsplat.diagnose.gap import (
 )
 from lagsplat.diagnose.gap_plot import plot_gap
 from lagsplat.diagnose.localise import localise
+from lagsplat.diagnose.pixels import add_pixel_sizes
 from lagsplat.diagnose.markdown import GAP_LABELS, render_markdown
 from lagsplat.diagnose.refit import (
     GAP_METRICS,
@@ -328,6 +329,10 @@ def diagnose_artifacts(
         diag, refit_rec = _refit_step(run, diag, gap, runs, timings)
         _gap_figure(run, runs, figures, refit_rec["done"], title or system)
     timings["gap_and_refit_s"] = time.perf_counter() - t0
+    if ae is not None:  # the effect's size in pixels of the video, through the decoder
+        from lagsplat.force import ForceTransport
+
+        add_pixel_sizes(diag, ForceTransport.from_autoencoder(ae, chart), getattr(clip, "meta", None))
 
     report = _report_record(run, diag, where, gap, refit_rec, figures, which, timings, title, system)
     write_report(report, run.out)
