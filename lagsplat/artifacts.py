@@ -63,6 +63,7 @@ class Artifacts:
     Attributes:
         clip, stage1, chart: the frozen upstream artifacts (system folder).
         stage2, metrics, rollout_figure, forces, forces_figure: the model's artifacts (model folder).
+        extrapolation: the extrapolation protocol's record (paper §4.3; model folder).
         diagnosis: the diagnosis folder (``report.md``, ``report.json``, ``figures/``, ``refit.pt``).
         system_dir, model_dir: the two folders.
     """
@@ -78,6 +79,7 @@ class Artifacts:
     forces: Path
     forces_figure: Path
     diagnosis: Path
+    extrapolation: Path
 
     @classmethod
     def at(cls, system_dir: str | Path, model_dir: str | Path | None = None) -> "Artifacts":
@@ -96,6 +98,7 @@ class Artifacts:
             forces=m / "forces.json",
             forces_figure=m / "figures" / "forces.png",
             diagnosis=m / "diagnosis",
+            extrapolation=m / "extrapolation.json",
         )
 
     @classmethod

@@ -109,6 +109,8 @@ CHECKS: dict[str, Bound] = {
     "diagnose.where.turning_ratio": POSITIVE, "diagnose.where.high_speed_quantile": FRACTION, "diagnose.where.n_image_frames": COUNT,
     "diagnose.where.pixel_chunk": POSITIVE_INT, "diagnose.where.top_gaussians": COUNT, "diagnose.where.moving_fraction": FRACTION,
     "diagnose.refit.epochs": POSITIVE_INT, "diagnose.refit.lr": POSITIVE, "diagnose.refit.seed": COUNT, "diagnose.refit.floor_scale": POSITIVE,
+    # extrapolation (ExtrapolationConfig)
+    "extrapolation.long_s": POSITIVE, "extrapolation.sigma": NON_NEGATIVE, "extrapolation.render_batch": POSITIVE_INT,
     # view (ViewConfig)
     "view.port": Bound(0, 65535, words="a port number in [0, 65535]"), "view.sigma": POSITIVE, "view.force_scale": POSITIVE,
     "view.kappa": POSITIVE, "view.render_scale": POSITIVE, "view.max_substeps": POSITIVE_INT, "view.max_seconds": POSITIVE,

@@ -27,6 +27,7 @@ from typing import Any, Literal, Optional, Union
 from hydra.core.config_store import ConfigStore
 
 from lagsplat.artifacts import Artifacts
+from lagsplat.baselines.extrapolation import ExtrapolationConfig
 from lagsplat.diagnose.refit import RefitConfig
 from lagsplat.diagnose.report import DiagnoseConfig
 from lagsplat.diagnose.where import WhereConfig
@@ -262,6 +263,7 @@ SCHEMAS: dict[str, type] = {
     "krauss_eval": KraussEvalConfig,
     "forces": ForceCheckConfig,
     "diagnose": DiagnoseConfig,
+    "extrapolation": ExtrapolationConfig,
     "view": ViewConfig,
     "table": TableConfig,
     "seed_table": SeedTableConfig,

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -31,7 +32,22 @@ from lagsplat.chart import Chart
 from lagsplat.dynamics.integrators import initial_state
 from lagsplat.io.clip import HELD_OUT
 
-__all__ = ["Predictor", "decay_rate", "amplitude_left", "extrapolation_metrics"]
+__all__ = ["Predictor", "ExtrapolationConfig", "decay_rate", "amplitude_left", "extrapolation_metrics"]
+
+
+@dataclass
+class ExtrapolationConfig:
+    """Settings of the extrapolation protocol (``conf/config.yaml``, group ``extrapolation``).
+
+    Attributes:
+        long_s: length of the long free extrapolation, s (paper Table 3: 1000).
+        sigma: smoothing of the encoded trajectory before the initial states are read, frames.
+        render_batch: decoding batch of the rendering rows.
+    """
+
+    long_s: float = 1000.0
+    sigma: float = 1.0
+    render_batch: int = 64
 
 #: ``predictor(q0 [d], qdot0 [d], dt, n) -> [n, d]`` positions of a free rollout, frames ``dt`` s apart (the first is ``q0``).
 Predictor = Callable[[np.ndarray, np.ndarray, float, int], np.ndarray]
