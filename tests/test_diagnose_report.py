@@ -312,6 +312,12 @@ def test_the_winner_is_confirmed_by_its_refit_or_replaced_by_a_rival_whose_refit
     assert signature_confirmed(diag.effects[0]) and choose_by_refit(chart, model, cfg, diag, 1.0, rc) == (diag, [], None)
     for f in diag.ranking:  # ... so the branches below are those of a winner without that confirmation
         f.signature_support = 0.0
+    win = diag.effects[0]
+    far = [f for f in diag.ranking if f.significant and f.effect != "coulomb" and f.evidence < win.evidence - 10]
+    if far:  # a rival the residual rejects by very strong evidence is not refit either ...
+        assert choose_by_refit(chart, model, cfg, diag, 1.0, rc) == (diag, [], None)
+    for f in far:  # ... so bring the rivals within reach for the branches below
+        f.delta_bic = win.delta_bic - 5.0
     assert choose_by_refit(chart, model, cfg, diag, None, rc) == (diag, [], None)  # no baseline: nothing compared
     lone = dataclasses.replace(diag, ranking=[f if f.effect == "coulomb" else dataclasses.replace(f, significant=False) for f in diag.ranking])
     assert choose_by_refit(chart, model, cfg, lone, 1.0, rc) == (lone, [], None)  # one significant candidate: nothing to choose

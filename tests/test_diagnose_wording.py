@@ -179,3 +179,15 @@ def test_an_effect_size_in_pixels_of_the_video() -> None:
     assert stop.interpretation["in_pixels"]["stop_xy_px"] == pytest.approx([15.0, 20.0], abs=1e-4)
     assert "the object touches the stop at (15, 20) px of the working frame, (62, 37) px of the source video" in stop.interpretation["text"]
     assert fric.interpretation["in_pixels"]["amplitude_loss_per_cycle_px"] == pytest.approx(1.0) and "(1.0 px of motion per cycle)" in fric.interpretation["text"]
+
+
+def test_a_rival_far_behind_the_winner_is_not_refit(monkeypatch) -> None:
+    """The refit's rollout error arbitrates only between candidates the residual does not separate by very strong evidence."""
+    stop, drift = _fit("end_stop", 93.0), _fit("drift", 48.0)
+    diag = Diagnosis("end_stop", [stop], [stop, drift], {}, {}, {}, {"min_delta_bic": 10.0})
+    seen: list[str] = []
+    monkeypatch.setattr(refit_choice, "refit", lambda chart, model, cfg, d, rc, inertia=None: (seen.append(d.winner), _Refit(0.5))[1])
+    assert refit_choice.choose_by_refit(None, None, None, diag, 0.2) == (diag, [], None) and seen == []
+    close = Diagnosis("end_stop", [stop], [stop, _fit("drift", 85.0)], {}, {}, {}, {"min_delta_bic": 10.0})
+    chosen, rows, _ = refit_choice.choose_by_refit(None, None, None, close, 0.2)
+    assert seen == ["end_stop", "drift"] and [r["effect"] for r in rows] == ["end_stop", "drift"]

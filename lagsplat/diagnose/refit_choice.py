@@ -36,7 +36,9 @@ def choose_by_refit(
     dry-friction clip a cubic-stiffness refit can follow the training video
     better than the friction's, by correcting the model's frequency), so it never
     ranks candidates whose refits help: it only rejects a winner whose refit
-    makes the model follow its own training video worse. A missing degree of freedom, which no refit can
+    makes the model follow its own training video worse, and only in favour of a rival the residual does not
+    reject by very strong evidence (within ``min_delta_bic`` of the winner's: a stiff end stop, hard to refit,
+    led a drift by Delta BIC 93 to 48 on a rendered torsion disk). A missing degree of freedom, which no refit can
     confirm, gives way to a significant rival with a Stage-2 remedy that the residual cannot tell apart from
     it (evidence within 2) when that rival's refit beats the identified model. Neither does it overrule a winner that its
     own chart-invariant signature confirms (:func:`~lagsplat.diagnose.select.signature_confirmed`: a
@@ -67,8 +69,12 @@ def choose_by_refit(
         return _rival_of_a_missing_dof(chart, model, stage2_cfg, diagnosis, baseline_nrmse, cfg, inertia, refittable)
     if baseline_nrmse is None or len(effects) != 1 or len(refittable) < 2:
         return diagnosis, [], None
-    if signature_confirmed(effects[0], float(diagnosis.settings.get("min_delta_bic", 10.0))):
+    min_bic = float(diagnosis.settings.get("min_delta_bic", 10.0))
+    if signature_confirmed(effects[0], min_bic):
         return diagnosis, [], None  # its own signature confirms the winner: no rival's rollout error overrules it
+    refittable = [f for f in refittable if f.effect == effects[0].effect or f.evidence >= effects[0].evidence - min_bic]
+    if len(refittable) < 2:
+        return diagnosis, [], None  # the residual prefers the winner by very strong evidence: a refit does not overrule it
     quiet = dataclasses.replace(cfg, control=False)
     first = effects[0]
     order = [first, *[f for f in refittable if f.effect != first.effect]]
