@@ -71,6 +71,7 @@ def apply_variant(cfg: DictConfig) -> DictConfig:
 
 
 def save_stage_config(cfg: DictConfig, stage: str) -> None:
+    """Write the resolved configuration of ``stage`` beside its output (:meth:`lagsplat.artifacts.Artifacts.config`), atomically."""
     from lagsplat.io.atomic import atomic_write
 
     with atomic_write(artifacts_of(cfg).config(stage)) as tmp:
@@ -78,6 +79,7 @@ def save_stage_config(cfg: DictConfig, stage: str) -> None:
 
 
 def plain(node) -> dict:
+    """A configuration node as a plain, resolved ``dict`` (a mapping that is already plain is copied)."""
     return OmegaConf.to_container(node, resolve=True) if isinstance(node, DictConfig) else dict(node)
 
 

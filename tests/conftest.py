@@ -44,3 +44,19 @@ def results_untouched():
     after = _tree(results)
     changed = sorted(k for k in after if before.get(k) != after[k]) + sorted(set(before) - set(after))
     assert not changed, f"tests wrote into {results}: {changed[:10]}"
+
+
+@pytest.fixture(scope="session")
+def load_benchmark():
+    """A function that imports ``benchmarks/<name>.py`` as a module (the benchmark scripts are not a package)."""
+    import importlib.util
+    from pathlib import Path
+
+    def load(name: str):
+        path = Path(__file__).resolve().parents[1] / "benchmarks" / f"{name}.py"
+        spec = importlib.util.spec_from_file_location(f"bench_{name}", path)
+        mod = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(mod)
+        return mod
+
+    return load

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
 
 import pytest
 
@@ -11,12 +9,8 @@ from lagsplat.diagnose.gap import gap_reduction
 
 
 @pytest.fixture(scope="module")
-def bench():
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "diagnosis.py"
-    spec = importlib.util.spec_from_file_location("bench_diagnosis", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+def bench(load_benchmark):
+    return load_benchmark("diagnosis")
 
 
 def _gap(eps_I, eps_AE):
