@@ -45,8 +45,8 @@ stages:
              where it shows, held-out gap before / after a Stage-2 refit with it; lagsplat.diagnose)
   table      metrics.json of table.systems -> results/tables/<table.name>.tex/.csv
   ablation   variants' metrics.json of one system -> results/tables/<name>_<ablation>.tex/.csv
-  extrapolation  -> extrapolation.json: LaGSplat and a latent neural ODE (no prior) predict the held-out
-             frames and 1000 s past them (paper §4.3; lagsplat.baselines)
+  extrapolation  -> extrapolation.json: LaGSplat, a latent neural ODE (no prior) and GP-2D (GaussianPrediction's
+             structure in 2-D) predict the held-out frames and 1000 s past them (paper §4.3; lagsplat.baselines)
   extrapolation_table  extrapolation.json of table.systems -> results/tables/extrapolation.tex/.csv/.md
   krauss_table  soft-robot benchmark (paper Table 4) -> results/tables/krauss.tex/.csv/.md
   seed_table one system trained with each of seed_table.seeds (results/seeds/seed<k>/<name>/metrics.json)

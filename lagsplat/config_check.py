@@ -111,6 +111,10 @@ CHECKS: dict[str, Bound] = {
     "diagnose.refit.epochs": POSITIVE_INT, "diagnose.refit.lr": POSITIVE, "diagnose.refit.seed": COUNT, "diagnose.refit.floor_scale": POSITIVE,
     # extrapolation (ExtrapolationConfig)
     "extrapolation.long_s": POSITIVE, "extrapolation.sigma": NON_NEGATIVE, "extrapolation.render_batch": POSITIVE_INT,
+    # gp2d (GP2DConfig; 0 = the size rule)
+    "gp2d.n_gaussians": COUNT, "gp2d.n_keypoints": COUNT, "gp2d.k_neighbours": COUNT, "gp2d.feature_dim": POSITIVE_INT, "gp2d.hidden[]": POSITIVE_INT,
+    "gp2d.iterations": COUNT, "gp2d.frames_per_step": POSITIVE_INT, "gp2d.gcn_history": POSITIVE_INT, "gp2d.gcn_stages": COUNT,
+    "gp2d.gcn_hidden": POSITIVE_INT, "gp2d.gcn_epochs": POSITIVE_INT, "gp2d.gcn_lr": POSITIVE, "gp2d.gcn_lr_min": POSITIVE, "gp2d.gcn_batch": POSITIVE_INT, "gp2d.gcn_max_steps": COUNT,
     # view (ViewConfig)
     "view.port": Bound(0, 65535, words="a port number in [0, 65535]"), "view.sigma": POSITIVE, "view.force_scale": POSITIVE,
     "view.kappa": POSITIVE, "view.render_scale": POSITIVE, "view.max_substeps": POSITIVE_INT, "view.max_seconds": POSITIVE,

@@ -28,6 +28,7 @@ from hydra.core.config_store import ConfigStore
 
 from lagsplat.artifacts import Artifacts
 from lagsplat.baselines.extrapolation import ExtrapolationConfig
+from lagsplat.baselines.gp2d_field import GP2DConfig
 from lagsplat.diagnose.refit import RefitConfig
 from lagsplat.diagnose.report import DiagnoseConfig
 from lagsplat.diagnose.where import WhereConfig
@@ -264,6 +265,7 @@ SCHEMAS: dict[str, type] = {
     "forces": ForceCheckConfig,
     "diagnose": DiagnoseConfig,
     "extrapolation": ExtrapolationConfig,
+    "gp2d": GP2DConfig,
     "view": ViewConfig,
     "table": TableConfig,
     "seed_table": SeedTableConfig,

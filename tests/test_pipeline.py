@@ -9,6 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -183,6 +184,27 @@ def test_snakemake_end_to_end_on_the_tiny_toy(tmp_path):
         assert r["linearity"]["f_lat_rel_err"] < 1e-9 and r["kernel"]["rel"] < 1e-6
         assert r["background"]["on_object_median_dq"] > 0
     assert len(fj["lever"]["r_px"]) == len(fj["lever"]["f_lat"]) > 2 and (sysdir / "figures" / "forces.png").exists()
+    # the extrapolation protocol with every baseline, at tiny budgets: LaGSplat, the neural ODE, GP-2D, and the
+    # held-out frames themselves imported as "GaussianPrediction" frames (a perfect predictor)
+    clip = np.load(sysdir / "clip.npz")
+    ho = np.flatnonzero(clip["split"] == 1)
+    pred_dir = tmp_path / "gp_frames"
+    pred_dir.mkdir()
+    rows = ["file,time_s"]
+    for i in ho:
+        cv2.imwrite(str(pred_dir / f"{i:05d}.png"), clip["images"][i][..., ::-1])
+        rows.append(f"{i:05d}.png,{clip['t'][i]:.6f}")
+    (pred_dir / "times.csv").write_text("\n".join(rows) + "\n")
+    r5 = run([sys.executable, "-m", "lagsplat", "extrapolation", "system=toy_tiny", f"results_dir={res}", "gp2d.iterations=300",
+              "gp2d.gcn_max_steps=60", "extrapolation.long_s=60", f"extrapolation.gaussian_prediction_frames={pred_dir}"], timeout=900)  # fmt: skip
+    assert r5.returncode == 0, r5.stdout[-3000:] + r5.stderr[-3000:]
+    xj = json.loads((sysdir / "extrapolation.json").read_text())
+    assert set(xj["models"]) == {"lagsplat", "neural_ode", "gp2d", "gaussian_prediction"}
+    gp, orig = xj["models"]["gp2d"], xj["models"]["gaussian_prediction"]
+    assert math.isfinite(gp["psnr_fit_mean"]) and math.isfinite(gp["psnr_ae_floor_fit_mean"]) and 0 <= gp["encoded_in_range"] <= 1
+    assert gp["gp2d_resolved"]["iterations"] == 300 and gp["n_fitted_frames"] == int(ho[0])
+    assert orig["freq_error"] < 0.01 and orig["psnr_mean"] == math.inf and orig["amplitude_left"] is None  # the video itself
+    assert xj["models"]["lagsplat"]["amplitude_left"] < 0.5
     # every job wrote its own log (the rule passes {log} to the CLI)
     for stage in ("ingest", "stage1", "chart", "stage2", "evaluate", "figures", "forces"):
         text = (res / "logs" / "toy_tiny" / f"{stage}.log").read_text()

@@ -2,6 +2,10 @@
 
 * :mod:`lagsplat.baselines.neural_ode`: a latent neural ODE, an unconstrained vector field for
   ``(q, qdot)`` on the frozen LaGSplat chart, trained like Stage 2.
+* :mod:`lagsplat.baselines.gp2d` (with :mod:`~lagsplat.baselines.gp2d_field` and :mod:`~lagsplat.baselines.gp2d_forecast`):
+  GP-2D, a re-implementation of GaussianPrediction's motion-prediction structure in the image plane (a deformation
+  field, key points, a free graph-network forecaster), not the original code; :mod:`lagsplat.baselines.gp_frames`
+  imports frames predicted by the original.
 * :mod:`lagsplat.baselines.extrapolation`: the protocol every model is scored by (train on the first
   part, predict the rest and 1000 s past it; frequency, dissipation, amplitude left, PSNR).
 """

@@ -23,16 +23,19 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Optional
 
 import numpy as np
 
 from lagsplat import metrics, timeseries
 from lagsplat.chart import Chart
 from lagsplat.dynamics.integrators import initial_state
-from lagsplat.io.clip import HELD_OUT
+from lagsplat.io.clip import HELD_OUT, TRAIN
 
-__all__ = ["Predictor", "ExtrapolationConfig", "decay_rate", "amplitude_left", "extrapolation_metrics"]
+__all__ = [
+    "Predictor", "ExtrapolationConfig", "ProtocolWindows", "protocol_windows", "decay_rate", "amplitude_left", "extrapolation_metrics",
+    "frame_extrapolation_metrics", "encode_in_chart", "in_training_range",
+]  # fmt: skip
 
 
 @dataclass
@@ -43,11 +46,16 @@ class ExtrapolationConfig:
         long_s: length of the long free extrapolation, s (paper Table 3: 1000).
         sigma: smoothing of the encoded trajectory before the initial states are read, frames.
         render_batch: decoding batch of the rendering rows.
+        gp2d: also fit and score GP-2D (:mod:`lagsplat.baselines.gp2d`; settings: the ``gp2d`` group).
+        gaussian_prediction_frames: a folder of frames predicted by the original GaussianPrediction
+            (:mod:`lagsplat.baselines.gp_frames`), scored like GP-2D; ``None``: no such row.
     """
 
     long_s: float = 1000.0
     sigma: float = 1.0
     render_batch: int = 64
+    gp2d: bool = True
+    gaussian_prediction_frames: Optional[str] = None
 
 #: ``predictor(q0 [d], qdot0 [d], dt, n) -> [n, d]`` positions of a free rollout, frames ``dt`` s apart (the first is ``q0``).
 Predictor = Callable[[np.ndarray, np.ndarray, float, int], np.ndarray]
@@ -89,11 +97,79 @@ def _filmed_window(chart: Chart, ho: np.ndarray) -> np.ndarray:
     return np.flatnonzero(ep == ep[ho[0]])
 
 
+@dataclass
+class ProtocolWindows:
+    """The frames every model of the protocol predicts, read once from the chart.
+
+    Attributes:
+        ho: the longest held-out segment (frame indices; predicted from its first frame).
+        win: the filmed window, the held-out segment's episode (the dissipation row's free rollout).
+        dt: frame period, s.
+        top: ``[d]`` most visible direction of ``G_bar`` (every row reads the trajectory along it).
+        q_s: ``[T,d]`` smoothed encoded trajectory.
+        f_real: spectral peak of the encoded real video over ``ho``, Hz.
+        n_long: states of the long free rollout (``long_s / dt + 1``).
+        m_period: frames in one natural period at ``f_real`` (the amplitude-left row's window).
+    """
+
+    ho: np.ndarray
+    win: np.ndarray
+    dt: float
+    top: np.ndarray
+    q_s: np.ndarray
+    f_real: float
+    n_long: int
+    m_period: int
+
+
+def protocol_windows(chart: Chart, long_s: float = 1000.0, sigma: float = 1.0) -> ProtocolWindows:
+    """:class:`ProtocolWindows` of a chart.
+
+    Raises:
+        ValueError: if the chart has no held-out segment of at least 16 frames.
+    """
+    segs = [s for s in chart.segments(HELD_OUT) if len(s) >= 16]
+    if not segs:
+        raise ValueError("the chart has no held-out segment of 16 frames or more to predict")
+    ho = max(segs, key=len)
+    dt = float(np.median(np.diff(chart.t)))
+    top = metrics.top_direction(chart.G_bar)
+    q_s = timeseries.gaussian_smooth(chart.q, sigma)
+    f_real = timeseries.spectral_peak_frequency(metrics.project(q_s[ho], top), dt)
+    m = max(2, int(round(1.0 / (f_real * dt)))) if math.isfinite(f_real) and f_real > 0 else 2
+    return ProtocolWindows(ho, _filmed_window(chart, ho), dt, top, q_s, f_real, int(round(long_s / dt)) + 1, m)
+
+
+def _dynamics_rows(w: ProtocolWindows, chart: Chart, pred_ho: np.ndarray, p_win: np.ndarray, p_long: np.ndarray, long_s: float) -> dict[str, Any]:
+    """Frequency, dissipation and amplitude-left rows from a model's held-out prediction ``[n_ho,d]``, its free rollout
+    over the filmed window (projected, ``[len(win)]``) and its long rollout (projected; the amplitude row reads its first
+    and last natural period only)."""
+    f_model = timeseries.spectral_peak_frequency(metrics.project(pred_ho, w.top), w.dt) if np.isfinite(pred_ho).all() else float("nan")
+    rate_real = decay_rate(metrics.project(w.q_s[w.win], w.top), w.dt, w.f_real)
+    rate_model = decay_rate(p_win, w.dt, w.f_real) if np.isfinite(p_win).all() else float("nan")
+    left = amplitude_left(p_long, w.dt, w.f_real) if np.isfinite(p_long).all() else float("nan")
+    return {
+        "f_real_hz": w.f_real, "f_model_hz": f_model,
+        "freq_error": metrics.relative_error(f_model, w.f_real) if math.isfinite(f_model) else float("nan"),
+        "rate_real_per_s": rate_real, "rate_model_per_s": rate_model,
+        "dissipation_error": abs(rate_model - rate_real) / abs(rate_real) if rate_real else float("nan"),
+        "amplitude_left": left, "long_s": float(long_s), "n_held_out": int(len(w.ho)),
+        "psnr_mean": None, "psnr_first": None, "psnr_last": None, "psnr_ae_floor_mean": None,
+    }  # fmt: skip
+
+
+def _ae_floor(ae: Any, chart: Chart, frames: np.ndarray, ho: np.ndarray, batch: int) -> float:
+    from lagsplat.evaluate.common import decoded_psnr_ssim
+
+    floor, _ = decoded_psnr_ssim(ae, chart, chart.q[ho], frames[ho], batch)
+    return float(np.mean(floor[np.isfinite(floor)]))  # an exact decode is inf dB
+
+
 def extrapolation_metrics(
     chart: Chart, predictor: Predictor, long_s: float = 1000.0, sigma: float = 1.0, ae: Any | None = None, frames: np.ndarray | None = None,
     batch: int = 64,
 ) -> dict[str, Any]:
-    """The protocol of the module docstring for one model.
+    """The protocol of the module docstring for one model that predicts in the chart.
 
     Args:
         chart: the frozen chart every trajectory is read in (its held-out frames are the ones predicted).
@@ -112,38 +188,83 @@ def extrapolation_metrics(
     Raises:
         ValueError: if the chart has no held-out segment of at least 16 frames.
     """
-    segs = [s for s in chart.segments(HELD_OUT) if len(s) >= 16]
-    if not segs:
-        raise ValueError("the chart has no held-out segment of 16 frames or more to predict")
-    ho = max(segs, key=len)
-    dt = float(np.median(np.diff(chart.t)))
-    top = metrics.top_direction(chart.G_bar)
-    q_s = timeseries.gaussian_smooth(chart.q, sigma)
-    q0, v0 = (x.numpy()[0] for x in initial_state(q_s, np.array([ho[0]]), dt))
-    pred = np.asarray(predictor(q0, v0, dt, len(ho)), np.float64)
-    f_real = timeseries.spectral_peak_frequency(metrics.project(q_s[ho], top), dt)
-    f_model = timeseries.spectral_peak_frequency(metrics.project(pred, top), dt) if np.isfinite(pred).all() else float("nan")
-
-    win = _filmed_window(chart, ho)
-    w0, w1 = (x.numpy()[0] for x in initial_state(q_s, np.array([win[0]]), dt))
-    p_win = metrics.project(np.asarray(predictor(w0, w1, dt, len(win)), np.float64), top)
-    rate_real = decay_rate(metrics.project(q_s[win], top), dt, f_real)
-    rate_model = decay_rate(p_win, dt, f_real) if np.isfinite(p_win).all() else float("nan")
-
-    p_long = metrics.project(np.asarray(predictor(q0, v0, dt, int(round(long_s / dt)) + 1), np.float64), top)
-    left = amplitude_left(p_long, dt, f_real) if np.isfinite(p_long).all() else float("nan")
-    out: dict[str, Any] = {
-        "f_real_hz": f_real, "f_model_hz": f_model, "freq_error": metrics.relative_error(f_model, f_real) if math.isfinite(f_model) else float("nan"),
-        "rate_real_per_s": rate_real, "rate_model_per_s": rate_model,
-        "dissipation_error": abs(rate_model - rate_real) / abs(rate_real) if rate_real else float("nan"),
-        "amplitude_left": left, "long_s": float(long_s), "n_held_out": int(len(ho)),
-        "psnr_mean": None, "psnr_first": None, "psnr_last": None, "psnr_ae_floor_mean": None,
-    }  # fmt: skip
+    w = protocol_windows(chart, long_s, sigma)
+    state = lambda i: (x.numpy()[0] for x in initial_state(w.q_s, np.array([i]), w.dt))  # noqa: E731
+    q0, v0 = state(w.ho[0])
+    pred = np.asarray(predictor(q0, v0, w.dt, len(w.ho)), np.float64)
+    w0, w1 = state(w.win[0])
+    p_win = metrics.project(np.asarray(predictor(w0, w1, w.dt, len(w.win)), np.float64), w.top)
+    p_long = metrics.project(np.asarray(predictor(q0, v0, w.dt, w.n_long), np.float64), w.top)
+    out = _dynamics_rows(w, chart, pred, p_win, p_long, long_s)
     if ae is not None and frames is not None:
         from lagsplat.evaluate.common import decoded_psnr_ssim
 
-        psnr, _ = decoded_psnr_ssim(ae, chart, pred, frames[ho], batch)
-        floor, _ = decoded_psnr_ssim(ae, chart, chart.q[ho], frames[ho], batch)
-        fin = lambda x: x[np.isfinite(x)]  # noqa: E731 (an exact decode is inf dB)
-        out.update(psnr_mean=float(np.mean(fin(psnr))), psnr_first=float(psnr[0]), psnr_last=float(psnr[-1]), psnr_ae_floor_mean=float(np.mean(fin(floor))))
+        psnr, _ = decoded_psnr_ssim(ae, chart, pred, frames[w.ho], batch)
+        fin = psnr[np.isfinite(psnr)]
+        out.update(psnr_mean=float(np.mean(fin)), psnr_first=float(psnr[0]), psnr_last=float(psnr[-1]), psnr_ae_floor_mean=_ae_floor(ae, chart, frames, w.ho, batch))
+    return out
+
+
+def encode_in_chart(ae: Any, chart: Chart, frames: np.ndarray, batch: int = 64) -> np.ndarray:
+    """uint8 frames ``[n,H,W,3]`` read through the frozen encoder into the chart: whitened ``q [n,d]`` (float64)."""
+    import torch
+
+    with torch.no_grad():
+        return chart.to_whitened(ae.encode_frames(frames, batch)).double().numpy()
+
+
+def in_training_range(q: np.ndarray, chart: Chart, margin: float = 0.1) -> float:
+    """Fraction of states ``q [n,d]`` inside the training encodings' range on every axis, widened by ``margin`` of the
+    range on each side: near 1 means the encoder reads the predicted frames without extrapolating."""
+    tr = chart.q[np.asarray(chart.split) == TRAIN]
+    lo, hi = tr.min(0), tr.max(0)
+    pad = margin * (hi - lo)
+    inside = ((q >= lo - pad) & (q <= hi + pad)).all(1)
+    return float(inside.mean()) if len(q) else float("nan")
+
+
+def frame_extrapolation_metrics(
+    chart: Chart, ae: Any, frames: np.ndarray, w: ProtocolWindows, pred_ho: np.ndarray, pred_win: np.ndarray | None,
+    pred_long: np.ndarray | None, long_s: float, batch: int = 64,
+) -> dict[str, Any]:
+    """The protocol for a model that predicts frames (GP-2D, imported GaussianPrediction frames), every frame read
+    through the frozen LaGSplat encoder so its trajectory lives in the same chart.
+
+    Args:
+        chart, ae: the frozen chart and Stage-1 autoencoder.
+        frames: the clip's uint8 frames ``[T,H,W,3]``.
+        w: :func:`protocol_windows` of the chart.
+        pred_ho: uint8 ``[len(w.ho),H,W,3]``, the prediction of the held-out frames.
+        pred_win: uint8 ``[len(w.win),H,W,3]``, a free prediction over the filmed window, or ``None`` (no dissipation row).
+        pred_long: uint8 ``[2 m,H,W,3]``, the first and the last natural period (``m = w.m_period`` frames each) of
+            a free prediction ``long_s`` long, or ``None`` (no amplitude row).
+        long_s: the long prediction's length, s.
+
+    Returns:
+        The keys of :func:`extrapolation_metrics`, the PSNR rows of the predicted frames themselves against the real
+        ones, plus ``encoded_in_range`` (:func:`in_training_range` of the encoded held-out prediction).
+
+    Raises:
+        ValueError: on frame arrays of the wrong length or size.
+    """
+    from skimage.metrics import peak_signal_noise_ratio
+
+    for name, x, n in (("held-out", pred_ho, len(w.ho)), ("window", pred_win, len(w.win)), ("long", pred_long, 2 * w.m_period)):
+        if x is not None and (len(x) != n or x.shape[1:] != frames.shape[1:]):
+            raise ValueError(f"{name} prediction: {tuple(x.shape)} frames, expected {n} of {tuple(frames.shape[1:])}")
+    q_ho = encode_in_chart(ae, chart, pred_ho, batch)
+    nan = np.full(2, np.nan)
+    p_win = metrics.project(encode_in_chart(ae, chart, pred_win, batch), w.top) if pred_win is not None else np.full(len(w.win), np.nan)
+    p_long = metrics.project(encode_in_chart(ae, chart, pred_long, batch), w.top) if pred_long is not None else nan
+    out = _dynamics_rows(w, chart, q_ho, p_win, p_long, long_s)
+    if pred_win is None:
+        out.update(rate_model_per_s=None, dissipation_error=None)
+    if pred_long is None:
+        out.update(amplitude_left=None)
+    real = frames[w.ho].astype(np.float64) / 255.0
+    with np.errstate(divide="ignore"):
+        psnr = np.array([peak_signal_noise_ratio(real[i], pred_ho[i].astype(np.float64) / 255.0, data_range=1.0) for i in range(len(real))])
+    fin = psnr[np.isfinite(psnr)]
+    out.update(psnr_mean=float(np.mean(fin)) if len(fin) else math.inf, psnr_first=float(psnr[0]), psnr_last=float(psnr[-1]),
+               psnr_ae_floor_mean=_ae_floor(ae, chart, frames, w.ho, batch), encoded_in_range=in_training_range(q_ho, chart))  # fmt: skip
     return out

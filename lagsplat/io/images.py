@@ -20,7 +20,7 @@ import numpy as np
 from lagsplat.io.common import FrameCollector, FrameTransform, check_range, cv_to_rgb, natural_key, validate_range
 from lagsplat.io.clip import ClipError
 
-__all__ = ["read_image_folder", "IMAGE_EXTENSIONS", "list_image_files"]
+__all__ = ["read_image_folder", "read_image", "IMAGE_EXTENSIONS", "list_image_files"]
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp")
 """Image file extensions (lower case) read by :func:`read_image_folder`."""
@@ -44,7 +44,12 @@ def list_image_files(path: str | Path) -> list[Path]:
     return sorted(files, key=lambda p: natural_key(p.name))
 
 
-def _imread(p: Path) -> np.ndarray:
+def read_image(p: Path) -> np.ndarray:
+    """One image file as uint8 RGB ``[H,W,3]`` (conversions of the module docstring).
+
+    Raises:
+        ClipError: naming the file, if it cannot be read or decoded.
+    """
     try:
         buf = np.fromfile(p, dtype=np.uint8)
         img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED) if buf.size else None
@@ -105,7 +110,7 @@ def read_image_folder(
 
     collector = FrameCollector(src, start, stop_, transform)
     for i in range(start, stop_):
-        collector.add(i, _imread(files[i]), name=str(files[i]))
+        collector.add(i, read_image(files[i]), name=str(files[i]))
     frames = collector.result()
     T = frames.shape[0]
     assert collector.native_shape is not None

@@ -68,7 +68,7 @@ rule ablation_table:
 
 
 rule extrapolation:
-    """LaGSplat and a latent neural ODE (no prior) predict the held-out frames and 1000 s past them (paper §4.3)."""
+    """LaGSplat, a latent neural ODE (no prior) and GP-2D (GaussianPrediction's structure) predict the held-out frames and 1000 s past them (paper §4.3)."""
     input:
         clip=str(ART.clip),
         stage1=str(ART.stage1),
@@ -78,7 +78,7 @@ rule extrapolation:
         extrapolation=str(ART.extrapolation),
     log:
         f"{RESULTS}/logs/{{system}}/extrapolation.log",
-    threads: 1
+    threads: 2
     shell:
         cli("extrapolation", ["clip", "stage1", "chart", "stage2"], ["extrapolation"])
 
