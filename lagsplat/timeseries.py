@@ -21,6 +21,8 @@ import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
 __all__ = [
+    "half_cycle_amplitudes",
+    "envelope_fit",
     "as_float_array",
     "check_finite",
     "check_dt",
@@ -302,3 +304,39 @@ def smoothing_edge(sigma_frames: float) -> int:
     ``sigma = 1``. Rollouts that must start from the true state start past them.
     """
     return int(math.ceil(4.0 * max(float(sigma_frames), 0.0)))
+
+
+def half_cycle_amplitudes(p: np.ndarray, t: np.ndarray, period_frames: float) -> tuple[np.ndarray, np.ndarray]:
+    """Turning-point amplitudes of an oscillation ``p [n]`` sampled at times ``t [n]`` (s).
+
+    The half-cycle amplitude is half the difference of consecutive alternating extrema (insensitive to
+    the rest offset), placed at their mid time; extrema closer than ``0.35 period_frames`` are merged
+    (scipy ``find_peaks`` distance).
+
+    Returns:
+        ``(t_k [m], A_k [m])``; both empty with fewer than two extrema.
+    """
+    from scipy.signal import find_peaks
+
+    gap = max(1, int(0.35 * period_frames))
+    i_max, _ = find_peaks(p, distance=gap)
+    i_min, _ = find_peaks(-p, distance=gap)
+    idx = np.sort(np.concatenate([i_max, i_min]))
+    if len(idx) < 2:
+        return np.zeros(0), np.zeros(0)
+    return 0.5 * (t[idx[1:]] + t[idx[:-1]]), 0.5 * np.abs(np.diff(p[idx]))
+
+
+def envelope_fit(t: np.ndarray, a: np.ndarray, form: str) -> tuple[np.ndarray, float]:
+    """Fit an envelope to amplitudes ``a [m]`` at times ``t [m]``: ``(coef [2], sse)``.
+
+    ``form="linear"``: ``A = c0 + c1 t`` (dry friction); ``"exponential"``: ``log A = c0 + c1 t``, least squares
+    weighted by ``A`` (viscous damping; ``-c1`` is the decay rate ``1/tau``). ``sse`` is over the amplitudes themselves.
+    """
+    X = np.stack([np.ones_like(t), t], 1)
+    if form == "linear":
+        c = np.linalg.lstsq(X, a, rcond=None)[0]
+        return c, float(np.sum((a - X @ c) ** 2))
+    w = np.abs(a)
+    c = np.linalg.lstsq(X * w[:, None], np.log(a) * w, rcond=None)[0]
+    return c, float(np.sum((a - np.exp(X @ c)) ** 2))

@@ -62,25 +62,16 @@ Predictor = Callable[[np.ndarray, np.ndarray, float, int], np.ndarray]
 
 
 def decay_rate(p: np.ndarray, dt: float, f_hz: float) -> float:
-    """Envelope decay rate ``1/tau`` (1/s) of an oscillation ``p [n]``: ``log`` of its half-cycle amplitudes fitted
-    linearly in time, weighted by the amplitude squared (an exponential envelope). NaN with fewer than three half cycles.
-
-    The half-cycle amplitude is half the difference of consecutive extrema (insensitive to the rest offset).
+    """Envelope decay rate ``1/tau`` (1/s) of an oscillation ``p [n]``: the exponential
+    :func:`~lagsplat.timeseries.envelope_fit` of its :func:`~lagsplat.timeseries.half_cycle_amplitudes`
+    (insensitive to the rest offset). NaN with fewer than three non-vanishing half cycles.
     """
-    from scipy.signal import find_peaks
-
-    gap = max(1, int(0.35 / (f_hz * dt))) if math.isfinite(f_hz) and f_hz > 0 else 5
-    idx = np.sort(np.concatenate([find_peaks(p, distance=gap)[0], find_peaks(-p, distance=gap)[0]]))
-    if len(idx) < 4:
-        return float("nan")
-    a = 0.5 * np.abs(np.diff(p[idx]))
-    t = 0.5 * (idx[1:] + idx[:-1]) * dt
-    keep = a > 1e-9 * max(float(a.max()), 1e-300)
+    period = 1.0 / (f_hz * dt) if math.isfinite(f_hz) and f_hz > 0 else 5 / 0.35
+    t, a = timeseries.half_cycle_amplitudes(p, np.arange(len(p)) * dt, period)
+    keep = a > 1e-9 * max(float(a.max()), 1e-300) if len(a) else np.zeros(0, bool)
     if keep.sum() < 3:
         return float("nan")
-    w = a[keep]
-    X = np.stack([np.ones(int(keep.sum())), t[keep]], 1)
-    c = np.linalg.lstsq(X * w[:, None], np.log(a[keep]) * w, rcond=None)[0]
+    c, _ = timeseries.envelope_fit(t[keep], a[keep], "exponential")
     return float(-c[1])
 
 

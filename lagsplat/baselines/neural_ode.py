@@ -20,11 +20,10 @@ import torch
 from torch import Tensor, nn
 from torchdiffeq import odeint
 
-from lagsplat import metrics, timeseries
+from lagsplat import metrics
 from lagsplat.chart import Chart
 from lagsplat.dynamics.integrators import initial_state
-from lagsplat.io.clip import TRAIN
-from lagsplat.train.stage2 import Stage2Config, one_step_windows
+from lagsplat.train.stage2 import Stage2Config, training_windows
 
 __all__ = ["LatentNeuralODE", "train_neural_ode", "ode_rollout"]
 
@@ -112,24 +111,11 @@ def train_neural_ode(chart: Chart, cfg: Stage2Config, seed: int = 0) -> tuple[La
     """
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
-    dt = float(np.median(np.diff(chart.t)))
-    d, k = chart.d, cfg.stride
-    segs = [s for s in chart.segments(TRAIN) if len(s) > 3 * k + 3]
-    if not segs:
-        raise ValueError("no training segment is long enough for one neural-ODE window")
-    q_s = [timeseries.gaussian_smooth(chart.q[s], cfg.sigma) for s in segs]
-    u_s = [chart.u[s] for s in segs]
-    wins = [one_step_windows(q, dt, k, u) for q, u in zip(q_s, u_s)]
-    Q0, V0, Q1, V1, U0, _ = (torch.as_tensor(np.concatenate([w[i] for w in wins]), dtype=torch.float32) for i in range(6))
+    w = training_windows(chart, cfg, seed, "neural-ODE")
+    dt, d, k = w.dt, chart.d, cfg.stride
+    Q0, V0, Q1, V1, U0 = w.Q0, w.V0, w.Q1, w.V1, w.U0
     A = torch.as_tensor(chart.A, dtype=torch.float32)
-    G = metrics.normalise_trace(chart.G_bar)
-    i_long = int(np.argmax([len(q) for q in q_s]))
-    sel = q_s[i_long]
-    f_train = timeseries.spectral_peak_frequency(metrics.project(sel, metrics.top_direction(chart.G_bar)), dt)
-    horizon = max(8, int(round(cfg.select_periods / (f_train * dt))))
-    hi = len(sel) - horizon - 2
-    starts = metrics.window_starts(0, hi, cfg.select_windows, seed) if hi > 0 else np.zeros(1, int)
-    sel_h, q_std = min(horizon, len(sel) - 2), metrics.g_rms_spread(sel, G)
+    sel, sel_u, sel_h, starts, q_std, G, f_train = w.select_q, w.select_u, w.select_horizon, w.select_starts, w.q_std, w.G, w.f_train
 
     model = LatentNeuralODE(d, chart.n_u, tuple(cfg.hidden))
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
@@ -153,7 +139,7 @@ def train_neural_ode(chart: Chart, cfg: Stage2Config, seed: int = 0) -> tuple[La
             tot, cnt = tot + float(loss.detach()), cnt + 1
         hist["loss"].append(tot / max(cnt, 1))
         if (ep + 1) % cfg.select_every == 0 or ep == cfg.epochs - 1:
-            err = _selection_error(model, sel, dt, G, sel_h, starts, q_std, u_s[i_long])
+            err = _selection_error(model, sel, dt, G, sel_h, starts, q_std, sel_u)
             hist["select_nrmse"].append((ep, err))
             if err < best[0]:
                 best = (err, copy.deepcopy(model.state_dict()), ep)

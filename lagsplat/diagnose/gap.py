@@ -90,30 +90,6 @@ def energy_check(model: nn.Module, chart: Any, n_rollouts: int = 8, periods: flo
 
 
 # ---------------------------------------------------------------------- held-out gap
-def _half_cycle_amplitudes(p: np.ndarray, t: np.ndarray, period_frames: float) -> tuple[np.ndarray, np.ndarray]:
-    """``(t_k, A_k)``: half the difference of consecutive alternating extrema and its mid time."""
-    from scipy.signal import find_peaks
-
-    gap = max(1, int(0.35 * period_frames))
-    i_max, _ = find_peaks(p, distance=gap)
-    i_min, _ = find_peaks(-p, distance=gap)
-    idx = np.sort(np.concatenate([i_max, i_min]))
-    if len(idx) < 2:
-        return np.zeros(0), np.zeros(0)
-    return 0.5 * (t[idx[1:]] + t[idx[:-1]]), 0.5 * np.abs(np.diff(p[idx]))
-
-
-def _envelope_fit(t: np.ndarray, a: np.ndarray, form: str) -> tuple[np.ndarray, float]:
-    """``(coef, sse)`` of ``A = c0 + c1 t`` (linear) or ``log A = c0 + c1 t`` (exponential, weighted by A^2)."""
-    X = np.stack([np.ones_like(t), t], 1)
-    if form == "linear":
-        c = np.linalg.lstsq(X, a, rcond=None)[0]
-        return c, float(np.sum((a - X @ c) ** 2))
-    w = np.sqrt(a**2)
-    c = np.linalg.lstsq(X * w[:, None], np.log(a) * w, rcond=None)[0]
-    return c, float(np.sum((a - np.exp(X @ c)) ** 2))
-
-
 def _envelope_at(c: np.ndarray, t: float, form: str) -> float:
     """The fitted envelope at ``t``; a linear one stops at zero (the motion has come to rest), so a decay is at most 100 %."""
     return max(0.0, float(c[0] + c[1] * t)) if form == "linear" else float(math.exp(c[0] + c[1] * t))
@@ -156,17 +132,17 @@ def envelope_decay(chart: Any, model: nn.Module, sigma: float = 1.0) -> dict[str
     sim, _ = rollout(model, q0, v0, dt, n, u=actuation_schedule(u[None] if u.shape[1] else None, dt))
     p_sim = sim[0].double().numpy() @ top
     t = chart.t[ho] - chart.t[ho][0]
-    te, ae = _half_cycle_amplitudes(p_enc, t, period)
+    te, ae = timeseries.half_cycle_amplitudes(p_enc, t, period)
     out["n_half_cycles"] = int(len(ae))
     if len(ae) < 3 or not np.isfinite(p_sim).all():
         return out
-    ts, as_ = _half_cycle_amplitudes(p_sim, t, period)
+    ts, as_ = timeseries.half_cycle_amplitudes(p_sim, t, period)
     if len(as_) < 3 or np.any(ae <= 0) or np.any(as_ <= 0):
         return out
-    fits = {form: _envelope_fit(te, ae, form) for form in ("linear", "exponential")}
+    fits = {form: timeseries.envelope_fit(te, ae, form) for form in ("linear", "exponential")}
     form = min(fits, key=lambda k: fits[k][1])
     c_e = fits[form][0]
-    c_s, _ = _envelope_fit(ts, as_, form)
+    c_s, _ = timeseries.envelope_fit(ts, as_, form)
     t0, t1 = float(t[0]), float(t[-1])
     D_e = 1.0 - _envelope_at(c_e, t1, form) / max(_envelope_at(c_e, t0, form), 1e-12)
     D_s = 1.0 - _envelope_at(c_s, t1, form) / max(_envelope_at(c_s, t0, form), 1e-12)

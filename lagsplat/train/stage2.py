@@ -10,6 +10,7 @@ from typing import Any, Callable, Literal, Mapping
 
 import numpy as np
 import torch
+from torch import Tensor
 
 from lagsplat import metrics, timeseries
 from lagsplat.chart import Chart
@@ -22,7 +23,7 @@ from lagsplat.train.progress import Progress
 from lagsplat.models.inertia import DecoderInertia
 from lagsplat.models.lagrangian import Lagrangian
 
-__all__ = ["Stage2Config", "Mass", "Potential", "one_step_windows", "train_stage2", "save_stage2", "load_stage2"]
+__all__ = ["Stage2Config", "Mass", "Potential", "one_step_windows", "TrainingWindows", "training_windows", "train_stage2", "save_stage2", "load_stage2"]
 
 Mass = Literal["scalar", "constant", "learned", "decoder"]
 """Inertia models of Stage 2 (``stage2.mass``; :class:`~lagsplat.models.lagrangian.Lagrangian`)."""
@@ -133,6 +134,65 @@ def _rollout_error(
     return metrics.latent_nrmse(pred, true, G, q_std)
 
 
+@dataclass
+class TrainingWindows:
+    """What Stage 2 (and a baseline trained like it) reads from the chart's training frames (paper Eq. 8, §3.3).
+
+    Attributes:
+        dt: frame period, s.
+        q_smooth: the training segments' smoothed ``q`` (``cfg.sigma`` frames), each ``[m_i,d]``.
+        u_segs: their actuation, each ``[m_i,n_u]``.
+        Q0, V0, Q1, V1, U0, U1: the one-step windows of :func:`one_step_windows`, concatenated, float32 tensors.
+        G: trace-normalised ``G_bar`` (the selection's NRMSE metric).
+        f_train: spectral peak of the longest segment along the most visible direction, Hz.
+        select_q, select_u: the longest segment (the selection's rollouts run over it) and its actuation.
+        select_starts, select_horizon: the selection rollouts' start frames and length, states.
+        q_std: the longest segment's ``G``-weighted rms spread (the NRMSE scale).
+    """
+
+    dt: float
+    q_smooth: list
+    u_segs: list
+    Q0: Tensor
+    V0: Tensor
+    Q1: Tensor
+    V1: Tensor
+    U0: Tensor
+    U1: Tensor
+    G: np.ndarray
+    f_train: float
+    select_q: np.ndarray
+    select_u: np.ndarray
+    select_starts: np.ndarray
+    select_horizon: int
+    q_std: float
+
+
+def training_windows(chart: Chart, cfg: Stage2Config, seed: int = 0, what: str = "stage-2") -> TrainingWindows:
+    """The one-step windows and the selection set-up of the chart's training frames (:class:`TrainingWindows`).
+
+    Raises:
+        ValueError: if no training segment is long enough for one window (``what`` names the model).
+    """
+    dt = float(np.median(np.diff(chart.t)))
+    segs = [s for s in chart.segments(TRAIN) if len(s) > 3 * cfg.stride + 3]
+    if not segs:
+        raise ValueError(f"no training segment is long enough for one {what} window")
+    q_smooth = [timeseries.gaussian_smooth(chart.q[s], cfg.sigma) for s in segs]
+    u_segs = [chart.u[s] for s in segs]
+    wins = [one_step_windows(qs, dt, cfg.stride, us) for qs, us in zip(q_smooth, u_segs)]
+    Q0, V0, Q1, V1, U0, U1 = (torch.as_tensor(np.concatenate([w[i] for w in wins]), dtype=torch.float32) for i in range(6))
+    G = metrics.normalise_trace(chart.G_bar)
+    i_long = int(np.argmax([len(x) for x in q_smooth]))
+    longest = q_smooth[i_long]
+    f_train = timeseries.spectral_peak_frequency(metrics.project(longest, metrics.top_direction(chart.G_bar)), dt)
+    horizon = max(8, int(round(cfg.select_periods / (f_train * dt))))
+    hi = len(longest) - horizon - 2
+    starts = metrics.window_starts(0, hi, cfg.select_windows, seed) if hi > 0 else np.zeros(1, int)
+    return TrainingWindows(dt, q_smooth, u_segs, Q0, V0, Q1, V1, U0, U1, G, f_train, longest, u_segs[i_long], starts,
+                           min(horizon, len(longest) - 2), metrics.g_rms_spread(longest, G))  # fmt: skip
+
+
 def train_stage2(
     chart: Chart,
     cfg: Stage2Config,
@@ -186,24 +246,14 @@ def train_stage2(
     """
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
-    dt = float(np.median(np.diff(chart.t)))
-    d = chart.d
-    train_segs = [s for s in chart.segments(TRAIN) if len(s) > 3 * cfg.stride + 3]
-    if not train_segs:
-        raise ValueError("no training segment is long enough for one stage-2 window")
-    q_smooth = [timeseries.gaussian_smooth(chart.q[s], cfg.sigma) for s in train_segs]
-    u_segs = [chart.u[s] for s in train_segs]
-    wins = [one_step_windows(qs, dt, cfg.stride, us) for qs, us in zip(q_smooth, u_segs)]
-    Q0, V0, Q1, V1, U0, U1 = (torch.as_tensor(np.concatenate([w[i] for w in wins]), dtype=torch.float32) for i in range(6))
+    w = training_windows(chart, cfg, seed, "stage-2")
+    dt, d, q_smooth, f_train, G_eval = w.dt, chart.d, w.q_smooth, w.f_train, w.G
+    Q0, V0, Q1, V1, U0, U1 = w.Q0, w.V0, w.Q1, w.V1, w.U0, w.U1
     n_u = chart.n_u
     A = torch.as_tensor(chart.A, dtype=torch.float32)
-    G_eval = metrics.normalise_trace(chart.G_bar)
 
     # Observed natural frequency on the training frames fixes the energy gauge
     # and the selection horizon (nothing from held-out frames is used here).
-    i_long = int(np.argmax([len(x) for x in q_smooth]))
-    longest = q_smooth[i_long]
-    f_train = timeseries.spectral_peak_frequency(metrics.project(longest, metrics.top_direction(chart.G_bar)), dt)
     model = cfg.build(d, n_u if n_u_model is None else int(n_u_model), inertia)
     with torch.no_grad():
         model.potential_hat.q_rest.copy_(torch.as_tensor(np.concatenate(q_smooth).mean(0), dtype=torch.float32))
@@ -214,13 +264,7 @@ def train_stage2(
     dev = resolve_device(device)
     model = model.to(dev)
     Q0, V0, Q1, V1, U0, U1, A = (t.to(dev) for t in (Q0, V0, Q1, V1, U0, U1, A))
-
-    horizon = max(8, int(round(cfg.select_periods / (f_train * dt))))
-    sel_seg, sel_u = longest, u_segs[i_long]
-    q_std = metrics.g_rms_spread(sel_seg, G_eval)
-    hi = len(sel_seg) - horizon - 2
-    sel_starts = metrics.window_starts(0, hi, cfg.select_windows, seed) if hi > 0 else np.zeros(1, int)
-    sel_h = min(horizon, len(sel_seg) - 2)
+    sel_seg, sel_u, q_std, sel_starts, sel_h = w.select_q, w.select_u, w.q_std, w.select_starts, w.select_horizon
 
     h = cfg.stride * dt
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
