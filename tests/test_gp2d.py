@@ -18,6 +18,7 @@ from lagsplat.baselines.gp_frames import load_prediction_frames, prediction_arra
 from lagsplat.io.clip import ClipError
 
 DT = 1 / 30
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def _disc_clip(n: int = 48, size: int = 32, f_hz: float = 0.8) -> np.ndarray:

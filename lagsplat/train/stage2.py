@@ -67,7 +67,7 @@ class Stage2Config:
     w_q: float = 0.1
     w_v: float = 0.1
     lr: float = 1e-3
-    epochs: int = 100
+    epochs: int = 300
     batch: int = 32
     windows_per_epoch: int = 1000
     grad_clip: float = 100.0
