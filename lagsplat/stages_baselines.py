@@ -94,18 +94,12 @@ def _gp2d_row(cfg: DictConfig, chart, ae, frames, w, xc) -> dict:
 def _fit_psnr(model, chart, ae, frames, fit: list[int], batch: int) -> dict:
     """GP-2D's reconstruction of the frames it was fitted on (its fitted key-point states rendered) beside the
     LaGSplat autoencoder floor on the same frames: mean PSNR over frames, dB (notes' "reconstruction floor")."""
-    import numpy as np
-    from skimage.metrics import peak_signal_noise_ratio
+    import math
 
-    from lagsplat.evaluate.common import decoded_psnr_ssim
+    from lagsplat.baselines.extrapolation import ae_floor_psnr, finite_mean, frames_psnr
 
-    rec = model.render(model.states)
-    real = frames[fit]
-    with np.errstate(divide="ignore"):
-        gp = np.array([peak_signal_noise_ratio(real[i] / 255.0, rec[i] / 255.0, data_range=1.0) for i in range(len(fit))])
-    floor, _ = decoded_psnr_ssim(ae, chart, chart.q[fit], real, batch)
-    fin = lambda x: float(np.mean(x[np.isfinite(x)]))  # noqa: E731
-    return {"psnr_fit_mean": fin(gp), "psnr_ae_floor_fit_mean": fin(floor)}
+    gp = frames_psnr(model.render(model.states), frames[fit])
+    return {"psnr_fit_mean": finite_mean(gp, math.nan), "psnr_ae_floor_fit_mean": ae_floor_psnr(ae, chart, frames, fit, batch, math.nan)}
 
 
 def _imported_row(folder: str, chart, ae, frames, w, xc) -> dict:

@@ -34,7 +34,7 @@ from lagsplat.io.clip import HELD_OUT, TRAIN
 
 __all__ = [
     "Predictor", "ExtrapolationConfig", "ProtocolWindows", "protocol_windows", "decay_rate", "amplitude_left", "extrapolation_metrics",
-    "frame_extrapolation_metrics", "encode_in_chart", "in_training_range",
+    "frame_extrapolation_metrics", "encode_in_chart", "in_training_range", "frames_psnr", "finite_mean", "ae_floor_psnr",
 ]  # fmt: skip
 
 
@@ -149,11 +149,26 @@ def _dynamics_rows(w: ProtocolWindows, chart: Chart, pred_ho: np.ndarray, p_win:
     }  # fmt: skip
 
 
-def _ae_floor(ae: Any, chart: Chart, frames: np.ndarray, ho: np.ndarray, batch: int) -> float:
+def finite_mean(x: np.ndarray, empty: float = math.inf) -> float:
+    """Mean of the finite entries of ``x`` (an exact frame is ``inf`` dB), ``empty`` when there are none."""
+    fin = x[np.isfinite(x)]
+    return float(np.mean(fin)) if len(fin) else float(empty)
+
+
+def frames_psnr(pred: np.ndarray, real: np.ndarray) -> np.ndarray:
+    """Per-frame PSNR (dB, scikit-image, data range 1) of uint8 frames ``pred`` against ``real``, both ``[n,H,W,3]``."""
+    from skimage.metrics import peak_signal_noise_ratio
+
+    with np.errstate(divide="ignore"):
+        return np.array([peak_signal_noise_ratio(r / 255.0, p / 255.0, data_range=1.0) for p, r in zip(pred, real)])
+
+
+def ae_floor_psnr(ae: Any, chart: Chart, frames: np.ndarray, idx: np.ndarray, batch: int, empty: float = math.inf) -> float:
+    """Mean PSNR (dB) of the LaGSplat autoencoder on the clip's frames ``idx``: the floor the rendering rows are read against."""
     from lagsplat.evaluate.common import decoded_psnr_ssim
 
-    floor, _ = decoded_psnr_ssim(ae, chart, chart.q[ho], frames[ho], batch)
-    return float(np.mean(floor[np.isfinite(floor)]))  # an exact decode is inf dB
+    floor, _ = decoded_psnr_ssim(ae, chart, chart.q[idx], frames[idx], batch)
+    return finite_mean(floor, empty)
 
 
 def extrapolation_metrics(
@@ -191,8 +206,8 @@ def extrapolation_metrics(
         from lagsplat.evaluate.common import decoded_psnr_ssim
 
         psnr, _ = decoded_psnr_ssim(ae, chart, pred, frames[w.ho], batch)
-        fin = psnr[np.isfinite(psnr)]
-        out.update(psnr_mean=float(np.mean(fin)), psnr_first=float(psnr[0]), psnr_last=float(psnr[-1]), psnr_ae_floor_mean=_ae_floor(ae, chart, frames, w.ho, batch))
+        out.update(psnr_mean=finite_mean(psnr, math.nan), psnr_first=float(psnr[0]), psnr_last=float(psnr[-1]),
+                   psnr_ae_floor_mean=ae_floor_psnr(ae, chart, frames, w.ho, batch))  # fmt: skip
     return out
 
 
@@ -238,8 +253,6 @@ def frame_extrapolation_metrics(
     Raises:
         ValueError: on frame arrays of the wrong length or size.
     """
-    from skimage.metrics import peak_signal_noise_ratio
-
     for name, x, n in (("held-out", pred_ho, len(w.ho)), ("window", pred_win, len(w.win)), ("long", pred_long, 2 * w.m_period)):
         if x is not None and (len(x) != n or x.shape[1:] != frames.shape[1:]):
             raise ValueError(f"{name} prediction: {tuple(x.shape)} frames, expected {n} of {tuple(frames.shape[1:])}")
@@ -252,10 +265,7 @@ def frame_extrapolation_metrics(
         out.update(rate_model_per_s=None, dissipation_error=None)
     if pred_long is None:
         out.update(amplitude_left=None)
-    real = frames[w.ho].astype(np.float64) / 255.0
-    with np.errstate(divide="ignore"):
-        psnr = np.array([peak_signal_noise_ratio(real[i], pred_ho[i].astype(np.float64) / 255.0, data_range=1.0) for i in range(len(real))])
-    fin = psnr[np.isfinite(psnr)]
-    out.update(psnr_mean=float(np.mean(fin)) if len(fin) else math.inf, psnr_first=float(psnr[0]), psnr_last=float(psnr[-1]),
-               psnr_ae_floor_mean=_ae_floor(ae, chart, frames, w.ho, batch), encoded_in_range=in_training_range(q_ho, chart))  # fmt: skip
+    psnr = frames_psnr(pred_ho, frames[w.ho])
+    out.update(psnr_mean=finite_mean(psnr), psnr_first=float(psnr[0]), psnr_last=float(psnr[-1]),
+               psnr_ae_floor_mean=ae_floor_psnr(ae, chart, frames, w.ho, batch), encoded_in_range=in_training_range(q_ho, chart))  # fmt: skip
     return out

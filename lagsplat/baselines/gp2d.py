@@ -85,13 +85,14 @@ def gp2d_predictions(chart: Chart, frames: np.ndarray, w: Any, cfg: GP2DConfig, 
         raise ValueError("GP-2D forecasts from the training frames just before the held-out segment; this clip's split has none there")
     model = fit_gp2d(frames[fit], cfg, seed, log_every)
     H = cfg.gcn_history
-    ho = forecast(model.forecaster, model.states[-H:], len(w.ho))
+    long = forecast(model.forecaster, model.states[-H:], max(w.n_long, len(w.ho)))  # its start is the held-out forecast
+    ho = long[: len(w.ho)]
     n_win = len(w.win)
     win = None
     if fit[0] == w.win[0] and n_win > H:  # the filmed window starts on the fitted frames
         win = np.concatenate([model.states[:H], forecast(model.forecaster, model.states[:H], n_win - H)])
-    long = forecast(model.forecaster, model.states[-H:], w.n_long)
     m = w.m_period
+    long = long[: w.n_long]
     long_ends = np.concatenate([long[:m], long[-m:]])
     out = {"held_out": model.render(ho), "window": None if win is None else model.render(win), "long": model.render(long_ends)}
     return out, model, fit
