@@ -47,3 +47,21 @@ def test_the_summary_counts_controls_gate_failures_and_names_short_clips(bench, 
     md = (tmp_path / "short.md").read_text()
     assert md.startswith("# Realistic suite (MuJoCo-rendered clips) against the ground truth, training frames cut to 3 periods")
     assert json.loads((tmp_path / "short.json").read_text())["summary"]["n_clips"] == 3
+
+
+def test_the_reading_after_the_diagnosis_takes_the_refit_only_where_its_held_out_check_confirmed(bench, tmp_path) -> None:
+    d = tmp_path / "spring_cart-end_stop-s0-128" / "diagnosis"
+    d.mkdir(parents=True)
+    gap = {"reduction": {"eps_q": 0.5}, "after": {"f_sim_hz": 1.02}, "held_out_check": {"confirmed": True}}
+    (d / "report.json").write_text(json.dumps({"verdict": "end_stop", "verdict_text": "end_stop", "gap": gap}))
+    row = {"status": "ok", "f_truth_hz": 1.0, "f_sim_hz": 1.09, **bench.diagnosis_of("spring_cart-end_stop-s0-128", tmp_path, 0, "", 1.0)}
+    assert row["refit_confirmed"] and bench.eps_freq_after_diagnosis(row) == pytest.approx(0.02)
+    assert bench.eps_freq_after_diagnosis({**row, "refit_confirmed": False}) == pytest.approx(0.09)  # the Stage-2 model stays
+    assert bench.eps_freq_after_diagnosis({k: v for k, v in row.items() if k != "refit_confirmed"}) is None  # scored before the reading existed
+    _report(tmp_path, "pendulum-none-s0-128", "none")  # no refit: the Stage-2 model's frequency
+    ctrl = {"status": "ok", "f_truth_hz": 2.0, "f_sim_hz": 2.1, **bench.diagnosis_of("pendulum-none-s0-128", tmp_path, 0, "", 1.0)}
+    assert not ctrl["refit_confirmed"] and bench.eps_freq_after_diagnosis(ctrl) == pytest.approx(0.05)
+    rows = [{**r, "name": n, "system": n.split("-")[0], "eps_freq_truth": 0.09, "wall_s": 1.0} for r, n in
+            ((row, "spring_cart-end_stop-s0-128"), (ctrl, "pendulum-none-s0-128"))]  # fmt: skip
+    A = bench.gather(rows, tmp_path / "r.md", [])["after_diagnosis"]
+    assert A["n"] == 2 and A["eps_freq_truth_median"] == pytest.approx(0.035)
