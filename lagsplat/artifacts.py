@@ -63,7 +63,7 @@ class Artifacts:
     Attributes:
         clip, stage1, chart: the frozen upstream artifacts (system folder).
         stage2, metrics, rollout_figure, forces, forces_figure: the model's artifacts (model folder).
-        extrapolation: the extrapolation protocol's record (paper §4.3; model folder).
+        extrapolation, extrapolation_figure: the extrapolation protocol's record and figure (paper §4.3, Fig. 5; model folder).
         diagnosis: the diagnosis folder (``report.md``, ``report.json``, ``figures/``, ``refit.pt``).
         system_dir, model_dir: the two folders.
     """
@@ -80,6 +80,7 @@ class Artifacts:
     forces_figure: Path
     diagnosis: Path
     extrapolation: Path
+    extrapolation_figure: Path
 
     @classmethod
     def at(cls, system_dir: str | Path, model_dir: str | Path | None = None) -> "Artifacts":
@@ -99,6 +100,7 @@ class Artifacts:
             forces_figure=m / "figures" / "forces.png",
             diagnosis=m / "diagnosis",
             extrapolation=m / "extrapolation.json",
+            extrapolation_figure=m / "figures" / "extrapolation.png",
         )
 
     @classmethod

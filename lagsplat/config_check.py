@@ -110,7 +110,7 @@ CHECKS: dict[str, Bound] = {
     "diagnose.where.pixel_chunk": POSITIVE_INT, "diagnose.where.top_gaussians": COUNT, "diagnose.where.moving_fraction": FRACTION,
     "diagnose.refit.epochs": POSITIVE_INT, "diagnose.refit.lr": POSITIVE, "diagnose.refit.seed": COUNT, "diagnose.refit.floor_scale": POSITIVE,
     # extrapolation (ExtrapolationConfig)
-    "extrapolation.long_s": POSITIVE, "extrapolation.sigma": NON_NEGATIVE, "extrapolation.render_batch": POSITIVE_INT,
+    "extrapolation.long_s": POSITIVE, "extrapolation.figure_s": POSITIVE, "extrapolation.sigma": NON_NEGATIVE, "extrapolation.render_batch": POSITIVE_INT,
     # gp2d (GP2DConfig; 0 = the size rule)
     "gp2d.n_gaussians": COUNT, "gp2d.n_keypoints": COUNT, "gp2d.k_neighbours": COUNT, "gp2d.feature_dim": POSITIVE_INT, "gp2d.hidden[]": POSITIVE_INT,
     "gp2d.iterations": COUNT, "gp2d.frames_per_step": POSITIVE_INT, "gp2d.gcn_history": POSITIVE_INT, "gp2d.gcn_stages": COUNT,

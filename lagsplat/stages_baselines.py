@@ -16,7 +16,7 @@ __all__ = ["stage_extrapolation", "stage_extrapolation_table"]
 
 
 def stage_extrapolation(cfg: DictConfig) -> None:
-    """LaGSplat, the latent neural ODE and GP-2D, trained on the training frames, predicting the rest and 1000 s past it -> ``extrapolation.json``.
+    """LaGSplat, the latent neural ODE and GP-2D, trained on the training frames, predicting the rest and 1000 s past it -> ``extrapolation.json`` and ``figures/extrapolation.png`` (paper Fig. 5 layout).
 
     Reads ``clip.npz``, ``stage1.pt``, ``chart.npz`` and ``stage2.pt``. The neural ODE
     (:mod:`lagsplat.baselines.neural_ode`) is trained here on the same frozen chart with the Stage-2
@@ -30,11 +30,12 @@ def stage_extrapolation(cfg: DictConfig) -> None:
     import torch
 
     from lagsplat.baselines import ode_rollout, train_neural_ode
-    from lagsplat.baselines.extrapolation import ExtrapolationConfig, extrapolation_metrics, protocol_windows
+    from lagsplat.baselines.extrapolation import ExtrapolationConfig, extrapolation_metrics, protocol_windows, real_trace
     from lagsplat.dynamics.integrators import rollout
     from lagsplat.io.atomic import write_json
     from lagsplat.train.config import dataclass_from_mapping
     from lagsplat.train.stage2 import Stage2Config
+    from lagsplat.viz.extrapolation import extrapolation_figure
 
     xc = dataclass_from_mapping(ExtrapolationConfig, plain(cfg.get("extrapolation") or {}), "extrapolation")
     a = artifacts_of(cfg)
@@ -55,17 +56,18 @@ def stage_extrapolation(cfg: DictConfig) -> None:
 
     models = {}
     for name, pred in (("lagsplat", lagsplat_predictor), ("neural_ode", neural_ode_predictor)):
-        models[name] = extrapolation_metrics(chart, pred, xc.long_s, xc.sigma, ae, clip.images, xc.render_batch)
+        models[name] = extrapolation_metrics(chart, pred, xc.long_s, xc.sigma, ae, clip.images, xc.render_batch, xc.figure_s)
     models["neural_ode"].update(train_s=node_s, selected_train_nrmse=hist["selected_nrmse"])
     names = {"lagsplat": "LaGSplat", "neural_ode": "latent neural ODE"}
-    w = protocol_windows(chart, xc.long_s, xc.sigma)
+    w = protocol_windows(chart, xc.long_s, xc.sigma, xc.figure_s)
     if xc.gp2d:
         models["gp2d"], names["gp2d"] = _gp2d_row(cfg, chart, ae, clip.images, w, xc), "GP-2D"
     if xc.gaussian_prediction_frames:
         models["gaussian_prediction"], names["gaussian_prediction"] = _imported_row(xc.gaussian_prediction_frames, chart, ae, clip.images, w, xc), "GaussianPrediction"
     rec = {"system": str(cfg.system.name), "title": str(cfg.system.get("title", cfg.system.name)), "models": models,
-           "names": names, "config": plain(cfg.get("extrapolation") or {}), "gp2d_config": plain(cfg.get("gp2d") or {})}  # fmt: skip
+           "names": names, "real": real_trace(w, chart), "config": plain(cfg.get("extrapolation") or {}), "gp2d_config": plain(cfg.get("gp2d") or {})}  # fmt: skip
     write_json(a.extrapolation, rec)
+    extrapolation_figure(rec, a.extrapolation_figure)
     save_stage_config(cfg, "extrapolation")
     pct = lambda v, fmt: "--" if v is None else format(100 * v, fmt)  # noqa: E731 (a row a model cannot give)
     for name, m in models.items():
@@ -83,7 +85,7 @@ def _gp2d_row(cfg: DictConfig, chart, ae, frames, w, xc) -> dict:
     gc = dataclass_from_mapping(GP2DConfig, plain(cfg.get("gp2d") or {}), "gp2d")
     t0 = time.perf_counter()
     pred, model, fit = gp2d_predictions(chart, frames, w, gc, seed=int(cfg.seed), log_every=2000)
-    row = frame_extrapolation_metrics(chart, ae, frames, w, pred["held_out"], pred["window"], pred["long"], xc.long_s, xc.render_batch)
+    row = frame_extrapolation_metrics(chart, ae, frames, w, pred["held_out"], pred["window"], pred["long"], xc.long_s, xc.render_batch, pred["near"])
     h = model.history
     row.update(_fit_psnr(model, chart, ae, frames, fit, xc.render_batch))
     row.update(train_s=time.perf_counter() - t0, field_train_s=h["field"]["train_s"], forecaster_train_s=h["forecaster"]["train_s"],
@@ -109,7 +111,7 @@ def _imported_row(folder: str, chart, ae, frames, w, xc) -> dict:
 
     pred, _ = load_prediction_frames(folder, float(chart.t[w.ho[0]]), w.dt, frames.shape[1], frames.shape[2])
     ho, long_ends, n = prediction_arrays(pred, len(w.ho), w.m_period)
-    row = frame_extrapolation_metrics(chart, ae, frames, w, ho, None, long_ends, (n - 1) * w.dt, xc.render_batch)
+    row = frame_extrapolation_metrics(chart, ae, frames, w, ho, None, long_ends, (n - 1) * w.dt, xc.render_batch, pred[: w.n_near])
     row.update(source=str(folder), n_predicted_frames=int(len(pred)))
     return row
 

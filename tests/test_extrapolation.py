@@ -74,3 +74,24 @@ def test_a_chart_without_held_out_frames_is_refused() -> None:
     chart.split[:] = TRAIN
     with pytest.raises(ValueError, match="no held-out segment"):
         extrapolation_metrics(chart, lambda q0, v0, dt, n: _damped(q0, v0, dt, n))
+
+
+def test_the_figure_traces_follow_the_predictions_and_the_figure_is_drawn(tmp_path) -> None:
+    from lagsplat.baselines.extrapolation import protocol_windows, real_trace
+    from lagsplat.viz.extrapolation import extrapolation_figure
+
+    chart = _chart()
+    orbit = lambda q0, v0, dt, n: _damped(q0, v0, dt, n, zeta=0.0)  # noqa: E731
+    m = extrapolation_metrics(chart, orbit, sigma=0.0, long_s=200.0, figure_s=20.0)
+    w = protocol_windows(chart, 200.0, 0.0, 20.0)
+    near, far = np.array(m["trace"]["near"]), np.array(m["trace"]["far"])
+    assert len(near) == w.n_near == round(20.0 / DT) + 1 and len(far) == w.m_period
+    q0 = chart.q[w.ho[0], 0]
+    assert near[0] == pytest.approx(q0, abs=1e-6) and np.ptp(far) == pytest.approx(np.ptp(near[: w.m_period]), rel=0.02)  # still orbiting
+    real = real_trace(w, chart)
+    assert real["t_held_out"] == pytest.approx(chart.t[w.ho[0]]) and len(real["p"]) == len(chart.t)
+    rec = {"system": "osc", "title": "oscillator", "names": {"lagsplat": "exact"}, "models": {"lagsplat": m}, "real": real}
+    png = extrapolation_figure(rec, tmp_path / "figures" / "extrapolation.png")
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
+    with pytest.raises(ValueError, match="no traces"):
+        extrapolation_figure({**rec, "real": None}, tmp_path / "x.png")

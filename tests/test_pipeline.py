@@ -199,7 +199,7 @@ def test_snakemake_end_to_end_on_the_tiny_toy(tmp_path):
               "gp2d.gcn_max_steps=60", "extrapolation.long_s=60", f"extrapolation.gaussian_prediction_frames={pred_dir}"], timeout=900)  # fmt: skip
     assert r5.returncode == 0, r5.stdout[-3000:] + r5.stderr[-3000:]
     xj = json.loads((sysdir / "extrapolation.json").read_text())
-    assert set(xj["models"]) == {"lagsplat", "neural_ode", "gp2d", "gaussian_prediction"}
+    assert set(xj["models"]) == {"lagsplat", "neural_ode", "gp2d", "gaussian_prediction"} and (sysdir / "figures" / "extrapolation.png").stat().st_size > 0
     gp, orig = xj["models"]["gp2d"], xj["models"]["gaussian_prediction"]
     assert math.isfinite(gp["psnr_fit_mean"]) and math.isfinite(gp["psnr_ae_floor_fit_mean"]) and 0 <= gp["encoded_in_range"] <= 1
     assert gp["gp2d_resolved"]["iterations"] == 300 and gp["n_fitted_frames"] == int(ho[0])

@@ -35,6 +35,7 @@ from lagsplat.io.clip import HELD_OUT, TRAIN
 __all__ = [
     "Predictor", "ExtrapolationConfig", "ProtocolWindows", "protocol_windows", "decay_rate", "amplitude_left", "extrapolation_metrics",
     "frame_extrapolation_metrics", "encode_in_chart", "in_training_range", "frames_psnr", "finite_mean", "ae_floor_psnr",
+    "real_trace", "model_trace",
 ]  # fmt: skip
 
 
@@ -44,6 +45,7 @@ class ExtrapolationConfig:
 
     Attributes:
         long_s: length of the long free extrapolation, s (paper Table 3: 1000).
+        figure_s: free extrapolation kept for the figure (paper Fig. 5) from the held-out start, s.
         sigma: smoothing of the encoded trajectory before the initial states are read, frames.
         render_batch: decoding batch of the rendering rows.
         gp2d: also fit and score GP-2D (:mod:`lagsplat.baselines.gp2d`; settings: the ``gp2d`` group).
@@ -52,6 +54,7 @@ class ExtrapolationConfig:
     """
 
     long_s: float = 1000.0
+    figure_s: float = 30.0
     sigma: float = 1.0
     render_batch: int = 64
     gp2d: bool = True
@@ -101,6 +104,8 @@ class ProtocolWindows:
         f_real: spectral peak of the encoded real video over ``ho``, Hz.
         n_long: states of the long free rollout (``long_s / dt + 1``).
         m_period: frames in one natural period at ``f_real`` (the amplitude-left row's window).
+        n_near: states of the free extrapolation the figure shows from the held-out start (``figure_s / dt + 1``,
+            at least the held-out segment, at most ``n_long``).
     """
 
     ho: np.ndarray
@@ -111,9 +116,10 @@ class ProtocolWindows:
     f_real: float
     n_long: int
     m_period: int
+    n_near: int = 0
 
 
-def protocol_windows(chart: Chart, long_s: float = 1000.0, sigma: float = 1.0) -> ProtocolWindows:
+def protocol_windows(chart: Chart, long_s: float = 1000.0, sigma: float = 1.0, figure_s: float = 30.0) -> ProtocolWindows:
     """:class:`ProtocolWindows` of a chart.
 
     Raises:
@@ -128,7 +134,24 @@ def protocol_windows(chart: Chart, long_s: float = 1000.0, sigma: float = 1.0) -
     q_s = timeseries.gaussian_smooth(chart.q, sigma)
     f_real = timeseries.spectral_peak_frequency(metrics.project(q_s[ho], top), dt)
     m = max(2, int(round(1.0 / (f_real * dt)))) if math.isfinite(f_real) and f_real > 0 else 2
-    return ProtocolWindows(ho, _filmed_window(chart, ho), dt, top, q_s, f_real, int(round(long_s / dt)) + 1, m)
+    n_long = int(round(long_s / dt)) + 1
+    n_near = min(n_long, max(len(ho), int(round(figure_s / dt)) + 1))
+    return ProtocolWindows(ho, _filmed_window(chart, ho), dt, top, q_s, f_real, n_long, m, n_near)
+
+
+def real_trace(w: ProtocolWindows, chart: Chart) -> dict[str, Any]:
+    """The encoded real video over the filmed window for the figure: ``{"t" [n] s from the window's first frame,
+    "p" [n] (smoothed ``q`` along ``w.top``), "t_held_out" (s, where the prediction starts), "t_end" (s)}``."""
+    t = chart.t[w.win] - chart.t[w.win[0]]
+    return {"t": t.tolist(), "p": metrics.project(w.q_s[w.win], w.top).tolist(),
+            "t_held_out": float(chart.t[w.ho[0]] - chart.t[w.win[0]]), "t_end": float(t[-1])}  # fmt: skip
+
+
+def model_trace(p_near: np.ndarray | None, p_far: np.ndarray | None, w: ProtocolWindows, long_s: float) -> dict[str, Any]:
+    """A model's free extrapolation for the figure (paper Fig. 5), along ``w.top``: ``{"near" [n] from the held-out
+    start, "far" [m] its last natural period ending ``long_s`` s after it, "dt"}`` (``None`` entries: not predicted)."""
+    as_list = lambda x: None if x is None else np.asarray(x, np.float64).tolist()  # noqa: E731
+    return {"near": as_list(p_near), "far": as_list(p_far), "dt": w.dt, "long_s": float(long_s)}
 
 
 def _dynamics_rows(w: ProtocolWindows, chart: Chart, pred_ho: np.ndarray, p_win: np.ndarray, p_long: np.ndarray, long_s: float) -> dict[str, Any]:
@@ -173,7 +196,7 @@ def ae_floor_psnr(ae: Any, chart: Chart, frames: np.ndarray, idx: np.ndarray, ba
 
 def extrapolation_metrics(
     chart: Chart, predictor: Predictor, long_s: float = 1000.0, sigma: float = 1.0, ae: Any | None = None, frames: np.ndarray | None = None,
-    batch: int = 64,
+    batch: int = 64, figure_s: float = 30.0,
 ) -> dict[str, Any]:
     """The protocol of the module docstring for one model that predicts in the chart.
 
@@ -185,16 +208,17 @@ def extrapolation_metrics(
         ae, frames: the Stage-1 autoencoder and the clip's uint8 ``[T,H,W,3]`` frames for the rendering
             rows (``None``: no rendering rows).
         batch: decoding batch.
+        figure_s: free extrapolation kept in ``trace`` for the figure, s.
 
     Returns:
         ``{"freq_error", "f_model_hz", "f_real_hz", "dissipation_error", "rate_model_per_s", "rate_real_per_s",
-        "amplitude_left", "long_s", "psnr_mean", "psnr_first", "psnr_last", "psnr_ae_floor_mean", "n_held_out"}``
-        (rendering entries ``None`` without frames).
+        "amplitude_left", "long_s", "psnr_mean", "psnr_first", "psnr_last", "psnr_ae_floor_mean", "n_held_out", "trace"}``
+        (rendering entries ``None`` without frames; ``trace``: :func:`model_trace`).
 
     Raises:
         ValueError: if the chart has no held-out segment of at least 16 frames.
     """
-    w = protocol_windows(chart, long_s, sigma)
+    w = protocol_windows(chart, long_s, sigma, figure_s)
     state = lambda i: (x.numpy()[0] for x in initial_state(w.q_s, np.array([i]), w.dt))  # noqa: E731
     q0, v0 = state(w.ho[0])
     pred = np.asarray(predictor(q0, v0, w.dt, len(w.ho)), np.float64)
@@ -202,6 +226,7 @@ def extrapolation_metrics(
     p_win = metrics.project(np.asarray(predictor(w0, w1, w.dt, len(w.win)), np.float64), w.top)
     p_long = metrics.project(np.asarray(predictor(q0, v0, w.dt, w.n_long), np.float64), w.top)
     out = _dynamics_rows(w, chart, pred, p_win, p_long, long_s)
+    out["trace"] = model_trace(p_long[: w.n_near], p_long[-w.m_period :], w, long_s)
     if ae is not None and frames is not None:
         from lagsplat.evaluate.common import decoded_psnr_ssim
 
@@ -231,7 +256,7 @@ def in_training_range(q: np.ndarray, chart: Chart, margin: float = 0.1) -> float
 
 def frame_extrapolation_metrics(
     chart: Chart, ae: Any, frames: np.ndarray, w: ProtocolWindows, pred_ho: np.ndarray, pred_win: np.ndarray | None,
-    pred_long: np.ndarray | None, long_s: float, batch: int = 64,
+    pred_long: np.ndarray | None, long_s: float, batch: int = 64, pred_near: np.ndarray | None = None,
 ) -> dict[str, Any]:
     """The protocol for a model that predicts frames (GP-2D, imported GaussianPrediction frames), every frame read
     through the frozen LaGSplat encoder so its trajectory lives in the same chart.
@@ -245,6 +270,8 @@ def frame_extrapolation_metrics(
         pred_long: uint8 ``[2 m,H,W,3]``, the first and the last natural period (``m = w.m_period`` frames each) of
             a free prediction ``long_s`` long, or ``None`` (no amplitude row).
         long_s: the long prediction's length, s.
+        pred_near: uint8 ``[n,H,W,3]``, the free prediction from the held-out start the figure shows (its first
+            ``w.n_near`` frames or fewer), or ``None`` (the figure shows the held-out prediction).
 
     Returns:
         The keys of :func:`extrapolation_metrics`, the PSNR rows of the predicted frames themselves against the real
@@ -261,6 +288,8 @@ def frame_extrapolation_metrics(
     p_win = metrics.project(encode_in_chart(ae, chart, pred_win, batch), w.top) if pred_win is not None else np.full(len(w.win), np.nan)
     p_long = metrics.project(encode_in_chart(ae, chart, pred_long, batch), w.top) if pred_long is not None else nan
     out = _dynamics_rows(w, chart, q_ho, p_win, p_long, long_s)
+    p_near = metrics.project(encode_in_chart(ae, chart, pred_near[: w.n_near], batch) if pred_near is not None else q_ho, w.top)
+    out["trace"] = model_trace(p_near, p_long[-w.m_period :] if pred_long is not None else None, w, long_s)
     if pred_win is None:
         out.update(rate_model_per_s=None, dissipation_error=None)
     if pred_long is None:

@@ -72,9 +72,9 @@ def gp2d_predictions(chart: Chart, frames: np.ndarray, w: Any, cfg: GP2DConfig, 
         cfg, seed: GP-2D's settings and seed.
 
     Returns:
-        ``({"held_out", "window", "long"}, model, fitted frame indices)``: uint8 frames (``window`` ``None`` when the
-        filmed window does not start on the fitted frames) as
-        :func:`~lagsplat.baselines.extrapolation.frame_extrapolation_metrics` takes them.
+        ``({"held_out", "near", "window", "long"}, model, fitted frame indices)``: uint8 frames (``window`` ``None``
+        when the filmed window does not start on the fitted frames; ``near``: the free prediction from the held-out
+        start over the figure's stretch) as :func:`~lagsplat.baselines.extrapolation.frame_extrapolation_metrics` takes them.
 
     Raises:
         ValueError: if the held-out segment is not preceded by enough contiguous training frames of its episode.
@@ -86,7 +86,6 @@ def gp2d_predictions(chart: Chart, frames: np.ndarray, w: Any, cfg: GP2DConfig, 
     model = fit_gp2d(frames[fit], cfg, seed, log_every)
     H = cfg.gcn_history
     long = forecast(model.forecaster, model.states[-H:], max(w.n_long, len(w.ho)))  # its start is the held-out forecast
-    ho = long[: len(w.ho)]
     n_win = len(w.win)
     win = None
     if fit[0] == w.win[0] and n_win > H:  # the filmed window starts on the fitted frames
@@ -94,5 +93,6 @@ def gp2d_predictions(chart: Chart, frames: np.ndarray, w: Any, cfg: GP2DConfig, 
     m = w.m_period
     long = long[: w.n_long]
     long_ends = np.concatenate([long[:m], long[-m:]])
-    out = {"held_out": model.render(ho), "window": None if win is None else model.render(win), "long": model.render(long_ends)}
+    near = model.render(long[: max(len(w.ho), w.n_near)])  # the figure's stretch; its start is the held-out prediction
+    out = {"held_out": near[: len(w.ho)], "near": near, "window": None if win is None else model.render(win), "long": model.render(long_ends)}
     return out, model, fit

@@ -76,6 +76,7 @@ rule extrapolation:
         stage2=str(ART.stage2),
     output:
         extrapolation=str(ART.extrapolation),
+        figure=str(ART.extrapolation_figure),
     log:
         f"{RESULTS}/logs/{{system}}/extrapolation.log",
     threads: 2
