@@ -124,3 +124,44 @@ def test_the_report_leads_with_what_tells_the_candidates_apart() -> None:
             {"effect": "drift", "delta_bic": 11.0, "physical": False}, {"effect": "end_stop", "delta_bic": 3.0, "physical": True}]  # fmt: skip
     assert indistinguishable(rank) == ["quadratic_drag", "coulomb"]
     assert indistinguishable(rank, min_evidence=20.0) == [] and indistinguishable(rank[:1]) == []
+
+
+def _drifting(alpha: float = 0.0, zeta: tuple[float, float] = (0.01, 0.01), eps: float = 0.0, duration_s: float = 12.0) -> Chart:
+    """``x'' = -w^2 (1 + alpha (t / T - 1/2)) x - eps w^2 x^3 - 2 zeta(t) w x'``, ``zeta`` linear from ``zeta[0]`` to ``zeta[1]``
+    over the clip (0.7 Hz, released from 1); a 1-D chart of it with 1 % noise."""
+    from scipy.integrate import solve_ivp
+
+    w, T = 2 * math.pi * 0.7, duration_s
+
+    def rhs(t, y):
+        z = zeta[0] + (zeta[1] - zeta[0]) * t / T
+        return [y[1], -w * w * (1 + alpha * (t / T - 0.5)) * y[0] - eps * w * w * y[0] ** 3 - 2 * z * w * y[1]]
+
+    t = np.arange(int(round(T / DT))) * DT
+    x = solve_ivp(rhs, (0, t[-1]), [1.0, 0.0], t_eval=t, rtol=1e-9, atol=1e-11, method="DOP853").y[0]
+    q = x / x.std() + 0.01 * np.random.default_rng(1).standard_normal(len(x))
+    n, I = len(q), np.eye(1)
+    return Chart(mean=np.zeros(1), W=I, W_inv=I, q=q[:, None], t=t, split=np.full(n, TRAIN, np.int8), G_bar=I,
+                 A=I, ae_mse=np.zeros(n), ae_floor_train=0.0, ae_floor_held_out=0.0, height=64, width=64)  # fmt: skip
+
+
+def test_a_drifting_stiffness_shows_in_the_timing_and_a_drifting_damping_in_the_envelope() -> None:
+    from lagsplat.diagnose.effects import get_effect
+
+    stiff = _diagnose(_drifting(alpha=0.25))
+    f = stiff.evidence["frequency"]
+    assert f["support_time"] >= 10 and f["relative_change_over_span"] == pytest.approx(0.25 / 2 * 11 / 12, rel=0.35)
+    assert stiff.winner == "drift" and "frequency changes by +" in get_effect("drift").signature_support(stiff.evidence)[1]
+    damp = _diagnose(_drifting(zeta=(0.003, 0.03)))
+    acc = damp.evidence["envelope"]["accelerating"]
+    assert damp.evidence["envelope"]["support"]["accelerating"] >= 10 and acc["rate_change_per_s2"] > 0
+    assert damp.winner == "drift"
+
+
+def test_a_constant_oscillator_and_a_duffing_spring_give_a_drift_no_support() -> None:
+    from lagsplat.diagnose.effects import get_effect
+
+    for chart in (_drifting(), _drifting(eps=0.3, zeta=(0.04, 0.04))):  # viscous; hardening with a fast decay
+        diag = _diagnose(chart)
+        assert diag.evidence["frequency"]["support_time"] < 6 and diag.evidence["envelope"]["support"]["accelerating"] < 6
+        assert get_effect("drift").signature_support(diag.evidence)[0] < 6 and diag.winner != "drift"

@@ -113,7 +113,6 @@ def fit_candidate(prob: Regression, eff: Effect, dirs: Sequence[np.ndarray], ext
     fit.practical = ok
     if not ok:
         fit.interpretation["below_practical_size"] = why
-    fit.interpretation["fitted_against"] = "model linearisation" if eff.in_class else "fitted model"
     fit.signature_support, reading = eff.signature_support(res.meta.get("signatures") or {})
     if reading:
         fit.interpretation["signature"] = reading
@@ -128,7 +127,8 @@ def fit_candidates(
 
     Args:
         remaining: the candidates still in the search.
-        probs: ``{in_class: regression}`` (in-class candidates on the model's linearisation).
+        probs: ``{in_class: regression}`` (in-class candidates on the model's linearisation; an effect
+            with :attr:`~lagsplat.diagnose.effect_base.Effect.also_in_class` in both, the larger ``Delta BIC`` kept).
         prob_model: the regression of the model's own nonlinear force: how much of an in-class
             effect the model already carries (``interpretation["model_carries"]``, ``"model_share"``).
         dirs: ``{in_class: directions}``.
@@ -140,13 +140,20 @@ def fit_candidates(
     ref = {k: (float(p.r0 @ p.r0), p.bic(float(p.r0 @ p.r0), p.pn)) for k, p in probs.items()}
     fits = []
     for eff in remaining:
-        prob = probs[eff.in_class]
-        fit = fit_candidate(prob, eff, dirs[eff.in_class], extra_k, thresholds)
+        fit = None
+        for lin in dict.fromkeys((eff.in_class, eff.in_class or eff.also_in_class)):  # one or both regressions
+            f = fit_candidate(probs[lin], eff, dirs[lin], extra_k, thresholds)
+            if f is None:
+                continue
+            f.delta_bic = ref[lin][1] - f.bic
+            f.r2 = 1.0 - f.ssr / max(ref[lin][0], 1e-300)
+            f.against_linearisation = lin
+            f.interpretation["fitted_against"] = "model linearisation" if lin else "fitted model"
+            if fit is None or f.delta_bic > fit.delta_bic:
+                fit = f
         if fit is None:
             continue
-        fit.delta_bic = ref[eff.in_class][1] - fit.bic
-        fit.r2 = 1.0 - fit.ssr / max(ref[eff.in_class][0], 1e-300)
-        if eff.in_class:
+        if fit.against_linearisation:
             w_model, _, _ = prob_model.fit(fit.design, False)
             fit.interpretation["model_carries"] = [float(v) for v in w_model]
             fit.interpretation["model_share"] = [float(m / c) if c != 0 else float("nan") for m, c in zip(w_model, fit.coef)]

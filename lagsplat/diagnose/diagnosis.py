@@ -39,6 +39,8 @@ class CandidateFit:
         design: ``[n d, p]`` the candidate's stacked, noise-weighted regression columns on the residual
             it was fitted to (the wide one for out-of-class candidates; not serialised).
         interpretation: physical reading (:meth:`~lagsplat.diagnose.effect_base.Effect.interpret`).
+        against_linearisation: fitted in the regression on the model's linearisation (in-class
+            candidates, and an out-of-class one whose fit there was the better), else on the fitted model's residual.
     """
 
     effect: str
@@ -60,6 +62,7 @@ class CandidateFit:
     force: np.ndarray | None = field(default=None, repr=False)
     design: np.ndarray | None = field(default=None, repr=False)
     interpretation: dict[str, Any] = field(default_factory=dict)
+    against_linearisation: bool = False
 
     @property
     def evidence(self) -> float:

@@ -48,6 +48,10 @@ class Effect:
             candidate is fitted against the model's *linearisation* (so that what the
             model has absorbed, or mis-learned, is seen in full) and must pass a
             minimum physical size (:meth:`practical`).
+        also_in_class: an out-of-class effect with a conservative part that a potential can
+            partly absorb on a decaying oscillation (a drifting stiffness: early, large swings
+            stiffer than late, small ones looks like a hardening spring): fitted in both
+            regressions, the one giving the larger ``Delta BIC`` kept.
     """
 
     name: str
@@ -57,6 +61,7 @@ class Effect:
     n_nonlinear: int
     signature: str
     in_class: bool = False
+    also_in_class: bool = False
 
     # ------------------------------------------------------------------ interface
     def applicable(self, res: Residual) -> bool:

@@ -110,7 +110,7 @@ EFFECTS: tuple[Effect, ...] = (
     PeriodicForceEffect("periodic_force", "unlogged periodic force", "time", False, 1,
                         "residual spectrum peak at a frequency the model lacks, constant amplitude, phase-locked over the clip"),
     DriftEffect("drift", "slow drift of stiffness or damping", "time", False, 0,
-                "frequency or decay rate changing with time, independently of amplitude"),
+                "frequency or decay rate changing with time, independently of amplitude", also_in_class=True),
     ActuationDelayEffect("actuation_delay", "actuation delay", "input", False, 1,
                          "residual correlated with the input's rate of change; best lag > 0"),
     MissingDofEffect("missing_dof", "missing degree of freedom", "mode", False, 2,

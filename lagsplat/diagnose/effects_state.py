@@ -169,7 +169,9 @@ class CubicStiffnessEffect(Effect):
     In class. Practical only when the Duffing frequency shift at the largest amplitude,
     ``3 k3 A^2 / (8 k)`` (Nayfeh & Mook 1979, ch. 4), reaches ``min_cubic_shift`` and the
     recorded zero-crossing periods shift the same way by at least half of that (a chart
-    that stretches large excursions changes the waveform in ``q``, not the period).
+    that stretches large excursions changes the waveform in ``q``, not the period), and
+    only when those periods do not also change in time at a given amplitude (a drifting
+    stiffness on a decaying oscillation ties frequency to amplitude as well).
     """
 
     def feature(self, res, e, params):
@@ -178,7 +180,9 @@ class CubicStiffnessEffect(Effect):
         return (lambda st: -((self.coords(st, e)[0] - s_bar) ** 3)), ["k3"]
 
     def practical(self, interpretation, thresholds):
-        """A predicted frequency shift of ``min_cubic_shift`` at the largest amplitude, shown by the recorded periods (class docstring)."""
+        """A predicted frequency shift of ``min_cubic_shift`` at the largest amplitude, shown by the recorded periods, and periods
+        that do not change in time beyond what the amplitude explains (the frequency signature's ``support_time`` below
+        ``min_delta_bic``: a drifting stiffness on a decaying oscillation also ties frequency to amplitude) (class docstring)."""
         pred = interpretation.get("relative_frequency_shift_at_amplitude", float("nan"))
         lo = thresholds.get("min_cubic_shift", 0.03)
         if not (abs(pred) >= lo):
@@ -192,6 +196,12 @@ class CubicStiffnessEffect(Effect):
                 f"the recorded periods shift by {100 * meas:+.1f} % at the largest amplitude (frequency vs amplitude^2, "
                 f"z = {interpretation.get('measured_frequency_z', float('nan')):.1f}) where this k3 predicts {100 * pred:+.1f} %: "
                 "the anharmonic waveform in q comes from the chart, not from a stiffness"
+            )
+        drift = interpretation.get("timing_drift_support")
+        if drift is not None and drift >= thresholds.get("min_delta_bic", 10.0):
+            return False, (
+                f"the recorded periods change in time beyond any dependence on the amplitude (evidence {drift:.1f}): "
+                "the stiffness changes with time, not with the excursion"
             )
         return True, ""
 
@@ -211,6 +221,7 @@ class CubicStiffnessEffect(Effect):
             "relative_frequency_shift_at_amplitude": shift, "amplitude": A, "s_bar": float(s.mean()), "k_linear": k1,
             "measured_frequency_shift": None if meas is None else float(meas),
             "measured_frequency_z": None if meas is None else float(fsig["z_amp2"]),
+            "timing_drift_support": fsig.get("support_time"),
             "text": f"{'hardening' if k3 > 0 else 'softening'} cubic stiffness k3 = {k3:.3g} +- {se[0]:.2g}: "
             f"frequency {'+' if shift >= 0 else ''}{100 * shift:.1f} % at amplitude {A:.3g} (Duffing, 3 k3 A^2 / 8 k); "
             "in the latent coordinate, where a chart that stretches or compresses large excursions looks the same",

@@ -95,6 +95,25 @@ class DriftEffect(Effect):
 
         return phi, ["dk_dt", "dc_dt"]
 
+    def signature_support(self, evidence):
+        """A stiffness drift changes the oscillation's timing at a given amplitude (the frequency signature's
+        ``support_time``; zero crossings, which no monotone chart moves); a damping drift changes the decay rate of
+        the turning points in time (the envelope's ``accelerating`` support). Read from different features of the
+        recording, the two add (:func:`~lagsplat.diagnose.signatures.signatures`)."""
+        f = evidence.get("frequency") or {}
+        env = evidence.get("envelope") or {}
+        k_sup = max(0.0, float(f.get("support_time", 0.0)))
+        c_sup = max(0.0, float((env.get("support") or {}).get("accelerating", 0.0)))
+        parts = []
+        if k_sup > 0:
+            parts.append(f"the period-by-period frequency changes by {100 * f['relative_change_over_span']:+.1f} % over the recording, "
+                         f"more than any dependence on the amplitude explains (evidence {k_sup:.1f})")  # fmt: skip
+        if c_sup > 0:
+            acc = env["accelerating"]
+            parts.append(f"the decay rate of the turning points changes by {acc['rate_change_per_s2']:+.3g} /s per second "
+                         f"(evidence {c_sup:.1f} over a constant-rate, linear or hyperbolic decay)")  # fmt: skip
+        return k_sup + c_sup, "; ".join(parts)
+
     def interpret(self, coef, se, params, res, e, scale):
         """Relative change of stiffness and damping over the recorded span, and which dominates."""
         span = float(np.ptp(res.t))

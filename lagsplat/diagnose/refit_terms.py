@@ -21,7 +21,6 @@ import numpy as np
 import torch
 
 from lagsplat.diagnose.effect_terms import EffectTerm
-from lagsplat.diagnose.effects import get_effect
 from lagsplat.diagnose.terms import (
     AugmentedLagrangian,
     build_term,
@@ -172,7 +171,7 @@ def refit_spec(diagnosis: Any, model: Any | None = None, init: str = "fitted", s
             )  # fmt: skip
             continue
         f_use = fit
-        if init == "fitted" and get_effect(fit.effect).in_class and "model_carries" in (fit.interpretation or {}):
+        if init == "fitted" and "model_carries" in (fit.interpretation or {}):  # fitted against the linearisation
             lack = np.asarray(fit.coef, np.float64) - np.asarray(fit.interpretation["model_carries"], np.float64)
             f_use = dataclasses.replace(fit, coef=lack)
         coef = np.asarray(f_use.coef, np.float64) * scale

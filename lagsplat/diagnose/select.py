@@ -24,7 +24,9 @@ significant" is the nuisance fit alone). Two regressions share the work:
   of degree 2 and 3; ``qdot_i qdot_j`` and ``q_k qdot_i qdot_j``; ``u_j q_i``),
   so that a model learned slightly wrong within its own class (or a chart
   that is a nonlinear function of the physical coordinate) is not taken for
-  an effect it lacks;
+  an effect it lacks (a drift, whose stiffness part a potential can partly
+  follow on a decaying oscillation, is fitted in both regressions and keeps
+  the better, :attr:`~lagsplat.diagnose.effect_base.Effect.also_in_class`);
 * **in-class** candidates (:attr:`~lagsplat.diagnose.effect_base.Effect.in_class`:
   cubic stiffness, end stop), which a convex potential can partly absorb, are
   fitted to the residual of the model's *linearisation* on the data (its
@@ -223,7 +225,7 @@ def select_effect(
     effs = [get_effect(c) for c in candidates] if candidates is not None else list(EFFECTS)
     effs = [e for e in effs if e.applicable(res)]
     thresholds = {"min_cubic_shift": min_cubic_shift, "min_stop_stiffness_ratio": min_stop_stiffness_ratio,
-                  "min_periodic_response": min_periodic_response}  # fmt: skip
+                  "min_periodic_response": min_periodic_response, "min_delta_bic": min_delta_bic}  # fmt: skip
     rule = {"min_delta_bic": min_delta_bic, "min_r2": min_r2, "min_cv_gain": min_cv_gain}
     # the chart-invariant signatures, read before the fits: a cubic stiffness must also show in the timing
     ev = signatures(res, model_freqs_hz=model_freqs_hz)
@@ -261,7 +263,7 @@ def _forward_selection(
             break
         accepted.append(win)
         for prob in {id(p): p for p in (*probs.values(), prob_null)}.values():
-            prob.add_nuisance(win.design if prob is probs[get_effect(win.effect).in_class] else candidate_design(prob, win))
+            prob.add_nuisance(win.design if prob is probs[win.against_linearisation] else candidate_design(prob, win))
         remaining = [e for e in remaining if e.name != win.effect]
         if not remaining:
             break
@@ -291,10 +293,11 @@ def rank_candidates(fits: list[CandidateFit], probs: dict[bool, Regression], min
         if not (i < 3 or (fit.physical and fit.evidence >= min_delta_bic and fit.r2 >= min_r2)):
             continue
         eff = get_effect(fit.effect)
-        prob = probs[eff.in_class]
-        if eff.in_class not in cv_ref:
-            cv_ref[eff.in_class] = prob.cv_sse(None, False)
-        fit.cv_gain = 1.0 - prob.cv_sse(fit.design, eff.positive) / max(cv_ref[eff.in_class], 1e-300)
+        lin = fit.against_linearisation
+        prob = probs[lin]
+        if lin not in cv_ref:
+            cv_ref[lin] = prob.cv_sse(None, False)
+        fit.cv_gain = 1.0 - prob.cv_sse(fit.design, eff.positive) / max(cv_ref[lin], 1e-300)
     return fits
 
 

@@ -61,8 +61,8 @@ def _envelope(res: Residual, p: np.ndarray) -> dict[str, Any]:
     segs = np.unique(s)
     D = (s[:, None] == segs[None]).astype(float)
 
-    def lin(y: np.ndarray, wgt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        X = np.concatenate([D, t[:, None]], 1)
+    def lin(y: np.ndarray, wgt: np.ndarray, power: int = 1) -> tuple[np.ndarray, np.ndarray]:
+        X = np.concatenate([D, *(t[:, None] ** k for k in range(1, power + 1))], 1)
         sw = np.sqrt(wgt)
         c = np.linalg.lstsq(X * sw[:, None], y * sw, rcond=None)[0]
         return c, X @ c
@@ -75,6 +75,8 @@ def _envelope(res: Residual, p: np.ndarray) -> dict[str, Any]:
     c, fit = lin(1.0 / a, a**4)
     with np.errstate(divide="ignore"):
         out["hyperbolic"] = {"rate_per_unit_s": float(c[-1]), "sse": float(np.sum((a - 1.0 / np.where(fit > 0, fit, np.nan)) ** 2))}
+    c, fit = lin(np.log(a), a**2, power=2)  # the decay rate itself changing in time (a drifting damping)
+    out["accelerating"] = {"rate_per_s": float(-c[-2]), "rate_change_per_s2": float(-2.0 * c[-1]), "sse": float(np.sum((a - np.exp(fit)) ** 2))}
     forms = {k: out[k]["sse"] for k in ("linear", "exponential", "hyperbolic") if math.isfinite(out[k]["sse"])}
     if forms:
         best = min(forms, key=forms.get)  # type: ignore[arg-type]
@@ -91,22 +93,28 @@ MIN_TURNING_POINTS = 4
 
 
 def _envelope_support(env: dict[str, Any], n: int, n_segments: int) -> dict[str, float]:
-    """The evidence of the turning points for a linear or a hyperbolic envelope over the exponential (viscous) one.
+    """The evidence of the turning points for a linear or a hyperbolic envelope over the exponential (viscous) one,
+    and for a decay rate that changes in time (``accelerating``: ``log A`` quadratic in time) over the best of the three.
 
     The three fits have the same parameters (an intercept per segment, one rate), so the
     difference of their information criteria is ``n log(SSE_exp / SSE_form)`` (Gaussian errors of
     unknown variance): positive favours the form, on the scale of the regressions' ``Delta BIC``
-    (10: very strong, Kass & Raftery 1995). Zero with fewer than :data:`MIN_TURNING_POINTS`
+    (10: very strong, Kass & Raftery 1995). The changing rate has one parameter more:
+    ``n log(SSE_best / SSE_accelerating) - log n``. Zero with fewer than :data:`MIN_TURNING_POINTS`
     turning points beyond the intercepts.
     """
-    out = {"linear": 0.0, "hyperbolic": 0.0}
+    out = {"linear": 0.0, "hyperbolic": 0.0, "accelerating": 0.0}
     if n - n_segments < MIN_TURNING_POINTS:
         return out
     exp_sse = env["exponential"]["sse"]
-    for form in out:
+    for form in ("linear", "hyperbolic"):
         sse = env[form]["sse"]
         if math.isfinite(sse) and sse > 0 and math.isfinite(exp_sse) and exp_sse > 0:
             out[form] = float(n * math.log(exp_sse / sse))
+    best = min((env[k]["sse"] for k in ("linear", "exponential", "hyperbolic") if math.isfinite(env[k]["sse"])), default=math.nan)
+    acc = env["accelerating"]["sse"]
+    if math.isfinite(best) and best > 0 and math.isfinite(acc) and acc > 0 and n - n_segments > MIN_TURNING_POINTS:
+        out["accelerating"] = float(n * math.log(best / acc) - math.log(n))  # one parameter more than the other forms
     return out
 
 
@@ -182,13 +190,37 @@ def _frequency(res: Residual, p: np.ndarray) -> dict[str, Any]:
     r = F - X @ c
     s2 = float(r @ r) / max(len(F) - 3, 1)
     se = np.sqrt(2.0 * np.maximum(np.diag(s2 * np.linalg.pinv(X.T @ X)), 0.0))  # x sqrt(2): consecutive periods overlap by half
-    return {
+    return {**_time_support(F, A2, TT),
         "n_periods": int(len(F)), "f_mean_hz": float(c[0]),
         "slope_amp2": float(c[1]), "slope_amp2_se": float(se[1]), "z_amp2": float(c[1] / max(se[1], 1e-300)),
         "relative_shift_at_max_amplitude": float(c[1] * A2.max() / c[0]),
         "slope_time": float(c[2]), "slope_time_se": float(se[2]), "z_time": float(c[2] / max(se[2], 1e-300)),
         "relative_change_over_span": float(c[2] * np.ptp(TT) / c[0]),
     }  # fmt: skip
+
+
+def _time_support(F: np.ndarray, A2: np.ndarray, TT: np.ndarray) -> dict[str, float]:
+    """Evidence that the frequency changes with time at a given amplitude (a drift), on the ``Delta BIC`` scale.
+
+    The period-by-period frequencies ``F [n]`` (Hz) are fitted by any quadratic function of the squared
+    amplitude ``A2 [n]`` (a Duffing spring, a pendulum, an end stop that is hit harder at larger
+    amplitude), then by the same plus a linear trend in the periods' mid-times ``TT [n]`` (s); the
+    support is the information criterion of the second over the first,
+    ``n_eff log(SSR_amplitude / SSR_amplitude+time) - log n_eff`` with ``n_eff = n / 2`` (consecutive
+    periods share half their samples). Where the amplitude itself falls steadily with time the two
+    cannot be told apart and the support stays near zero: a drift is claimed only where the timing
+    changes in a way no dependence on the amplitude explains. ``support_time`` 0 with fewer than 8 periods.
+    """
+    n = len(F)
+    if n < 8:
+        return {"support_time": 0.0}
+    a = (A2 - A2.mean()) / max(float(A2.std()), 1e-300)
+    X0 = np.stack([np.ones(n), a, a * a], 1)
+    X1 = np.column_stack([X0, TT - TT.mean()])
+    ssr = [float(np.sum((F - X @ np.linalg.lstsq(X, F, rcond=None)[0]) ** 2)) for X in (X0, X1)]
+    n_eff = n / 2.0
+    sup = n_eff * math.log(max(ssr[0], 1e-300) / max(ssr[1], 1e-300)) - math.log(n_eff)
+    return {"support_time": float(sup)}
 
 
 def signatures(res: Residual, model_freqs_hz: Sequence[float] | None = None, direction: np.ndarray | None = None) -> dict[str, Any]:
