@@ -128,7 +128,8 @@ def fit_candidates(
     Args:
         remaining: the candidates still in the search.
         probs: ``{in_class: regression}`` (in-class candidates on the model's linearisation; an effect
-            with :attr:`~lagsplat.diagnose.effect_base.Effect.also_in_class` in both, the larger ``Delta BIC`` kept).
+            with :attr:`~lagsplat.diagnose.effect_base.Effect.also_in_class` in both where its signature allows,
+            :meth:`~lagsplat.diagnose.effect_base.Effect.against_linearisation_allowed`; the larger ``Delta BIC`` kept).
         prob_model: the regression of the model's own nonlinear force: how much of an in-class
             effect the model already carries (``interpretation["model_carries"]``, ``"model_share"``).
         dirs: ``{in_class: directions}``.
@@ -141,7 +142,9 @@ def fit_candidates(
     fits = []
     for eff in remaining:
         fit = None
-        for lin in dict.fromkeys((eff.in_class, eff.in_class or eff.also_in_class)):  # one or both regressions
+        sig = probs[True].res.meta.get("signatures") or {}
+        both = eff.also_in_class and eff.against_linearisation_allowed(sig, thresholds)
+        for lin in dict.fromkeys((eff.in_class, eff.in_class or both)):  # one or both regressions
             f = fit_candidate(probs[lin], eff, dirs[lin], extra_k, thresholds)
             if f is None:
                 continue

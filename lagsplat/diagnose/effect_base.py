@@ -51,7 +51,8 @@ class Effect:
         also_in_class: an out-of-class effect with a conservative part that a potential can
             partly absorb on a decaying oscillation (a drifting stiffness: early, large swings
             stiffer than late, small ones looks like a hardening spring): fitted in both
-            regressions, the one giving the larger ``Delta BIC`` kept.
+            regressions where :meth:`against_linearisation_allowed`, the one giving the larger
+            ``Delta BIC`` kept.
     """
 
     name: str
@@ -109,6 +110,11 @@ class Effect:
         1 % of the recorded one); the others must merely pass the statistical rule.
         """
         return True, ""
+
+    def against_linearisation_allowed(self, evidence: dict[str, Any], thresholds: dict[str, float]) -> bool:
+        """Whether an :attr:`also_in_class` effect may also be fitted against the model's linearisation on this
+        recording (``evidence``: :func:`~lagsplat.diagnose.signatures.signatures`). Default: always."""
+        return True
 
     def signature_support(self, evidence: dict[str, Any]) -> tuple[float, str]:
         """Evidence for this effect in the chart-invariant signatures, beside the regression: ``(support, reading)``.

@@ -95,6 +95,12 @@ class DriftEffect(Effect):
 
         return phi, ["dk_dt", "dc_dt"]
 
+    def against_linearisation_allowed(self, evidence, thresholds):
+        """Only where the periods change in time beyond any dependence on the amplitude with very strong evidence
+        (the frequency signature's ``support_time`` at least ``min_delta_bic``): against the linearisation a drifting
+        stiffness and a cubic one both tie the frequency to the decaying amplitude, and only the timing tells them apart."""
+        return float((evidence.get("frequency") or {}).get("support_time", 0.0)) >= thresholds.get("min_delta_bic", 10.0)
+
     def signature_support(self, evidence):
         """A stiffness drift changes the oscillation's timing at a given amplitude (the frequency signature's
         ``support_time``; zero crossings, which no monotone chart moves); a damping drift changes the decay rate of
