@@ -9,6 +9,8 @@ two-stage pipeline; ``docs/architecture.md``)::
     stage2.pt       stage2    latent Lagrangian                              (lagsplat.train.stage2)
     metrics.json    evaluate  the protocol's metrics                         (lagsplat.evaluate)
     figures/rollout.png, figures/forces.png, forces.json, diagnosis/...
+    figures/deformation.png   deformation   the two decoders' velocity fields (paper App. B)
+    variants/<name>/          a variant: stage2 onwards on the same chart, or (decoder_variant) its own stage1 and chart
     config/<stage>.yaml       the resolved configuration of each stage
 
 ``stage2.pt`` and everything after it belong to the *model directory*: the
@@ -65,6 +67,7 @@ class Artifacts:
         stage2, metrics, rollout_figure, forces, forces_figure: the model's artifacts (model folder).
         extrapolation, extrapolation_figure: the extrapolation protocol's record and figure (paper §4.3, Fig. 5; model folder).
         diagnosis: the diagnosis folder (``report.md``, ``report.json``, ``figures/``, ``refit.pt``).
+        deformation_figure: the decoder comparison's figure (paper App. B, Fig. deform-velocity; system folder).
         system_dir, model_dir: the two folders.
     """
 
@@ -81,6 +84,7 @@ class Artifacts:
     diagnosis: Path
     extrapolation: Path
     extrapolation_figure: Path
+    deformation_figure: Path
 
     @classmethod
     def at(cls, system_dir: str | Path, model_dir: str | Path | None = None) -> "Artifacts":
@@ -101,6 +105,7 @@ class Artifacts:
             diagnosis=m / "diagnosis",
             extrapolation=m / "extrapolation.json",
             extrapolation_figure=m / "figures" / "extrapolation.png",
+            deformation_figure=s / "figures" / "deformation.png",
         )
 
     @classmethod
@@ -122,6 +127,11 @@ class Artifacts:
         if bad:
             raise KeyError(f"unknown artifacts {bad}; known: {known} (configuration group artifacts)")
         return replace(a, **{k: Path(v) for k, v in given.items()})
+
+    def decoder_variant(self, name: str) -> "Artifacts":
+        """The same run with its own Stage 1 (another decoder, paper App. B): every artifact, configurations
+        included, under ``variants/<name>/`` except the clip, which is this run's."""
+        return replace(Artifacts.at(self.system_dir / "variants" / str(name)), clip=self.clip)
 
     @classmethod
     def names(cls) -> list[str]:

@@ -1,11 +1,12 @@
 """Command line: ``python -m lagsplat <stage> system=<name> [hydra overrides]``.
 
-One stage per Snakemake rule (:mod:`lagsplat.stages`, :mod:`lagsplat.stages_report`, :mod:`lagsplat.stages_baselines`); each reads only upstream artifacts under
+One stage per Snakemake rule (:mod:`lagsplat.stages`, :mod:`lagsplat.stages_report`, :mod:`lagsplat.stages_baselines`,
+:mod:`lagsplat.stages_deformation`); each reads only upstream artifacts under
 ``${results_dir}/${system.name}/`` and writes its own atomically, with the
 resolved configuration saved beside it (``config/<stage>.yaml``).
 
 Stages: ``download``, ``ingest``, ``stage1``, ``chart``, ``stage2``,
-``evaluate``, ``figures``, ``forces``, ``diagnose``, ``extrapolation``, ``extrapolation_table``, ``table``, ``ablation``, ``krauss_table``,
+``evaluate``, ``figures``, ``forces``, ``diagnose``, ``extrapolation``, ``extrapolation_table``, ``deformation``, ``table``, ``ablation``, ``krauss_table``,
 ``seed_table``, ``all`` (ingest ->
 figures in one process), and ``view`` (the interactive viewer, which writes
 nothing).
@@ -25,6 +26,7 @@ from omegaconf import DictConfig
 from lagsplat.cli_common import apply_variant, compose, find_conf_dir
 from lagsplat.stages import stage_chart, stage_download, stage_evaluate, stage_figures, stage_ingest, stage_stage1, stage_stage2
 from lagsplat.stages_baselines import stage_extrapolation, stage_extrapolation_table
+from lagsplat.stages_deformation import stage_deformation
 from lagsplat.stages_report import stage_ablation, stage_diagnose, stage_forces, stage_krauss_table, stage_seed_table, stage_table, stage_view
 
 __all__ = ["main", "STAGES", "stage_all", "stage_help", "run_logged"]
@@ -48,6 +50,8 @@ stages:
   extrapolation  -> extrapolation.json: LaGSplat, a latent neural ODE (no prior) and GP-2D (GaussianPrediction's
              structure in 2-D) predict the held-out frames and 1000 s past them (paper §4.3; lagsplat.baselines)
   extrapolation_table  extrapolation.json of table.systems -> results/tables/extrapolation.tex/.csv/.md
+  deformation  the conditioned decoder against a deformation-field decoder at equal budget (paper App. B):
+             trains variants/deformation/stage1.pt -> results/tables/deformation.tex/.csv/.json, figures/deformation.png
   krauss_table  soft-robot benchmark (paper Table 4) -> results/tables/krauss.tex/.csv/.md
   seed_table one system trained with each of seed_table.seeds (results/seeds/seed<k>/<name>/metrics.json)
              -> results/tables/<name>_seeds.md/.csv (per-seed rows, mean, std, min, max)
@@ -90,6 +94,7 @@ STAGES: dict[str, Callable[[DictConfig], None]] = {
     "ablation": stage_ablation,
     "extrapolation": stage_extrapolation,
     "extrapolation_table": stage_extrapolation_table,
+    "deformation": stage_deformation,
     "krauss_table": stage_krauss_table,
     "seed_table": stage_seed_table,
     "all": stage_all,

@@ -70,11 +70,12 @@ def apply_variant(cfg: DictConfig) -> DictConfig:
     return OmegaConf.merge(cfg, known[v])
 
 
-def save_stage_config(cfg: DictConfig, stage: str) -> None:
-    """Write the resolved configuration of ``stage`` beside its output (:meth:`lagsplat.artifacts.Artifacts.config`), atomically."""
+def save_stage_config(cfg: DictConfig, stage: str, a: "Artifacts | None" = None) -> None:
+    """Write the resolved configuration of ``stage`` beside its output (:meth:`lagsplat.artifacts.Artifacts.config`
+    of ``a``, default the run's :func:`artifacts_of`), atomically."""
     from lagsplat.io.atomic import atomic_write
 
-    with atomic_write(artifacts_of(cfg).config(stage)) as tmp:
+    with atomic_write((a or artifacts_of(cfg)).config(stage)) as tmp:
         tmp.write_text(OmegaConf.to_yaml(cfg, resolve=True))
 
 

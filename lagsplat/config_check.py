@@ -81,6 +81,7 @@ CHECKS: dict[str, Bound] = {
     "stage1.encoder_channels[]": POSITIVE_INT, "stage1.encoder_kernel": POSITIVE_INT, "stage1.background[]": FRACTION,
     "stage1.threads": COUNT, "stage1.retries": COUNT, "stage1.w_motion_init": NON_NEGATIVE, "stage1.split_share": FRACTION,
     "stage1.w_temporal": NON_NEGATIVE, "stage1.plateau_patience": COUNT, "stage1.plateau_tol": NON_NEGATIVE, "stage1.max_minutes": POSITIVE,
+    "stage1.deform_hidden[]": POSITIVE_INT, "stage1.deform_freqs": COUNT,
     # chart
     "chart.n_metric_samples": POSITIVE_INT, "chart.rho": POSITIVE, "chart.refine_iters": COUNT,
     # stage2 (Stage2Config)
@@ -111,6 +112,8 @@ CHECKS: dict[str, Bound] = {
     "diagnose.refit.epochs": POSITIVE_INT, "diagnose.refit.lr": POSITIVE, "diagnose.refit.seed": COUNT, "diagnose.refit.floor_scale": POSITIVE,
     # extrapolation (ExtrapolationConfig)
     "extrapolation.long_s": POSITIVE, "extrapolation.figure_s": POSITIVE, "extrapolation.sigma": NON_NEGATIVE, "extrapolation.render_batch": POSITIVE_INT,
+    # deformation (DeformationCompareConfig)
+    "deformation.k_neighbours": POSITIVE_INT, "deformation.min_coverage": NON_NEGATIVE, "deformation.batch": POSITIVE_INT,
     # gp2d (GP2DConfig; 0 = the size rule)
     "gp2d.n_gaussians": COUNT, "gp2d.n_keypoints": COUNT, "gp2d.k_neighbours": COUNT, "gp2d.feature_dim": POSITIVE_INT, "gp2d.hidden[]": POSITIVE_INT,
     "gp2d.iterations": COUNT, "gp2d.frames_per_step": POSITIVE_INT, "gp2d.gcn_history": POSITIVE_INT, "gp2d.gcn_stages": COUNT,

@@ -27,6 +27,7 @@ from typing import Any, Literal, Optional, Union
 from hydra.core.config_store import ConfigStore
 
 from lagsplat.artifacts import Artifacts
+from lagsplat.baselines.deformation_compare import DeformationCompareConfig
 from lagsplat.baselines.extrapolation import ExtrapolationConfig
 from lagsplat.baselines.gp2d_field import GP2DConfig
 from lagsplat.diagnose.refit import RefitConfig
@@ -265,6 +266,7 @@ SCHEMAS: dict[str, type] = {
     "forces": ForceCheckConfig,
     "diagnose": DiagnoseConfig,
     "extrapolation": ExtrapolationConfig,
+    "deformation": DeformationCompareConfig,
     "gp2d": GP2DConfig,
     "view": ViewConfig,
     "table": TableConfig,

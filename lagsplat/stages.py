@@ -8,10 +8,14 @@ the resolved configuration saved beside it (``config/<stage>.yaml``).
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from omegaconf import DictConfig, open_dict
 
 from lagsplat.cli_common import artifacts_of, data_kind, plain, save_stage_config
+
+if TYPE_CHECKING:
+    from lagsplat.artifacts import Artifacts
 
 __all__ = ["stage_download", "stage_ingest", "stage_stage1", "stage_chart", "stage_stage2", "stage_evaluate", "stage_figures"]
 
@@ -66,13 +70,13 @@ def stage_ingest(cfg: DictConfig) -> None:
     save_stage_config(cfg, "ingest")
 
 
-def stage_stage1(cfg: DictConfig) -> None:
-    """``clip.npz`` -> ``stage1.pt``."""
+def stage_stage1(cfg: DictConfig, a: "Artifacts | None" = None) -> None:
+    """``clip.npz`` -> ``stage1.pt`` (paths: ``a``, default the run's :func:`~lagsplat.cli_common.artifacts_of`)."""
     from lagsplat.models.autoencoder import save_stage1
     from lagsplat.train.attempts import train_stage1_gated
     from lagsplat.train.stage1 import Stage1Config
 
-    a = artifacts_of(cfg)
+    a = a or artifacts_of(cfg)
     clip = a.load_clip()
     s1 = Stage1Config.from_mapping(plain(cfg.stage1))
     chart_kw = {"n_metric_samples": int(cfg.chart.n_metric_samples), "rho": float(cfg.chart.rho), "refine_iters": int(cfg.chart.refine_iters)}
@@ -82,31 +86,31 @@ def stage_stage1(cfg: DictConfig) -> None:
     )  # fmt: skip
     hist["attempts"] = attempts
     save_stage1(a.stage1, model, plain(cfg.stage1), hist, int(cfg.system.d))
-    save_stage_config(cfg, "stage1")
+    save_stage_config(cfg, "stage1", a)
 
 
-def stage_chart(cfg: DictConfig) -> None:
-    """``stage1.pt`` -> ``chart.npz``."""
+def stage_chart(cfg: DictConfig, a: "Artifacts | None" = None) -> None:
+    """``stage1.pt`` -> ``chart.npz`` (paths: ``a``, default the run's :func:`~lagsplat.cli_common.artifacts_of`)."""
     from lagsplat.chart import build_chart, save_chart
 
     from lagsplat.chart_gate import chart_gate, gate_summary
 
-    a = artifacts_of(cfg)
+    a = a or artifacts_of(cfg)
     model, clip = a.load_stage1(), a.load_clip()
     chart = build_chart(model, clip, int(cfg.chart.n_metric_samples), float(cfg.chart.rho), int(cfg.seed), refine_iters=int(cfg.chart.refine_iters))
     chart.meta["gate"] = chart_gate(model, clip, chart)
     print(f"[lagsplat] {cfg.system.name}: chart quality gate {gate_summary(chart.meta['gate'])}", flush=True)
     save_chart(a.chart, chart)
-    save_stage_config(cfg, "chart")
+    save_stage_config(cfg, "chart", a)
 
 
-def stage_stage2(cfg: DictConfig) -> None:
-    """``chart.npz`` -> ``stage2.pt``."""
+def stage_stage2(cfg: DictConfig, a: "Artifacts | None" = None) -> None:
+    """``chart.npz`` -> ``stage2.pt`` (paths: ``a``, default the run's :func:`~lagsplat.cli_common.artifacts_of`)."""
     from lagsplat.train.stage2 import Stage2Config, save_stage2, train_stage2
 
     from lagsplat.chart_gate import gate_summary
 
-    a = artifacts_of(cfg)
+    a = a or artifacts_of(cfg)
     s2 = Stage2Config.from_mapping(plain(cfg.stage2))
     chart = a.load_chart()
     gate = chart.meta.get("gate")
@@ -122,7 +126,7 @@ def stage_stage2(cfg: DictConfig) -> None:
         chart, s2, seed=int(cfg.seed), progress=bool(cfg.progress), inertia=inertia, device=str(cfg.device), label=f"{cfg.system.name} stage2"
     )
     save_stage2(a.stage2, model, s2, hist)
-    save_stage_config(cfg, "stage2")
+    save_stage_config(cfg, "stage2", a)
 
 
 def stage_evaluate(cfg: DictConfig) -> None:

@@ -110,6 +110,18 @@ def test_snakemake_dry_run_of_the_inertia_ablation():
         assert f"results/two_carts/variants/{v}/metrics.json" in r.stdout
 
 
+def test_snakemake_dry_run_of_the_deformation_table(tmp_path):
+    # paper App. B on the oscillating cart: the run's Stage 1 and chart, then the comparison stage
+    res = tmp_path / "res"
+    r = run(["snakemake", "-n", "-p", f"{res}/tables/deformation.tex", "--config", f"raw_dir={tmp_path}", f"results_dir={res}"])
+    assert r.returncode == 0, r.stdout + r.stderr
+    for rule in ("download", "ingest", "stage1", "chart", "deformation_table"):
+        assert f"rule {rule}:" in r.stdout, rule
+    assert "rule stage2:" not in r.stdout  # no force truth on the cart: its Stage 2 is not needed
+    assert "python -m lagsplat deformation system=oscillating_cart" in r.stdout
+    assert f"{res}/oscillating_cart/figures/deformation.png" in r.stdout
+
+
 def test_snakemake_dry_run_plans_downloads_when_clips_are_absent(tmp_path):
     # an empty results folder too: with a trained results/oscillating_cart here, nothing would need the clip
     out = tmp_path / "results"

@@ -19,6 +19,7 @@ from torch import Tensor, nn
 
 from lagsplat.io.atomic import save_torch
 from lagsplat.models.decoder import ConditionedGaussians
+from lagsplat.models.deformation import build_decoder
 from lagsplat.models.encoder import CpAEEncoder
 
 __all__ = ["AutoEncoder", "frames_to_tensor", "save_stage1", "load_stage1"]
@@ -59,7 +60,8 @@ def frames_to_tensor(frames: np.ndarray) -> Tensor:
 
 
 def save_stage1(path: str | Path, model: AutoEncoder, config: Mapping[str, Any], history: dict, d: int) -> Path:
-    """Write ``stage1.pt`` atomically: weights, sizes and the config that made them."""
+    """Write ``stage1.pt`` atomically: weights, sizes, the decoder family and the config that made them."""
+    dec = model.decoder
     return save_torch(
         path,
         {
@@ -67,6 +69,8 @@ def save_stage1(path: str | Path, model: AutoEncoder, config: Mapping[str, Any],
             "decoder": model.decoder.state_dict(),
             "d": d,
             "n_gaussians": model.decoder.K,
+            "decoder_kind": dec.kind,
+            "decoder_options": dec.options(),
             "height": model.height,
             "width": model.width,
             "encoder_channels": [m.out_channels for m in model.encoder.features if isinstance(m, nn.Conv2d)],
@@ -80,8 +84,12 @@ def save_stage1(path: str | Path, model: AutoEncoder, config: Mapping[str, Any],
 def load_stage1(path: str | Path) -> AutoEncoder:
     """Rebuild the :class:`AutoEncoder` saved by :func:`save_stage1` (eval mode).
 
+    The decoder is of the family saved with it (``decoder_kind``; checkpoints
+    without one hold the conditioned decoder of paper §3.2).
+
     Raises:
         FileNotFoundError: if ``path`` does not exist.
+        ValueError: naming the file, for an unknown decoder family.
     """
     path = Path(path)
     if not path.exists():
@@ -90,6 +98,9 @@ def load_stage1(path: str | Path) -> AutoEncoder:
     enc = CpAEEncoder(ck["d"], tuple(ck["encoder_channels"]), ck["encoder_kernel"])
     enc.load_state_dict(ck["encoder"])
     backend = ck["config"].get("backend", "auto") if isinstance(ck.get("config"), dict) else "auto"
-    dec = ConditionedGaussians(ck["n_gaussians"], ck["d"], backend=backend)
+    try:
+        dec = build_decoder(ck.get("decoder_kind", "conditioned"), ck["n_gaussians"], ck["d"], backend=backend, **ck.get("decoder_options", {}))
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from exc
     dec.load_state_dict(ck["decoder"])
     return AutoEncoder(enc, dec, ck["height"], ck["width"]).eval()

@@ -122,7 +122,12 @@ class ConditionedGaussians(nn.Module):
 
     The module consumes the *raw* encoder output ``z`` (the unwhitened chart);
     :class:`lagsplat.chart.Chart` maps whitened states back before decoding.
+    ``kind`` names the family in ``stage1.pt``; ``latent_block`` is the width of
+    the latent block of the Cholesky factor (``d`` here, 0 for the deformation
+    decoder of :mod:`lagsplat.models.deformation`, paper App. B).
     """
+
+    kind = "conditioned"
 
     def __init__(
         self,
@@ -135,6 +140,7 @@ class ConditionedGaussians(nn.Module):
         if n_gaussians < 1 or d < 1:
             raise ValueError(f"need n_gaussians >= 1 and d >= 1, got {n_gaussians}, {d}")
         self.K, self.d, self.backend = int(n_gaussians), int(d), backend
+        self.latent_block = self.d
         n = 2 + d
         self.register_buffer("tril_i", torch.tril_indices(n, n)[0], persistent=False)
         self.register_buffer("tril_j", torch.tril_indices(n, n)[1], persistent=False)
@@ -144,6 +150,14 @@ class ConditionedGaussians(nn.Module):
         self.L_raw = nn.Parameter(torch.zeros(self.K, n * (n + 1) // 2))
         self.logit_alpha = nn.Parameter(torch.zeros(self.K))
         self.logit_color = nn.Parameter(torch.zeros(self.K, 3))
+
+    def options(self) -> dict:
+        """Constructor keywords beyond ``(K, d, backend, background)``, saved in ``stage1.pt`` (none here)."""
+        return {}
+
+    def primitive_parameters(self) -> list[nn.Parameter]:
+        """The per-primitive parameters (first dimension ``K``): what recycling resets rows of."""
+        return [p for n, p in self.named_parameters() if "." not in n]
 
     # ---------------------------------------------------------------- geometry
     def cholesky(self) -> Tensor:
@@ -249,19 +263,13 @@ class ConditionedGaussians(nn.Module):
         return self.render(z, height, width, backend, geom)[0]
 
     def render(
-        self,
-        z: Tensor,
-        height: int,
-        width: int,
-        backend: Backend | None = None,
-        geom: DecoderGeometry | None = None,
-        extra: Tensor | None = None,
+        self, z: Tensor, height: int, width: int, backend: Backend | None = None, geom: DecoderGeometry | None = None, extra: Tensor | None = None
     ) -> tuple[Tensor, Tensor | None]:
         """Render ``z [B,d]`` and, in the same compositing pass, per-primitive channels ``extra``.
 
         Args:
             z, height, width, backend, geom: as :meth:`forward`.
-            extra: ``[K,C]`` values composited like colours over a zero
+            extra: ``[K,C]`` (or per state ``[B,K,C]``) values composited like colours over a zero
                 background, e.g. each primitive's Jacobian in pixels: the
                 result at pixel ``p`` is ``sum_i T_i(p) a_i(p) extra_i``, the
                 same compositing weights the visible brush of
@@ -275,18 +283,10 @@ class ConditionedGaussians(nn.Module):
         cov_px = g.cov * scale[None, :, None] * scale[None, None, :]
         colors, bg = g.colors, self.background
         if extra is not None:
-            colors = torch.cat([colors, extra.to(colors.dtype)], 1)
-            bg = torch.cat([bg, bg.new_zeros(extra.shape[1])])
-        img = rasterize(
-            means * scale,
-            cov_px,
-            g.alpha[None] * gate,
-            colors,
-            height,
-            width,
-            background=bg,
-            backend=backend or self.backend,
-        )
+            colors = colors if extra.dim() == 2 else colors.expand(extra.shape[0], -1, -1)
+            colors = torch.cat([colors, extra.to(colors.dtype)], -1)
+            bg = torch.cat([bg, bg.new_zeros(extra.shape[-1])])
+        img = rasterize(means * scale, cov_px, g.alpha[None] * gate, colors, height, width, background=bg, backend=backend or self.backend)
         return img[:, :3].clamp(0.0, 1.0), (img[:, 3:] if extra is not None else None)
 
     def render_motion(self, z: Tensor, height: int, width: int, q_std: Tensor) -> tuple[Tensor, Tensor]:

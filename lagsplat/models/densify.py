@@ -54,8 +54,10 @@ def placement_probability(frame: Tensor, motion_std: Tensor | None = None, w_mot
 
 
 def _scales(dec: ConditionedGaussians, z_std: Tensor, sigma_xy: float) -> Tensor:
-    """``[2+d]`` units of the (q, s) coordinates: the latent spread and the initial spatial extent."""
-    return torch.cat([z_std.clamp_min(1e-3), torch.full((2,), float(sigma_xy))]).to(dec.mu_q)
+    """``[2+d]`` units of the (q, s) coordinates: the latent spread and the initial spatial extent
+    (``[2]``, spatial only, for a decoder without a latent block, ``dec.latent_block = 0``)."""
+    z_std = z_std[: dec.latent_block]
+    return torch.cat([z_std.clamp_min(1e-3), torch.full((2,), float(sigma_xy))]).to(dec.mu_raw)
 
 
 @torch.no_grad()
@@ -103,7 +105,7 @@ def split_overloaded(dec: ConditionedGaussians, dead: Tensor, z_std: Tensor, sig
     n = min(len(idx_dead), int((score > 0).sum()))
     parents = torch.argsort(score, descending=True)[:n]
     children = idx_dead[:n]
-    d = dec.d
+    d = dec.latent_block
     cov = dec.covariance()[parents]
     half = 0.5 * e[parents]  # (q, s) order
     new_cov = cov - 0.75 * (2 * half)[:, :, None] * (2 * half)[:, None, :]

@@ -86,7 +86,7 @@ def anisotropy_penalty(decoder: ConditionedGaussians, height: int, width: int, m
     Returns:
         Scalar tensor.
     """
-    d = decoder.d
+    d = decoder.latent_block  # 0 for the deformation decoder: its Cholesky factor is the spatial one
     L = decoder.cholesky()
     L_s = L[:, d:, :]  # rows of the spatial coordinates: Sigma_ss = L_s L_s^T
     scale = L.new_tensor([float(width), float(height)])

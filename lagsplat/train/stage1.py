@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any, Literal, Mapping
 
 import numpy as np
 import torch
@@ -12,7 +12,7 @@ from torch.profiler import record_function
 
 from lagsplat.io.clip import TRAIN, Clip
 from lagsplat.models.autoencoder import AutoEncoder, frames_to_tensor
-from lagsplat.models.decoder import ConditionedGaussians
+from lagsplat.models.deformation import build_decoder
 from lagsplat.models.densify import placement_probability, split_overloaded
 from lagsplat.motion import motion_masks
 from lagsplat.render.rasterize import Backend
@@ -36,7 +36,12 @@ class Stage1Config:
     default (the paper's loss): ``w_static`` with ``static_margin`` (px;
     :func:`~lagsplat.train.losses.static_motion_penalty` on
     :func:`static_pixels` of the training frames): matter on never-changing
-    pixels does not move.
+    pixels does not move. ``decoder`` picks the decoder family: ``conditioned``
+    (paper §3.2, the method) or ``deformation`` (paper App. B: plain 2-D
+    Gaussians warped by an MLP of ``(gamma(mu_i), q)`` of trunk widths
+    ``deform_hidden`` and ``deform_freqs`` Fourier octaves,
+    :class:`~lagsplat.models.deformation.DeformationGaussians`), trained
+    with everything else the same.
     """
 
     n_gaussians: int = 1024
@@ -70,6 +75,9 @@ class Stage1Config:
     plateau_patience: int = 1000
     plateau_tol: float = 0.01
     max_minutes: float = 60.0
+    decoder: Literal["conditioned", "deformation"] = "conditioned"
+    deform_hidden: tuple[int, ...] = (64, 64)
+    deform_freqs: int = 4
 
     @classmethod
     def from_mapping(cls, m: Mapping[str, Any]) -> "Stage1Config":
@@ -141,7 +149,8 @@ def train_stage1(
     static = static_pixels(frames, cfg.static_margin) if cfg.w_static > 0 else None
 
     enc = CpAEEncoder(d, cfg.encoder_channels, cfg.encoder_kernel)
-    dec = ConditionedGaussians(cfg.n_gaussians, d, backend=cfg.backend, background=cfg.background)
+    opts = {"hidden": tuple(cfg.deform_hidden), "n_freqs": cfg.deform_freqs} if cfg.decoder == "deformation" else {}
+    dec = build_decoder(cfg.decoder, cfg.n_gaussians, d, backend=cfg.backend, background=cfg.background, **opts)
     with torch.no_grad():
         z0 = torch.cat([enc(X[i : i + 256]) for i in range(0, N, 256)])
     motion_std = X.std(0).mean(0) if cfg.w_motion_init > 0 else None  # [H,W] temporal std of the training frames
@@ -225,7 +234,7 @@ def train_stage1(
                     to_split = dead & (torch.cumsum(dead.long(), 0) <= n_split)
                     used, split = split_overloaded(dec, to_split, zs, cfg.sigma_xy) if n_split else (torch.zeros_like(dead),) * 2
                     dec.recycle(dead & ~used, X[j], rendered, zj[0], zs, cfg.sigma_xy, generator=gen)
-                    _reset_adam_rows(opt, dec_params, dead | split)
+                    _reset_adam_rows(opt, dec.primitive_parameters(), dead | split)
                 history["recycled"].append((step, n_dead))
     return model.cpu().eval(), history
 

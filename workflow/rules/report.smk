@@ -99,3 +99,28 @@ rule extrapolation_table:
         f"{RESULTS}/logs/tables/extrapolation.log",
     shell:
         f"python -m lagsplat extrapolation_table 'table.systems=[{','.join(EXTRAPOLATION_SYSTEMS)}]' results_dir={RESULTS} {OVR} > {{log}} 2>&1"
+
+
+DEFORMATION_SYSTEM = "oscillating_cart"
+
+
+rule deformation_table:
+    """Paper App. B: the conditioned decoder against a deformation-field decoder at equal budget on the oscillating
+    cart (the deformation variant's Stage 1 is trained inside the job, under variants/deformation/) ->
+    results/tables/deformation.tex, .csv, .json and the velocity-field figure."""
+    input:
+        clip=str(ART.clip).format(system=DEFORMATION_SYSTEM),
+        stage1=str(ART.stage1).format(system=DEFORMATION_SYSTEM),
+        chart=str(ART.chart).format(system=DEFORMATION_SYSTEM),
+    output:
+        f"{RESULTS}/tables/deformation.tex",
+        f"{RESULTS}/tables/deformation.csv",
+        f"{RESULTS}/tables/deformation.json",
+        str(ART.deformation_figure).format(system=DEFORMATION_SYSTEM),
+    log:
+        f"{RESULTS}/logs/tables/deformation.log",
+    threads: 1
+    shell:
+        f"python -m lagsplat deformation system={DEFORMATION_SYSTEM} raw_dir={RAW} results_dir={RESULTS} threads={{threads}} "
+        f"artifacts.clip={{input.clip}} artifacts.stage1={{input.stage1}} artifacts.chart={{input.chart}} "
+        f"artifacts.deformation_figure={{output[3]}} deformation.table=deformation {OVR} > {{log}} 2>&1"
