@@ -12,6 +12,7 @@ import math
 import numpy as np
 
 from lagsplat.diagnose.effect_base import Effect, ratio
+from lagsplat.diagnose.signatures import timing_drifts
 
 __all__ = ["CoulombEffect", "QuadraticDragEffect", "EndStopEffect", "CubicStiffnessEffect"]
 
@@ -181,8 +182,8 @@ class CubicStiffnessEffect(Effect):
 
     def practical(self, interpretation, thresholds):
         """A predicted frequency shift of ``min_cubic_shift`` at the largest amplitude, shown by the recorded periods, and periods
-        that do not change in time beyond what the amplitude explains (the frequency signature's ``support_time`` below
-        ``min_delta_bic``: a drifting stiffness on a decaying oscillation also ties frequency to amplitude) (class docstring)."""
+        that do not drift in time beyond what the amplitude explains (:func:`~lagsplat.diagnose.signatures.timing_drifts`:
+        a drifting stiffness on a decaying oscillation also ties frequency to amplitude) (class docstring)."""
         pred = interpretation.get("relative_frequency_shift_at_amplitude", float("nan"))
         lo = thresholds.get("min_cubic_shift", 0.03)
         if not (abs(pred) >= lo):
@@ -197,11 +198,11 @@ class CubicStiffnessEffect(Effect):
                 f"z = {interpretation.get('measured_frequency_z', float('nan')):.1f}) where this k3 predicts {100 * pred:+.1f} %: "
                 "the anharmonic waveform in q comes from the chart, not from a stiffness"
             )
-        drift = interpretation.get("timing_drift_support")
-        if drift is not None and drift >= thresholds.get("min_delta_bic", 10.0):
+        fsig = interpretation.get("timing") or {}
+        if timing_drifts(fsig, thresholds):
             return False, (
-                f"the recorded periods change in time beyond any dependence on the amplitude (evidence {drift:.1f}): "
-                "the stiffness changes with time, not with the excursion"
+                f"the recorded periods change by {100 * fsig['relative_change_over_span']:+.1f} % in time beyond any dependence on the "
+                f"amplitude (evidence {fsig['support_time']:.1f}): the stiffness changes with time, not with the excursion"
             )
         return True, ""
 
@@ -221,7 +222,7 @@ class CubicStiffnessEffect(Effect):
             "relative_frequency_shift_at_amplitude": shift, "amplitude": A, "s_bar": float(s.mean()), "k_linear": k1,
             "measured_frequency_shift": None if meas is None else float(meas),
             "measured_frequency_z": None if meas is None else float(fsig["z_amp2"]),
-            "timing_drift_support": fsig.get("support_time"),
+            "timing": {k: fsig[k] for k in ("support_time", "relative_change_over_span") if k in fsig},
             "text": f"{'hardening' if k3 > 0 else 'softening'} cubic stiffness k3 = {k3:.3g} +- {se[0]:.2g}: "
             f"frequency {'+' if shift >= 0 else ''}{100 * shift:.1f} % at amplitude {A:.3g} (Duffing, 3 k3 A^2 / 8 k); "
             "in the latent coordinate, where a chart that stretches or compresses large excursions looks the same",

@@ -12,6 +12,7 @@ import math
 import numpy as np
 
 from lagsplat.diagnose.effect_base import Effect, ratio
+from lagsplat.diagnose.signatures import timing_drifts
 from lagsplat.diagnose.spectrum import excluded_bands, frequency_allowed, residual_peaks
 
 __all__ = ["PeriodicForceEffect", "DriftEffect", "ActuationDelayEffect", "MissingDofEffect", "peak_frequencies"]
@@ -96,10 +97,10 @@ class DriftEffect(Effect):
         return phi, ["dk_dt", "dc_dt"]
 
     def against_linearisation_allowed(self, evidence, thresholds):
-        """Only where the periods change in time beyond any dependence on the amplitude with very strong evidence
-        (the frequency signature's ``support_time`` at least ``min_delta_bic``): against the linearisation a drifting
+        """Only where the periods change in time beyond any dependence on the amplitude with very strong evidence and by
+        a physical amount (:func:`~lagsplat.diagnose.signatures.timing_drifts`): against the linearisation a drifting
         stiffness and a cubic one both tie the frequency to the decaying amplitude, and only the timing tells them apart."""
-        return float((evidence.get("frequency") or {}).get("support_time", 0.0)) >= thresholds.get("min_delta_bic", 10.0)
+        return timing_drifts(evidence.get("frequency") or {}, thresholds)
 
     def signature_support(self, evidence):
         """A stiffness drift changes the oscillation's timing at a given amplitude (the frequency signature's

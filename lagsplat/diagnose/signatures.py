@@ -223,6 +223,17 @@ def _time_support(F: np.ndarray, A2: np.ndarray, TT: np.ndarray) -> dict[str, fl
     return {"support_time": float(sup)}
 
 
+def timing_drifts(frequency: dict[str, Any], thresholds: dict[str, float]) -> bool:
+    """Whether the recorded periods drift in time, at a given amplitude, with very strong evidence and by a physical
+    amount: the frequency signature's ``support_time`` at least ``min_delta_bic`` (10) and its change over the
+    recording at least half ``min_cubic_shift`` (the size a cubic stiffness's own timing must show). A long clean
+    recording makes a change of a few tenths of a percent significant; it then does not outweigh a stiffness that
+    moves the frequency with the amplitude by several percent."""
+    sup = float(frequency.get("support_time", 0.0))
+    change = abs(float(frequency.get("relative_change_over_span", 0.0)))
+    return sup >= thresholds.get("min_delta_bic", 10.0) and change >= 0.5 * thresholds.get("min_cubic_shift", 0.03)
+
+
 def signatures(res: Residual, model_freqs_hz: Sequence[float] | None = None, direction: np.ndarray | None = None) -> dict[str, Any]:
     """The physical signatures of an unmodelled effect, read off the trajectory and residual.
 
