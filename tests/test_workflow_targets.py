@@ -274,3 +274,11 @@ def test_an_offline_download_still_says_what_to_fetch(tmp_path):
     line = log.read_text().strip().splitlines()[-1]
     assert str(raw / "oscillating_cart.webm") in line and line in r.stderr
     assert not (raw / "oscillating_cart.webm").exists()
+
+
+def test_the_deformation_table_declares_the_variant_stage1_it_trains(tmp_path):
+    # the job trains the deformation decoder's own Stage 1; Snakemake must know the file (clean-up, reruns)
+    res = tmp_path / "res"
+    r = dry_run([f"{res}/oscillating_cart/variants/deformation/stage1.pt", "--config", f"results_dir={res}", f"raw_dir={tmp_path / 'raw'}"])
+    assert r.returncode == 0, r.stdout
+    assert "deformation_table" in {j["rule"] for j in jobs(r.stdout)}

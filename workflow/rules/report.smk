@@ -117,6 +117,7 @@ rule deformation_table:
         f"{RESULTS}/tables/deformation.csv",
         f"{RESULTS}/tables/deformation.json",
         str(ART.deformation_figure).format(system=DEFORMATION_SYSTEM),
+        str(ART.decoder_variant("deformation").stage1).format(system=DEFORMATION_SYSTEM),  # the variant's Stage 1, trained by the job
     log:
         f"{RESULTS}/logs/tables/deformation.log",
     threads: 1
