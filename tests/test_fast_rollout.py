@@ -18,7 +18,9 @@ from lagsplat.dynamics.fast import (
     fast_rollout,
     supports_fast,
 )
-from lagsplat.dynamics.integrators import rollout, verlet_step
+from lagsplat.dynamics.integrators import actuation_schedule, rollout, verlet_step
+from lagsplat.evaluate.krauss_rollouts import rollout_zoh
+from lagsplat.models.inertia import DecoderInertia
 from lagsplat.models.lagrangian import Lagrangian
 
 F64 = torch.float64
@@ -155,19 +157,17 @@ def test_export_is_cached_and_invalidated_by_an_optimizer_step() -> None:
 
 
 def test_unsupported_models_fall_back_to_torch() -> None:
-    learned = _model(2, "learned", seed=7)
-    actuated = _model(2, "scalar", seed=8, n_u=1)
-    q0, v0 = _state(learned, 2, seed=9)
-    for model in (learned, actuated):
-        assert not supports_fast(model)
-        with pytest.raises(ValueError, match="does not support"):
-            export_model(model)
-        with pytest.raises(ValueError, match="fast=True"):
-            rollout(model, q0, v0, H, 5, fast=True)
-    q_auto, v_auto = rollout(learned, q0, v0, H, 40)
-    q_torch, v_torch = rollout(learned, q0, v0, H, 40, fast=False)
+    decoder = _model(2, "decoder", seed=7, inertia=DecoderInertia(8, 2))  # the decoder-induced inertia is not compiled
+    q0, v0 = _state(decoder, 2, seed=9)
+    assert not supports_fast(decoder)
+    with pytest.raises(ValueError, match="does not support"):
+        export_model(decoder)
+    with pytest.raises(ValueError, match="fast=True"):
+        rollout(decoder, q0, v0, H, 5, fast=True)
+    q_auto, v_auto = rollout(decoder, q0, v0, H, 40)
+    q_torch, v_torch = rollout(decoder, q0, v0, H, 40, fast=False)
     assert torch.equal(q_auto, q_torch) and torch.equal(v_auto, v_torch)
-    # actuation u, time-dependent forces and training mode take the torch path on supported models too
+    # time-dependent forces and training mode take the torch path on supported models too
     model = _model(1, "scalar", seed=10)
     q0, v0 = _state(model, 2, seed=11)
 
@@ -207,3 +207,37 @@ def test_non_finite_trajectories_stay_nan() -> None:
     assert bad.any()
     first = int(bad.nonzero()[0])
     assert torch.isnan(qb[0, first:]).all() and torch.isnan(vb[0, first:]).all()
+
+
+@pytest.mark.parametrize(("d", "mass", "n_u", "potential"), [(2, "learned", 0, "convex"), (3, "learned", 2, "invex"), (1, "scalar", 1, "convex"), (4, "constant", 3, "convex"), (4, "learned", 4, "convex")])
+def test_learned_inertia_and_actuation_match_torch(d: int, mass: str, n_u: int, potential: str) -> None:
+    """The compiled velocity terms of a learned M(q) (forward-mode dM/dq) and the actuation Jacobian of the concave
+    map (paper Eq. 6, 7) against autograd: accelerations, rollouts under a constant, a scheduled and a held pressure."""
+    model = _model(d, mass, potential, seed=20 + d + n_u, perturb=0.15, n_u=n_u)
+    assert supports_fast(model)
+    fm = export_model(model)
+    g = torch.Generator().manual_seed(d + n_u)
+    q = model.q_rest.detach() + 2.0 * torch.randn(16, d, generator=g, dtype=F64)
+    v, f = 2.0 * torch.randn(16, d, generator=g, dtype=F64), torch.randn(16, d, generator=g, dtype=F64)
+    u = torch.rand(16, n_u, generator=g, dtype=F64) if n_u else None
+    np.testing.assert_allclose(fast_acceleration(fm, q, v, f, u), model.acceleration(q, v, f, u=u).detach().numpy(), rtol=1e-10, atol=1e-12)
+    q0, v0 = _state(model, 2, seed=d)
+    n = 151
+    U = torch.rand(2, n + 5, n_u, generator=g, dtype=F64)
+    schedules = [None] if not n_u else [U[:, 0], actuation_schedule(U.numpy(), H)]
+    for sched in schedules:
+        qt, vt = rollout(model, q0, v0, H, n, u=sched, fast=False)
+        qf, vf = rollout(model, q0, v0, H, n, u=sched)  # dispatched to the compiled path
+        assert qf.dtype == F64
+        _close(qf, qt, 1e-9)
+        _close(vf, vt, 1e-9)
+    if n_u:  # the soft-robot protocol's zero-order hold: step i holds P[:, i] at both evaluations
+        m = 61  # 2 s: a random learned inertia can drive a held, jumping pressure off to infinity later
+        P = 0.3 * U[:, : m - 1].numpy()
+        q, vq, ref = q0, v0, [q0]
+        for i in range(m - 1):
+            q, vq = verlet_step(model, q, vq, H, u=torch.as_tensor(P[:, i]))
+            ref.append(q.detach())
+        np.testing.assert_allclose(rollout_zoh(model, q0.numpy(), v0.numpy(), H, m, P), torch.stack(ref, 1).numpy(), rtol=1e-9, atol=1e-9)
+    with pytest.raises(ValueError, match="actuation"):
+        fast_rollout(fm, q0.numpy(), v0.numpy(), H, 5, u=np.zeros((2, n_u + 1)))

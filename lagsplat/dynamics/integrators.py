@@ -93,9 +93,9 @@ def rollout(
             scheme, float64 inside, analytic gradients; ~400x faster at batch 1, benchmarks/rollout.py).
             ``None`` (default): automatically when the model supports it
             (:func:`~lagsplat.dynamics.fast.supports_fast`: ``Lagrangian`` with
-            ``"scalar"``/``"constant"`` mass and no actuation channels), is in
-            eval mode, the state is on the CPU, ``f_ext`` is ``None`` or a
-            constant tensor and ``u`` is ``None``. ``False``: always the torch
+            ``"scalar"``/``"constant"``/``"learned"`` mass, any actuation), is in
+            eval mode, the state is on the CPU and ``f_ext`` is ``None`` or a
+            constant tensor (``u`` may be a tensor or a callable, sampled at each step). ``False``: always the torch
             path. ``True``: the compiled path, or ``ValueError`` if it cannot be used.
 
     Returns:
@@ -111,7 +111,8 @@ def rollout(
         if why is None:
             from lagsplat.dynamics.fast import cached_export, fast_rollout
 
-            q_np, v_np = fast_rollout(cached_export(model), q0, qdot0, h, n_states, f_ext)  # type: ignore[arg-type]
+            u_a, u_b = _actuation_samples(u, t0, h, n_states)
+            q_np, v_np = fast_rollout(cached_export(model), q0, qdot0, h, n_states, f_ext, u_a, u_b)  # type: ignore[arg-type]
             return (
                 torch.from_numpy(q_np).to(dtype=q0.dtype, device=q0.device),
                 torch.from_numpy(v_np).to(dtype=q0.dtype, device=q0.device),
@@ -130,8 +131,6 @@ def rollout(
 
 def _fast_unavailable(model: HasAcceleration, q0: Tensor, f_ext: Force, u: Force) -> str | None:
     """Why :func:`rollout` cannot take the compiled path (``None`` when it can)."""
-    if u is not None:
-        return "an actuation u was given"
     if f_ext is not None and not isinstance(f_ext, Tensor):
         return "f_ext is time-dependent (a callable)"
     if q0.device.type != "cpu" or (f_ext is not None and f_ext.device.type != "cpu"):
@@ -143,6 +142,18 @@ def _fast_unavailable(model: HasAcceleration, q0: Tensor, f_ext: Force, u: Force
     except ImportError as exc:  # numba missing
         return f"lagsplat.dynamics.fast unavailable ({exc})"
     return unsupported_reason(model)
+
+
+def _actuation_samples(u: Force, t0: float, h: float, n_states: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The actuation at the two force evaluations of each step, ``[B, n_states-1, n_u]`` each (``None`` without one):
+    a constant tensor at both; a callable at ``t0 + i h`` and ``t0 + (i+1) h``, as :func:`verlet_step` reads it."""
+    if u is None:
+        return None, None
+    if isinstance(u, Tensor):
+        a = u.detach().cpu().double().numpy()
+        return a, a
+    at = np.stack([np.asarray(_force_at(u, t0 + i * h).detach().cpu().double()) for i in range(max(n_states, 2))], 1)
+    return at[:, : n_states - 1], at[:, 1:n_states]
 
 
 def initial_state(q: np.ndarray, starts: np.ndarray, dt: float) -> tuple[Tensor, Tensor]:

@@ -9,6 +9,7 @@ import numpy as np
 import torch
 
 from lagsplat import metrics, timeseries
+from lagsplat.dynamics.fast import cached_export, fast_rollout, supports_fast
 from lagsplat.dynamics.integrators import verlet_step
 from lagsplat.evaluate.krauss_windows import KraussEvalConfig, flat_intervals, mse_window_starts, n_states, peak_frequency
 
@@ -18,6 +19,9 @@ __all__ = ["rollout_zoh", "multistep_mse", "frequency_windows"]
 @torch.no_grad()
 def rollout_zoh(model: Any, q0: np.ndarray, v0: np.ndarray, dt: float, n_states_: int, P: np.ndarray | None) -> np.ndarray:
     """Velocity-Verlet rollouts with the pressure held over each step (the reference code).
+
+    A model in eval mode that the compiled path supports (:func:`lagsplat.dynamics.fast.supports_fast`) is
+    rolled out there (float64, same scheme); any other on the torch path below.
 
     Step ``i -> i+1`` evaluates both accelerations with ``P[:, i]``. A window
     whose step fails (non-finite state or a ``LinAlgError`` in the mass solve)
@@ -34,6 +38,11 @@ def rollout_zoh(model: Any, q0: np.ndarray, v0: np.ndarray, dt: float, n_states_
     Returns:
         float64 ``[B, n_states_, d]``.
     """
+    if not getattr(model, "training", True) and supports_fast(model):  # the compiled path: same scheme, float64
+        U = None if P is None or np.asarray(P).shape[-1] == 0 else np.asarray(P, np.float64)
+        if U is not None and U.ndim == 3:
+            U = U[:, : n_states_ - 1]
+        return fast_rollout(cached_export(model), np.asarray(q0, np.float64), np.asarray(v0, np.float64), dt, n_states_, u=U)[0]
     q = torch.as_tensor(np.asarray(q0), dtype=torch.float32)
     v = torch.as_tensor(np.asarray(v0), dtype=torch.float32)
     B, d = q.shape
