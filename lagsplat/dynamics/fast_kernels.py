@@ -11,7 +11,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["softplus", "elu", "elu_prime", "vecmat", "icnn_grad", "phi_forward", "phi_vjp", "grad_V", "chol_factor", "workspace"]
+__all__ = ["softplus", "elu", "elu_prime", "vecmat", "icnn_grad", "phi_forward", "phi_vjp", "grad_V", "mlp_forward", "tril_factor", "chol_factor", "workspace"]
 
 
 @njit(cache=True)
@@ -163,48 +163,61 @@ def grad_V(q, exp_sV, eps, icnn_WT, icnn_b, icnn_R, icnn_RT, icnn_out, icnn_widt
 
 
 @njit(cache=True)
-def chol_factor(q, diss_WT, diss_b, diss_in, diss_out, tril_i, tril_j, a, a2, Lm):  # pragma: no cover
-    """``Lm [d,d] = L_C(q)``, the dissipation's Cholesky factor (MLP with ELU, softplus diagonal).
+def mlp_forward(x, WT, b, n_in, n_out, a, a2, Z):  # pragma: no cover
+    """ELU MLP ``x -> a[:n_out[-1]]`` (no activation after the last layer), the pre-activations kept in ``Z [n_layers,H]``.
 
-    ``diss_WT [n_layers,H_in,H_out]``: the layers' weights, transposed.
+    ``WT [n_layers,H_in,H_out]``: the layers' weights, transposed; ``a, a2 [H]``: work buffers.
     """
-    d = q.shape[0]
-    n_layers = diss_in.shape[0]
-    for c in range(d):
-        a[c] = q[c]
-    for k in range(n_layers):
-        no = diss_out[k]
+    nl = n_in.shape[0]
+    for c in range(x.shape[0]):
+        a[c] = x[c]
+    for k in range(nl):
+        no = n_out[k]
         for i in range(no):
-            a2[i] = diss_b[k, i]
-        for j in range(diss_in[k]):
+            a2[i] = b[k, i]
+        for j in range(n_in[k]):
             aj = a[j]
             for i in range(no):
-                a2[i] += diss_WT[k, j, i] * aj
-        if k < n_layers - 1:
-            for i in range(no):
-                a[i] = elu(a2[i])
-        else:
-            for i in range(no):
-                a[i] = a2[i]
+                a2[i] += WT[k, j, i] * aj
+        for i in range(no):
+            Z[k, i] = a2[i]
+            a[i] = elu(a2[i]) if k < nl - 1 else a2[i]
+
+
+@njit(cache=True)
+def tril_factor(raw, tril_i, tril_j, Lm):  # pragma: no cover
+    """``Lm [d,d]``: lower-triangular factor from ``raw`` in ``tril_indices`` order, softplus on the diagonal."""
+    d = Lm.shape[0]
     for r in range(d):
         for c in range(d):
             Lm[r, c] = 0.0
     for t in range(tril_i.shape[0]):
         r = tril_i[t]
         c = tril_j[t]
-        Lm[r, c] = softplus(a[t]) if r == c else a[t]
+        Lm[r, c] = softplus(raw[t]) if r == c else raw[t]
+
+
+@njit(cache=True)
+def chol_factor(q, diss_WT, diss_b, diss_in, diss_out, tril_i, tril_j, a, a2, Z, Lm):  # pragma: no cover
+    """``Lm [d,d] = L_C(q)``, the dissipation's Cholesky factor (:class:`CholeskyField`: ELU MLP, softplus diagonal).
+
+    ``diss_WT [n_layers,H_in,H_out]``: the layers' weights, transposed; ``a, a2 [H]``, ``Z [n_layers,H]``: work buffers.
+    """
+    mlp_forward(q, diss_WT, diss_b, diss_in, diss_out, a, a2, Z)
+    tril_factor(a, tril_i, tril_j, Lm)
 
 
 @njit(cache=True)
 def workspace(d, icnn_b, phi_b1, diss_b):  # pragma: no cover
     """Scratch arrays of :func:`position_terms` for states of dimension ``d``, sized by the padded layer widths.
 
-    Returns the tuple ``(ws_z, ws_h, ws_dh, ws_dh2, ws_X, ws_Z, ws_t, a, a2)``:
+    Returns the tuple ``(ws_z, ws_h, ws_dh, ws_dh2, ws_X, ws_Z, ws_t, a, a2, Zd)``:
     ICNN activations ``[L,H]`` x 2 and gradients ``[H]`` x 2, i-ResNet block
     inputs ``[nb,d]``, pre-activations ``[nb,width]`` and a ``[width]``
-    buffer, and two dissipation-MLP activations ``[max(Hd, d)]``.
+    buffer, two dissipation-MLP activations ``[max(Hd, d)]`` and its pre-activations ``[n_layers, max(Hd, d)]``.
     """
     L, H = icnn_b.shape[0], icnn_b.shape[1]
     nb, width = phi_b1.shape[0], phi_b1.shape[1]
     Hd = max(diss_b.shape[1], d)
-    return np.zeros((L, H)), np.zeros((L, H)), np.zeros(H), np.zeros(H), np.zeros((nb, d)), np.zeros((nb, width)), np.zeros(width), np.zeros(Hd), np.zeros(Hd)
+    return (np.zeros((L, H)), np.zeros((L, H)), np.zeros(H), np.zeros(H), np.zeros((nb, d)), np.zeros((nb, width)), np.zeros(width),
+            np.zeros(Hd), np.zeros(Hd), np.zeros((diss_b.shape[0], Hd)))  # fmt: skip

@@ -27,10 +27,10 @@ __all__ = ["position_terms", "accel", "rollout_kernel", "accel_kernel"]
 def position_terms(q, exp_sV, exp_sM, eps, icnn_WT, icnn_b, icnn_R, icnn_RT, icnn_out, icnn_widths, y_rest, grad_rest, phi_W1T, phi_b1, phi_W2, phi_b2, diss_WT, diss_b, diss_in, diss_out, tril_i, tril_j, mass_WT, mass_b, mass_in, mass_out, act_a, act_WT, act_b, act_R, act_RT, act_out, act_widths, ws, tw, gV, Lm):  # pragma: no cover
     """The position-only terms at ``q [d]``, in place: ``gV = dV/dq``, ``Lm = L_C(q)``, and in ``tw``
     (:func:`~lagsplat.dynamics.fast_terms.terms_workspace`) ``M(q)``, ``dM/dq`` (learned inertia) and ``b(q)^T`` (actuation)."""
-    ws_z, ws_h, ws_dh, ws_dh2, ws_X, ws_Z, ws_t, a, a2 = ws
+    ws_z, ws_h, ws_dh, ws_dh2, ws_X, ws_Z, ws_t, a, a2, Zd = ws
     Z, ma, ma2, mt, mt2, mL, mdL, M, dM, az, ah, adh, adh2, ag, Bq, Lw, w = tw
     grad_V(q, exp_sV, eps, icnn_WT, icnn_b, icnn_R, icnn_RT, icnn_out, icnn_widths, y_rest, grad_rest, phi_W1T, phi_b1, phi_W2, phi_b2, ws_z, ws_h, ws_dh, ws_dh2, ws_X, ws_Z, ws_t, gV)
-    chol_factor(q, diss_WT, diss_b, diss_in, diss_out, tril_i, tril_j, a, a2, Lm)
+    chol_factor(q, diss_WT, diss_b, diss_in, diss_out, tril_i, tril_j, a, a2, Zd, Lm)
     if mass_in.shape[0] > 0:
         inertia_terms(q, exp_sM, mass_WT, mass_b, mass_in, mass_out, tril_i, tril_j, Z, ma, ma2, mt, mt2, mL, mdL, M, dM)
     if act_a.shape[0] > 0:

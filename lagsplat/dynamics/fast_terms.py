@@ -24,7 +24,7 @@ import math
 import numpy as np
 from numba import njit
 
-from lagsplat.dynamics.fast_kernels import elu, elu_prime, icnn_grad, softplus
+from lagsplat.dynamics.fast_kernels import elu_prime, icnn_grad, mlp_forward, tril_factor
 
 __all__ = ["sigmoid", "inertia_terms", "inertial_force", "actuation_jacobian", "spd_solve", "terms_workspace"]
 
@@ -50,25 +50,8 @@ def inertia_terms(q, exp_sM, WT, b, n_in, n_out, tril_i, tril_j, Z, a, a2, t, t2
     d = q.shape[0]
     nl = n_in.shape[0]
     ntri = tril_i.shape[0]
-    for c in range(d):
-        a[c] = q[c]
-    for k in range(nl):
-        no = n_out[k]
-        for i in range(no):
-            a2[i] = b[k, i]
-        for j in range(n_in[k]):
-            aj = a[j]
-            for i in range(no):
-                a2[i] += WT[k, j, i] * aj
-        for i in range(no):
-            Z[k, i] = a2[i]
-            a[i] = elu(a2[i]) if k < nl - 1 else a2[i]
-    for r in range(d):
-        for c in range(d):
-            Lm[r, c] = 0.0
-    for s in range(ntri):
-        r, c = tril_i[s], tril_j[s]
-        Lm[r, c] = softplus(a[s]) if r == c else a[s]
+    mlp_forward(q, WT, b, n_in, n_out, a, a2, Z)
+    tril_factor(a, tril_i, tril_j, Lm)
     for kd in range(d):  # forward-mode derivative along q_kd
         for c in range(d):
             t[c] = 0.0
