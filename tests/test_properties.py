@@ -5,7 +5,7 @@ Randomly initialised, UNTRAINED models (random seed, ``d`` in {1, 2, 3}, mass
 widths (16, 16), random rest state, every weight perturbed away from its tidy
 initialisation, random ``init_energy_scales(omega, zeta_floor)``) under
 batches of random constant generalized forces (and random non-negative
-actuation ``u`` with ``n_u`` in {1, 2} on the torch path) must satisfy:
+actuation ``u`` with ``n_u`` in {1, 2}) must satisfy:
 
 a. the state stays bounded: finite, and inside the ball that the loaded
    energy at ``t = 0`` and the quadratic floor of ``V`` allow;
@@ -23,10 +23,11 @@ d. chart invariance (App. A.1): in the chart ``q' = A q`` the transformed
    trajectory, and the loaded equilibria map onto each other.
 
 A *trial* is one (model, constant load) trajectory; every example draws one
-model and a batch of ``B`` loads (row 0: no load, a free rollout). Models that
-:func:`lagsplat.dynamics.fast.supports_fast` accepts (scalar/constant mass,
-``n_u = 0``) roll out on the compiled path, the others on the torch path,
-with fewer examples and steps because it is ~400x slower.
+model and a batch of ``B`` loads (row 0: no load, a free rollout). Scalar / constant
+inertia without actuation roll out on the compiled path; learned inertia and
+actuation on the torch path (``fast=False``), with fewer examples and steps
+because it is ~400x slower (the compiled path covers them too and is checked
+against the torch path in tests/test_fast_rollout.py).
 
 Trial count (asserted in :func:`test_trial_count_and_no_divergence` when the
 whole module runs)::
@@ -234,14 +235,15 @@ def _fast_family(B: int):
 
 @st.composite
 def _torch_family(draw, B: int, **ranges):
-    """Learned inertia and/or actuation: the models the compiled path does not take."""
+    """Learned inertia and/or actuation, rolled out on the torch path (the compiled path is checked against it
+    step by step in tests/test_fast_rollout.py)."""
     mass = draw(st.sampled_from(["scalar", "constant", "learned"]))
     n_u = draw(st.sampled_from([1, 2] if mass != "learned" else [0, 1, 2]))
     return random_scenario(draw(_seed), draw(_d), mass, draw(_potential), n_u, B, **ranges)
 
 
-def _roll(sc: Scenario, n: int) -> tuple[Tensor, Tensor]:
-    q, v = rollout(sc.model, sc.q0, sc.v0, sc.h, n, f_ext=sc.f, u=sc.u)
+def _roll(sc: Scenario, n: int, fast: bool | None = None) -> tuple[Tensor, Tensor]:
+    q, v = rollout(sc.model, sc.q0, sc.v0, sc.h, n, f_ext=sc.f, u=sc.u, fast=fast)
     assert q.dtype == F64
     return q, v
 
@@ -295,9 +297,9 @@ def _quadratic_floor(model: Lagrangian) -> float:
 
 
 # ----------------------------------------------------------------------------- (a) + (b)
-def _check_bounded_and_dissipative(name: str, sc: Scenario, n: int) -> None:
+def _check_bounded_and_dissipative(name: str, sc: Scenario, n: int, fast: bool | None = None) -> None:
     model, d = sc.model, sc.model.d
-    q, v = _roll(sc, n)
+    q, v = _roll(sc, n, fast)
     _count_finite(name, sc, q, v)
     B = q.shape[0]
     E = _loaded_energy(sc, q, v)  # [B,n]
@@ -354,9 +356,8 @@ def test_ab_fast_rollouts_stay_bounded_and_loaded_energy_never_increases(sc: Sce
 @_settings(N_AB_TORCH)
 @given(sc=_torch_family(B_AB_TORCH))
 def test_ab_torch_rollouts_stay_bounded_and_loaded_energy_never_increases(sc: Scenario) -> None:
-    """(a) and (b) for learned inertia / actuation (torch path), 150 steps."""
-    assert not sc.fast
-    _check_bounded_and_dissipative("ab_torch", sc, 151)
+    """(a) and (b) for learned inertia / actuation on the torch path (``fast=False``), 150 steps."""
+    _check_bounded_and_dissipative("ab_torch", sc, 151, fast=False)
 
 
 # ----------------------------------------------------------------------------- (c)
@@ -377,14 +378,14 @@ def _slowest_rate(model: Lagrangian, q: Tensor, f: Tensor, u: Tensor | None) -> 
     return float(min(rates))
 
 
-def _check_converges(name: str, sc: Scenario, max_steps: int, n_tau: float = 30.0) -> None:
+def _check_converges(name: str, sc: Scenario, max_steps: int, n_tau: float = 30.0, fast: bool | None = None) -> None:
     """Roll out ``n_tau`` time constants of the slowest linearised mode at ``q_t`` (at most ``max_steps``)."""
     model = sc.model
     q_eq = model.loaded_equilibrium(sc.f, sc.u)  # damped Newton, |grad V_f| <= 1e-6 (1 + |f|) (+ actuation)
     rate = _slowest_rate(model, sc.q_t, sc.f, sc.u)
     assert rate > 0, sc.label
     n = int(min(max_steps, math.ceil(n_tau / (rate * sc.h)))) + 1
-    q, v = _roll(sc, n)
+    q, v = _roll(sc, n, fast)
     _count_finite(name, sc, q, v)
     T_end = (n - 1) * sc.h
     scale = 1.0 + (sc.q0 - sc.q_t).norm(dim=-1) + sc.v0.norm(dim=-1) / sc.omega
@@ -433,9 +434,8 @@ def test_c_fast_rollouts_converge_to_the_loaded_equilibrium(sc: Scenario) -> Non
 @_settings(N_C_TORCH)
 @given(sc=_torch_family(B_C_TORCH, zeta=(0.3, 0.5), omega=(2 * math.pi * 0.5, 2 * math.pi * 2.0)))
 def test_c_torch_rollouts_converge_to_the_loaded_equilibrium(sc: Scenario) -> None:
-    """(c) for learned inertia / actuation (torch path): at most 600 steps, so well-damped models only."""
-    assert not sc.fast
-    _check_converges("c_torch", sc, max_steps=600)
+    """(c) for learned inertia / actuation on the torch path (``fast=False``): at most 600 steps, so well-damped models only."""
+    _check_converges("c_torch", sc, max_steps=600, fast=False)
 
 
 # ----------------------------------------------------------------------------- (d)
@@ -502,7 +502,7 @@ def _random_chart(d: int, gen: torch.Generator) -> Tensor:
 
 @st.composite
 def _any_family(draw, B: int):
-    """Every mass kind, with actuation on half of the non-compiled draws."""
+    """Every mass kind, with actuation on half of the draws."""
     mass = draw(st.sampled_from(["scalar", "constant", "learned"]))
     n_u = draw(st.sampled_from([0, 0, 1, 2]))
     return random_scenario(draw(_seed), draw(_d), mass, draw(_potential), n_u, B)
