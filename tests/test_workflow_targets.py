@@ -179,13 +179,14 @@ def test_every_rule_that_runs_a_command_has_a_log():
 def test_every_planned_job_sends_its_output_to_its_log(tmp_path):
     res, raw = tmp_path / "res", tmp_path / "raw"
     targets = [f"{res}/tables/physical.tex", f"{res}/tables/two_carts_inertia.tex", f"{res}/toy/forces.json", f"{res}/toy/diagnosis/report.md",
-               f"{res}/tables/deformation.tex"]  # fmt: skip
+               f"{res}/tables/deformation.tex", f"{res}/tables/extrapolation.tex"]  # fmt: skip
     r = dry_run([*targets, "krauss", "--config", f"results_dir={res}", f"raw_dir={raw}", "krauss_source=synthetic"])
     assert r.returncode == 0, r.stdout
     planned = [j for j in jobs(r.stdout) if j["rule"] not in ("krauss",)]  # a target rule runs nothing
     rules = {j["rule"] for j in planned}
     assert rules >= {"download", "ingest", "stage1", "chart", "stage2", "evaluate", "figures", "table", "stage2_variant", "evaluate_variant",
-                     "ablation_table", "forces", "diagnose", "krauss_synth", "krauss_table", "deformation_table"}  # fmt: skip
+                     "ablation_table", "forces", "diagnose", "krauss_synth", "krauss_table", "deformation_table", "extrapolation",
+                     "extrapolation_table"}  # fmt: skip
     for j in planned:
         assert_logged(j)
     real = dry_run(["krauss", "--config", f"results_dir={res}", f"raw_dir={raw}"])

@@ -76,12 +76,12 @@ rule extrapolation:
         stage2=str(ART.stage2),
     output:
         extrapolation=str(ART.extrapolation),
-        figure=str(ART.extrapolation_figure),
+        extrapolation_figure=str(ART.extrapolation_figure),
     log:
         f"{RESULTS}/logs/{{system}}/extrapolation.log",
     threads: 2
     shell:
-        cli("extrapolation", ["clip", "stage1", "chart", "stage2"], ["extrapolation"])
+        cli("extrapolation", ["clip", "stage1", "chart", "stage2"], ["extrapolation", "extrapolation_figure"])
 
 
 EXTRAPOLATION_SYSTEMS = ["toy", "oscillating_cart", "red_apple_pendulum"]
