@@ -38,11 +38,11 @@ def position_terms(q, exp_sV, exp_sM, eps, icnn_WT, icnn_b, icnn_R, icnn_RT, icn
 
 
 @njit(cache=True)
-def accel(gV, Lm, v, f, u, M_inv, exp_sM, c0, learned, tw, tmp, force, out):  # pragma: no cover
+def accel(gV, Lm, v, f, u, M_inv, exp_sM, c0, learned, M, dM, Bq, Lw, w, tmp, force, out):  # pragma: no cover
     """``out = M^-1 (-gV - C v + f + b^T u (+ dT/dq - (d(M v)/dq) v))`` with ``C v = e^{s_M} L (L^T v) + c0 v`` (paper
-    Eq. 7); the inertia is ``M_inv`` (constant) or, with ``learned``, ``M(q)`` from ``tw`` (Cholesky solve). Returns
-    ``False`` (NaN in ``out``) when the learned ``M(q)`` is not positive definite."""
-    M, dM, Bq, Lw, w = tw[7], tw[8], tw[14], tw[15], tw[16]
+    Eq. 7); the inertia is ``M_inv`` (constant) or, with ``learned``, ``M(q)`` with its derivatives ``dM`` (Cholesky
+    solve, work buffers ``Lw, w``); ``Bq = b(q)^T`` rows. Returns ``False`` (NaN in ``out``) when the learned ``M(q)``
+    is not positive definite."""
     d = v.shape[0]
     for c in range(d):  # tmp = L^T v
         s = 0.0
@@ -82,6 +82,7 @@ def rollout_kernel(q0, v0, f, Ua, Ub, h, n, M_inv, exp_sV, exp_sM, c0, eps, icnn
     vs = np.empty((B, n, d))
     ws = workspace(d, icnn_b, phi_b1, diss_b)
     tw = terms_workspace(d, mass_b, act_b)
+    M, dM, Bq, Lw, w = tw[7], tw[8], tw[14], tw[15], tw[16]  # in terms_workspace's documented order
     learned = mass_in.shape[0] > 0
     Lm = np.zeros((d, d))
     gV, tmp, force, acc = np.zeros(d), np.zeros(d), np.zeros(d), np.zeros(d)
@@ -94,12 +95,12 @@ def rollout_kernel(q0, v0, f, Ua, Ub, h, n, M_inv, exp_sV, exp_sM, c0, eps, icnn
             vs[b, 0, c] = v[c]
         position_terms(q, exp_sV, exp_sM, eps, icnn_WT, icnn_b, icnn_R, icnn_RT, icnn_out, icnn_widths, y_rest, grad_rest, phi_W1T, phi_b1, phi_W2, phi_b2, diss_WT, diss_b, diss_in, diss_out, tril_i, tril_j, mass_WT, mass_b, mass_in, mass_out, act_a, act_WT, act_b, act_R, act_RT, act_out, act_widths, ws, tw, gV, Lm)
         for i in range(1, n):
-            ok = accel(gV, Lm, v, f[b], Ua[b, i - 1], M_inv, exp_sM, c0, learned, tw, tmp, force, acc)
+            ok = accel(gV, Lm, v, f[b], Ua[b, i - 1], M_inv, exp_sM, c0, learned, M, dM, Bq, Lw, w, tmp, force, acc)
             for c in range(d):
                 vh[c] = v[c] + 0.5 * h * acc[c]
                 q[c] = q[c] + h * vh[c]
             position_terms(q, exp_sV, exp_sM, eps, icnn_WT, icnn_b, icnn_R, icnn_RT, icnn_out, icnn_widths, y_rest, grad_rest, phi_W1T, phi_b1, phi_W2, phi_b2, diss_WT, diss_b, diss_in, diss_out, tril_i, tril_j, mass_WT, mass_b, mass_in, mass_out, act_a, act_WT, act_b, act_R, act_RT, act_out, act_widths, ws, tw, gV, Lm)
-            ok = accel(gV, Lm, vh, f[b], Ub[b, i - 1], M_inv, exp_sM, c0, learned, tw, tmp, force, acc) and ok
+            ok = accel(gV, Lm, vh, f[b], Ub[b, i - 1], M_inv, exp_sM, c0, learned, M, dM, Bq, Lw, w, tmp, force, acc) and ok
             finite = ok
             for c in range(d):
                 v[c] = vh[c] + 0.5 * h * acc[c]
@@ -125,13 +126,14 @@ def accel_kernel(q, v, f, u, M_inv, exp_sV, exp_sM, c0, eps, icnn_WT, icnn_b, ic
     gout = np.empty((B, d))
     ws = workspace(d, icnn_b, phi_b1, diss_b)
     tw = terms_workspace(d, mass_b, act_b)
+    M, dM, Bq, Lw, w = tw[7], tw[8], tw[14], tw[15], tw[16]  # in terms_workspace's documented order
     learned = mass_in.shape[0] > 0
     Lm = np.zeros((d, d))
     gV, tmp, force, acc = np.zeros(d), np.zeros(d), np.zeros(d), np.zeros(d)
     for b in range(B):
         qb = q[b].copy()
         position_terms(qb, exp_sV, exp_sM, eps, icnn_WT, icnn_b, icnn_R, icnn_RT, icnn_out, icnn_widths, y_rest, grad_rest, phi_W1T, phi_b1, phi_W2, phi_b2, diss_WT, diss_b, diss_in, diss_out, tril_i, tril_j, mass_WT, mass_b, mass_in, mass_out, act_a, act_WT, act_b, act_R, act_RT, act_out, act_widths, ws, tw, gV, Lm)
-        accel(gV, Lm, v[b], f[b], u[b], M_inv, exp_sM, c0, learned, tw, tmp, force, acc)
+        accel(gV, Lm, v[b], f[b], u[b], M_inv, exp_sM, c0, learned, M, dM, Bq, Lw, w, tmp, force, acc)
         for c in range(d):
             out[b, c] = acc[c]
             gout[b, c] = gV[c]

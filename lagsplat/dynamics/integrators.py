@@ -14,7 +14,7 @@ from torch import Tensor
 
 from lagsplat.timeseries import forward_difference_velocity
 
-__all__ = ["HasAcceleration", "verlet_step", "rollout", "initial_state", "actuation_schedule"]
+__all__ = ["HasAcceleration", "verlet_step", "rollout", "fast_unavailable", "initial_state", "actuation_schedule"]
 
 Force = Callable[[float], Tensor] | Tensor | None
 
@@ -107,7 +107,7 @@ def rollout(
         ValueError: if ``fast=True`` and the compiled path cannot be used.
     """
     if fast is not False:
-        why = _fast_unavailable(model, q0, f_ext, u)
+        why = fast_unavailable(model, q0, f_ext, u)
         if why is None:
             from lagsplat.dynamics.fast import cached_export, fast_rollout
 
@@ -129,8 +129,9 @@ def rollout(
     return torch.stack(qs, 1), torch.stack(vs, 1)
 
 
-def _fast_unavailable(model: HasAcceleration, q0: Tensor, f_ext: Force, u: Force) -> str | None:
-    """Why :func:`rollout` cannot take the compiled path (``None`` when it can)."""
+def fast_unavailable(model: HasAcceleration, q0: Tensor, f_ext: Force, u: Force) -> str | None:
+    """Why a rollout of ``model`` from ``q0`` under ``f_ext`` / ``u`` cannot take the compiled path (``None`` when it can):
+    time-dependent forces, tensors off the CPU, training mode, or a model :mod:`lagsplat.dynamics.fast` does not support."""
     if f_ext is not None and not isinstance(f_ext, Tensor):
         return "f_ext is time-dependent (a callable)"
     if q0.device.type != "cpu" or (f_ext is not None and f_ext.device.type != "cpu"):

@@ -9,8 +9,8 @@ import numpy as np
 import torch
 
 from lagsplat import metrics, timeseries
-from lagsplat.dynamics.fast import cached_export, fast_rollout, supports_fast
-from lagsplat.dynamics.integrators import verlet_step
+from lagsplat.dynamics.fast import cached_export, fast_rollout
+from lagsplat.dynamics.integrators import fast_unavailable, verlet_step
 from lagsplat.evaluate.krauss_windows import KraussEvalConfig, flat_intervals, mse_window_starts, n_states, peak_frequency
 
 __all__ = ["rollout_zoh", "multistep_mse", "frequency_windows"]
@@ -20,7 +20,7 @@ __all__ = ["rollout_zoh", "multistep_mse", "frequency_windows"]
 def rollout_zoh(model: Any, q0: np.ndarray, v0: np.ndarray, dt: float, n_states_: int, P: np.ndarray | None) -> np.ndarray:
     """Velocity-Verlet rollouts with the pressure held over each step (the reference code).
 
-    A model in eval mode that the compiled path supports (:func:`lagsplat.dynamics.fast.supports_fast`) is
+    A model that the compiled path takes (:func:`lagsplat.dynamics.integrators.fast_unavailable`) is
     rolled out there (float64, same scheme); any other on the torch path below.
 
     Step ``i -> i+1`` evaluates both accelerations with ``P[:, i]``. A window
@@ -38,7 +38,7 @@ def rollout_zoh(model: Any, q0: np.ndarray, v0: np.ndarray, dt: float, n_states_
     Returns:
         float64 ``[B, n_states_, d]``.
     """
-    if not getattr(model, "training", True) and supports_fast(model):  # the compiled path: same scheme, float64
+    if fast_unavailable(model, torch.as_tensor(np.asarray(q0)), None, P) is None:  # the compiled path: same scheme, float64
         U = None if P is None or np.asarray(P).shape[-1] == 0 else np.asarray(P, np.float64)
         if U is not None and U.ndim == 3:
             U = U[:, : n_states_ - 1]
