@@ -180,3 +180,38 @@ def test_the_importer_rejects_each_bad_input_naming_the_file(tmp_path: Path, def
         _edit_times(folder, lambda ls: [ls[0]] + [f"{r.split(',')[0]},{float(r.split(',')[1]) + 1.0:.6f}" for r in ls[1:]])
     with pytest.raises(ClipError, match=message):
         _load(folder)
+
+
+def test_key_point_blending_matches_its_definition_and_its_gradients_repeat_bit_for_bit() -> None:
+    """``Delta mu_i = sum_j w_ij (P_j - p_j)`` over the k nearest key points; backward passes agree exactly with threads."""
+    rng = np.random.default_rng(3)
+    frames = rng.integers(0, 255, (2, 64, 64, 3), dtype=np.uint8)
+    x = torch.from_numpy(frames).permute(0, 3, 1, 2).float() / 255.0
+    field = GP2DField(x[0], x[1], GP2DConfig().resolved(64, 64), torch.Generator().manual_seed(0))
+    field.init_keypoints(0)
+    t = torch.tensor([0.1, 0.4, 0.7, 0.9])
+    S = field.keypoint_states(t)
+    mu_t, theta_t = field.blend(S)
+    k = field.cfg.k_neighbours
+    idx = torch.cdist(torch.cat([field.mu, 0.5 * field.feature], -1), torch.cat([field.kp_pos, 0.5 * field.kp_feat], -1))
+    idx = idx.topk(k, largest=False).indices
+    logits = field.weight_net(fourier(field.mu, field.L_WEIGHT))
+    wx, wr = torch.softmax(logits[:, :k], -1), torch.softmax(logits[:, k:], -1)
+    ref_mu = field.mu[None] + (wx[None, :, :, None] * (S[:, idx, :2] - field.kp_pos[idx][None])).sum(2)
+    rot = (wr[None, :, :, None] * S[:, idx, 2:4]).sum(2)
+    torch.testing.assert_close(mu_t, ref_mu, rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(theta_t, field.theta[None] + torch.atan2(rot[..., 1], rot[..., 0]), rtol=1e-5, atol=1e-6)
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        grads = []
+        for _ in range(3):
+            field.zero_grad()
+            mu_t, theta_t = field.blend(field.keypoint_states(t))
+            (mu_t.square().sum() + theta_t.square().sum()).backward()
+            grads.append([p.grad.clone() for p in field.parameters() if p.grad is not None])
+    finally:
+        torch.set_num_threads(before)
+    for g in grads[1:]:
+        assert all(torch.equal(a, b) for a, b in zip(grads[0], g))

@@ -220,10 +220,13 @@ class GP2DField(nn.Module):
             b = torch.cat([self.kp_pos, 0.5 * self.kp_feat], -1)
             idx = torch.cdist(a, b).topk(k, largest=False, sorted=True).indices  # [N,k]
         logits = self.weight_net(fourier(self.mu.detach(), self.L_WEIGHT))
-        wx, wr = torch.softmax(logits[:, :k], -1), torch.softmax(logits[:, k:], -1)
-        dP = S[..., :2] - self.kp_pos[None]
-        mu_t = self.mu[None] + torch.einsum("nk,bnkc->bnc", wx, dP[:, idx])
-        rot = torch.einsum("nk,bnkc->bnc", wr, S[:, idx, 2:4])
+        # Dense [N, K_kp] weight matrices (zero off the k neighbours): the products below then reduce in a fixed
+        # order, where the backward of a gather ``S[:, idx]`` accumulates with threads in a run-dependent order.
+        zeros = torch.zeros(idx.shape[0], S.shape[1], dtype=S.dtype)
+        wx = zeros.scatter(1, idx, torch.softmax(logits[:, :k], -1))
+        wr = zeros.scatter(1, idx, torch.softmax(logits[:, k:], -1))
+        mu_t = self.mu[None] + torch.einsum("nk,bkc->bnc", wx, S[..., :2] - self.kp_pos[None])
+        rot = torch.einsum("nk,bkc->bnc", wr, S[..., 2:4])
         return mu_t, self.theta[None] + torch.atan2(rot[..., 1], rot[..., 0])
 
 
