@@ -68,6 +68,8 @@ class Artifacts:
         extrapolation, extrapolation_figure: the extrapolation protocol's record and figure (paper §4.3, Fig. 5; model folder).
         diagnosis: the diagnosis folder (``report.md``, ``report.json``, ``figures/``, ``refit.pt``).
         deformation_figure: the decoder comparison's figure (paper App. B, Fig. deform-velocity; system folder).
+        robot_rollout_figure, robot_forces_figure, robot_forces: the soft robot's figures and the force
+            figure's record (paper §4.4-4.5; model folder).
         system_dir, model_dir: the two folders.
     """
 
@@ -85,6 +87,9 @@ class Artifacts:
     extrapolation: Path
     extrapolation_figure: Path
     deformation_figure: Path
+    robot_rollout_figure: Path
+    robot_forces_figure: Path
+    robot_forces: Path
 
     @classmethod
     def at(cls, system_dir: str | Path, model_dir: str | Path | None = None) -> "Artifacts":
@@ -106,6 +111,9 @@ class Artifacts:
             extrapolation=m / "extrapolation.json",
             extrapolation_figure=m / "figures" / "extrapolation.png",
             deformation_figure=s / "figures" / "deformation.png",
+            robot_rollout_figure=m / "figures" / "robot_rollout.png",
+            robot_forces_figure=m / "figures" / "robot_forces.png",
+            robot_forces=m / "robot_forces.json",
         )
 
     @classmethod

@@ -27,7 +27,7 @@ from lagsplat.cli_common import apply_variant, compose, find_conf_dir
 from lagsplat.stages import stage_chart, stage_download, stage_evaluate, stage_figures, stage_ingest, stage_stage1, stage_stage2
 from lagsplat.stages_baselines import stage_extrapolation, stage_extrapolation_table
 from lagsplat.stages_deformation import stage_deformation
-from lagsplat.stages_report import stage_ablation, stage_diagnose, stage_forces, stage_krauss_table, stage_seed_table, stage_table, stage_view
+from lagsplat.stages_report import stage_ablation, stage_diagnose, stage_forces, stage_krauss_table, stage_robot_figures, stage_seed_table, stage_table, stage_view
 
 __all__ = ["main", "STAGES", "stage_all", "stage_help", "run_logged"]
 
@@ -52,6 +52,8 @@ stages:
   extrapolation_table  extrapolation.json of table.systems -> results/tables/extrapolation.tex/.csv/.md
   deformation  the conditioned decoder against a deformation-field decoder at equal budget (paper App. B):
              trains variants/deformation/stage1.pt -> results/tables/deformation.tex/.csv/.json, figures/deformation.png
+  robot_figures  -> figures/robot_rollout.png (30 s pressure-driven rollout decoded at 256x256) and
+             figures/robot_forces.png, robot_forces.json (force equilibria at the operating pressure; paper §4.4-4.5)
   krauss_table  soft-robot benchmark (paper Table 4) -> results/tables/krauss.tex/.csv/.md
   seed_table one system trained with each of seed_table.seeds (results/seeds/seed<k>/<name>/metrics.json)
              -> results/tables/<name>_seeds.md/.csv (per-seed rows, mean, std, min, max)
@@ -96,6 +98,7 @@ STAGES: dict[str, Callable[[DictConfig], None]] = {
     "extrapolation_table": stage_extrapolation_table,
     "deformation": stage_deformation,
     "krauss_table": stage_krauss_table,
+    "robot_figures": stage_robot_figures,
     "seed_table": stage_seed_table,
     "all": stage_all,
     "view": stage_view,

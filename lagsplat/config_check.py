@@ -112,6 +112,9 @@ CHECKS: dict[str, Bound] = {
     "diagnose.refit.epochs": POSITIVE_INT, "diagnose.refit.lr": POSITIVE, "diagnose.refit.seed": COUNT, "diagnose.refit.floor_scale": POSITIVE,
     # extrapolation (ExtrapolationConfig)
     "extrapolation.long_s": POSITIVE, "extrapolation.figure_s": POSITIVE, "extrapolation.sigma": NON_NEGATIVE, "extrapolation.render_batch": POSITIVE_INT,
+    # robot_figures (RobotFigureConfig)
+    "robot_figures.rollout_s": POSITIVE, "robot_figures.size": POSITIVE_INT, "robot_figures.sigma": NON_NEGATIVE,
+    "robot_figures.brush_sigma": POSITIVE, "robot_figures.displacement": POSITIVE,
     # deformation (DeformationCompareConfig)
     "deformation.k_neighbours": POSITIVE_INT, "deformation.min_coverage": NON_NEGATIVE, "deformation.batch": POSITIVE_INT,
     # gp2d (GP2DConfig; 0 = the size rule)

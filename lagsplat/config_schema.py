@@ -218,6 +218,26 @@ class KraussTableConfig:
     ablation: list[str] = field(default_factory=lambda: ["mass_decoder", "mass_constant"])
 
 
+@dataclass
+class RobotFigureConfig:
+    """``python -m lagsplat robot_figures`` (``robot_figures`` group; :mod:`lagsplat.viz.robot`).
+
+    Attributes:
+        rollout_s: seconds of free rollout from the first held-out frame (paper: 30 s).
+        size: decoded frames rendered at ``size x size`` px (paper: 256).
+        sigma: latent smoothing of the rollout's initial state, frames.
+        brush_sigma: radius of the force brush, px of the recording.
+        displacement: the common force magnitude moves the most responsive application point by this share of
+            the body's length.
+    """
+
+    rollout_s: float = 30.0
+    size: int = 256
+    sigma: float = 1.0
+    brush_sigma: float = 1.5
+    displacement: float = 0.15
+
+
 ArtifactsConfig = dataclasses.make_dataclass(
     "ArtifactsConfig",
     [(n, Optional[str], None) for n in Artifacts.names()],
@@ -268,6 +288,7 @@ SCHEMAS: dict[str, type] = {
     "extrapolation": ExtrapolationConfig,
     "deformation": DeformationCompareConfig,
     "gp2d": GP2DConfig,
+    "robot_figures": RobotFigureConfig,
     "view": ViewConfig,
     "table": TableConfig,
     "seed_table": SeedTableConfig,

@@ -164,6 +164,23 @@ def stage_krauss_table(cfg: DictConfig) -> None:
     )
 
 
+def stage_robot_figures(cfg: DictConfig) -> None:
+    """Upstream artifacts -> ``figures/robot_rollout.png`` (a long pressure-driven rollout decoded at high
+    resolution, paper Fig. krauss-npz-rollout) and ``figures/robot_forces.png`` (loaded equilibria
+    at the operating pressure, Fig. krauss-force; panels from ``system.segments``), its record ``robot_forces.json``."""
+    from lagsplat.config_schema import RobotFigureConfig
+    from lagsplat.train.config import dataclass_from_mapping
+    from lagsplat.viz.robot import robot_force_figure, robot_rollout_figure
+
+    a = artifacts_of(cfg)
+    rc = dataclass_from_mapping(RobotFigureConfig, plain(cfg.get("robot_figures", {})), "robot_figures")
+    title = str(cfg.system.get("title", cfg.system.name)) + (f" [{cfg.variant}]" if cfg.get("variant") else "")
+    r = robot_rollout_figure(a, a.robot_rollout_figure, rc.rollout_s, rc.size, rc.sigma, title, str(cfg.system.get("provenance", "")))
+    print(f"[lagsplat] {cfg.system.name}: {r['seconds']:.1f} s of free rollout, offset at the last step {r['offset_px']:.2f} px -> {r['figure']}")
+    f = robot_force_figure(a, a.robot_forces_figure, a.robot_forces, int(cfg.system.get("segments", 1) or 1), rc.size, rc.brush_sigma, rc.displacement, title)
+    print(f"[lagsplat] {cfg.system.name}: {len(f['panels'])} loaded equilibria at pressure {f['pressure']} -> {f['figure']}")
+
+
 def stage_view(cfg: DictConfig) -> None:
     """Serve the interactive viewer of the system's artifacts on ``http://127.0.0.1:<view.port>/``.
 

@@ -186,7 +186,7 @@ def test_every_planned_job_sends_its_output_to_its_log(tmp_path):
     rules = {j["rule"] for j in planned}
     assert rules >= {"download", "ingest", "stage1", "chart", "stage2", "evaluate", "figures", "table", "stage2_variant", "evaluate_variant",
                      "ablation_table", "forces", "diagnose", "krauss_synth", "krauss_table", "deformation_table", "extrapolation",
-                     "extrapolation_table"}  # fmt: skip
+                     "extrapolation_table", "robot_figures"}  # fmt: skip
     for j in planned:
         assert_logged(j)
     real = dry_run(["krauss", "--config", f"results_dir={res}", f"raw_dir={raw}"])

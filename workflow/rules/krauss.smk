@@ -13,7 +13,8 @@
 # The extracted NPZ files can also be placed by hand in raw_dir
 # (scr_dataset_raw_{1seg,2seg}_32x32_59fps.npz): an existing file skips the download.
 # The chain per robot: archive -> NPZ -> ingest -> stage1 -> chart -> stage2 (+ the two-segment
-# inertia variants) -> evaluate (system.protocol: krauss) -> krauss_table.
+# inertia variants) -> evaluate (system.protocol: krauss) -> krauss_table; robot_figures per robot.
+#   snakemake -c2 krauss --config krauss_source=synthetic   # the table and both robots' figures
 
 KRAUSS_SOURCE = str(config.get("krauss_source", "zenodo"))
 if KRAUSS_SOURCE not in ("zenodo", "synthetic"):
@@ -132,7 +133,27 @@ rule krauss_table:
         f"'krauss_table.ablation=[{{params.ablation}}]' results_dir={RESULTS} {OVR} > {{log}} 2>&1"
 
 
+rule robot_figures:
+    """The soft robot's figures (paper Figs. krauss-npz-rollout and krauss-force): a 30 s pressure-driven
+    rollout on the held-out split decoded at 256x256, and loaded equilibria at the operating pressure."""
+    input:
+        clip=str(ART.clip),
+        stage1=str(ART.stage1),
+        chart=str(ART.chart),
+        stage2=str(ART.stage2),
+    output:
+        robot_rollout_figure=str(ART.robot_rollout_figure),
+        robot_forces_figure=str(ART.robot_forces_figure),
+        robot_forces=str(ART.robot_forces),
+    log:
+        f"{RESULTS}/logs/{{system}}/robot_figures.log",
+    threads: 1
+    shell:
+        cli("robot_figures", ["clip", "stage1", "chart", "stage2"], ["robot_rollout_figure", "robot_forces_figure", "robot_forces"])
+
+
 rule krauss:
-    """The whole soft-robot benchmark (see results/tables/krauss.tex)."""
+    """The whole soft-robot benchmark (see results/tables/krauss.tex) and both robots' figures."""
     input:
         f"{RESULTS}/tables/krauss.tex",
+        [f"{RESULTS}/{s}/figures/robot_{f}.png" for s in KRAUSS.values() for f in ("rollout", "forces")],
