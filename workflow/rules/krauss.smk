@@ -58,6 +58,35 @@ def _kre(names):
     return "|".join(n.replace(".", r"\.") for n in names)
 
 
+def _krauss_projection():
+    """Print the projected wall time of the planned soft-robot jobs before the first one starts
+    (lagsplat.report.projection); a projection that cannot be made is skipped with one line, never an error."""
+    import shlex
+
+    from lagsplat.cli_common import apply_variant, compose
+    from lagsplat.report.projection import project, projection_lines
+
+    files = {**_KREAL, **_KSYN}
+    base = [f"raw_dir={RAW}", f"results_dir={RESULTS}", *shlex.split(OVR)]
+    jobs = []
+    for j in workflow.dag.needrun_jobs():
+        w = dict(j.wildcards)
+        system = w.get("system") or files.get(w.get("file"))
+        if system not in KRAUSS.values():
+            continue
+        ovr = [f"system={system}", *base] + ([f"variant={w['variant']}"] if w.get("variant") else [])
+        jobs.append((j.rule.name, system, apply_variant(compose(ovr))))
+    for line in projection_lines(project(jobs, workflow.resource_settings.cores or 1)):
+        print(line, flush=True)
+
+
+onstart:
+    try:
+        _krauss_projection()
+    except Exception as e:  # the projection is a courtesy: it never stops a run
+        print(f"[lagsplat] no projected wall time ({type(e).__name__}: {e})", flush=True)
+
+
 ruleorder: krauss_extract > download
 ruleorder: krauss_synth > download
 
