@@ -168,12 +168,11 @@ def _load(a: Artifacts):
     return clip, chart, ae.eval(), model.eval()
 
 
-def _render(ae, chart, q: np.ndarray, size: int, extra: torch.Tensor | None = None):
-    """Decode chart states ``q [B,d]`` at ``size x size`` (image ``[B,H,W,3]``; the extra channels ``[B,C,H,W]``)."""
+def _render(ae, chart, q: np.ndarray, size: int) -> np.ndarray:
+    """Decode chart states ``q [B,d]`` at ``size x size``: images ``[B,size,size,3]`` in [0, 1]."""
     with torch.no_grad():
         z = chart.to_raw(torch.as_tensor(np.asarray(q), dtype=torch.float32))
-        img, ex = ae.decoder.render(z, size, size, extra=extra)
-    return img.permute(0, 2, 3, 1).numpy(), (None if ex is None else ex.numpy())
+        return ae.decoder(z, size, size).permute(0, 2, 3, 1).numpy()
 
 
 def _save(fig, out: Path) -> None:
@@ -225,7 +224,7 @@ def robot_rollout_figure(a: Artifacts, out: Path, seconds: float = 30.0, size: i
     order = np.argsort(lam)[::-1]
     share, V = lam[order] / lam.sum(), V[:, order]
     t = chart.t[s0 : s0 + n] - chart.t[s0]
-    renders, _ = _render(ae, chart, np.stack([q_s[-1], pred[-1]]), size)
+    renders = _render(ae, chart, np.stack([q_s[-1], pred[-1]]), size)
 
     d = chart.d
     fig = plt.figure(figsize=(9, 1.5 * d + 1.5 + 3.4))
@@ -285,7 +284,7 @@ def robot_force_figure(
     U = torch.as_tensor(u_op[None], dtype=torch.float32) if chart.n_u else None
     q_op = model.loaded_equilibrium(u=U).float() if U is not None else model.loaded_equilibrium().float()
     ft = ForceTransport.from_autoencoder(ae, chart)
-    body = robot_body(ft, q_op, _render(ae, chart, q_op.numpy(), chart.width)[0][0], sigma)
+    body = robot_body(ft, q_op, _render(ae, chart, q_op.numpy(), chart.width)[0], sigma)
     panels = force_panels(segments)
     half = 0.5 / max(1, segments)
 
@@ -295,8 +294,8 @@ def robot_force_figure(
     F *= displacement * body.length / max(max(moved), 1e-9)  # the response may be nonlinear: one more rescale
     q_eq, arrows, moved = panel_equilibria(model, ft, body, panels, q_op, U, F, sigma, half)
 
-    imgs, _ = _render(ae, chart, q_eq.numpy(), size)
-    rest = foreground(_render(ae, chart, q_op.numpy(), size)[0][0])
+    imgs = _render(ae, chart, q_eq.numpy(), size)
+    rest = foreground(_render(ae, chart, q_op.numpy(), size)[0])
     k = size / chart.width
     cols = 3
     rows = int(np.ceil(len(panels) / cols))
