@@ -168,11 +168,12 @@ def _load(a: Artifacts):
     return clip, chart, ae.eval(), model.eval()
 
 
-def _render(ae, chart, q: np.ndarray, size: int) -> np.ndarray:
-    """Decode chart states ``q [B,d]`` at ``size x size``: images ``[B,size,size,3]`` in [0, 1]."""
+def _render(ae, chart, q: np.ndarray, size: int | None = None) -> np.ndarray:
+    """Decode chart states ``q [B,d]`` at ``size x size`` (default: the recording's size): images ``[B,H,W,3]`` in [0, 1]."""
+    H, W = (chart.height, chart.width) if size is None else (size, size)
     with torch.no_grad():
         z = chart.to_raw(torch.as_tensor(np.asarray(q), dtype=torch.float32))
-        return ae.decoder(z, size, size).permute(0, 2, 3, 1).numpy()
+        return ae.decoder(z, H, W).permute(0, 2, 3, 1).numpy()
 
 
 def _save(fig, out: Path) -> None:
@@ -284,7 +285,7 @@ def robot_force_figure(
     U = torch.as_tensor(u_op[None], dtype=torch.float32) if chart.n_u else None
     q_op = model.loaded_equilibrium(u=U).float() if U is not None else model.loaded_equilibrium().float()
     ft = ForceTransport.from_autoencoder(ae, chart)
-    body = robot_body(ft, q_op, _render(ae, chart, q_op.numpy(), chart.width)[0], sigma)
+    body = robot_body(ft, q_op, _render(ae, chart, q_op.numpy())[0], sigma)
     panels = force_panels(segments)
     half = 0.5 / max(1, segments)
 
