@@ -99,7 +99,8 @@ def test_the_nearer_gaussian_covers_the_farther_one_whatever_their_index() -> No
     m2, c2, depth = project_gaussians(mu, (0.1**2 * torch.eye(3)).expand(1, 2, 3, 3), cam)
     colors = torch.tensor([[[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]])
     opac = torch.full((1, 2), 0.99)
+    unsorted = rasterize(m2, c2, opac, colors, 24, 24, backend="torch")[0, :, 12, 12]
     m2, c2, opac, colors, _ = depth_order(depth, m2, c2, opac, colors)
-    img = rasterize(m2, c2, opac, colors, 24, 24, backend="torch")
-    centre = img[0, :, 12, 12]
-    assert centre[0] > 0.9 and centre[2] < 0.05
+    centre = rasterize(m2, c2, opac, colors, 24, 24, backend="torch")[0, :, 12, 12]
+    assert unsorted[2] > 0.85  # in index order the far one would be drawn on top
+    assert centre[0] > 0.85 and centre[2] < 0.1
