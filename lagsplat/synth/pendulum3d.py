@@ -51,7 +51,7 @@ def _swing_axes() -> tuple[np.ndarray, np.ndarray]:
 def scene3d_xml(extra: list[Camera], width: int, height: int, fovy_deg: float) -> str:
     """MJCF of the scene with the main camera ``main`` and the extra cameras ``view0 ..`` (given in the
     convention of :mod:`lagsplat.render.camera`)."""
-    from lagsplat.synth.realistic.scene import _ROOM
+    from lagsplat.synth.realistic.scene import ROOM_XML
 
     _, n = _swing_axes()
     body = f"""
@@ -66,7 +66,7 @@ def scene3d_xml(extra: list[Camera], width: int, height: int, fovy_deg: float) -
         x, y = R[0], -R[1]  # MuJoCo's camera: x right, y up, looking along -z
         p = c.center
         cams.append(f'    <camera name="view{i}" pos="{p[0]:.6f} {p[1]:.6f} {p[2]:.6f}" xyaxes="{x[0]:.6f} {x[1]:.6f} {x[2]:.6f} {y[0]:.6f} {y[1]:.6f} {y[2]:.6f}" fovy="{fovy_deg:.4f}"/>')
-    room = _ROOM.replace("{dist}", "2.2").replace("{fovy}", f"{fovy_deg:.4f}").replace('<camera name="cam"', '<camera name="main"')
+    room = ROOM_XML.replace("{dist}", "2.2").replace("{fovy}", f"{fovy_deg:.4f}").replace('<camera name="cam"', '<camera name="main"')
     return "<mujoco>" + room.replace("{body}", body + "\n" + "\n".join(cams)) + "</mujoco>"
 
 
@@ -108,9 +108,9 @@ def render_views(q: np.ndarray, extra: list[Camera], width: int, height: int, fo
     """
     import os
 
-    from lagsplat.synth.realistic.camera import _mujoco
+    from lagsplat.synth.realistic.camera import import_mujoco
 
-    mujoco = _mujoco()
+    mujoco = import_mujoco()
     model = mujoco.MjModel.from_xml_string(scene3d_xml(extra, width, height, fovy_deg))
     model.vis.global_.offwidth, model.vis.global_.offheight = max(width, 640), max(height, 480)
     data = mujoco.MjData(model)

@@ -17,13 +17,18 @@ import numpy as np
 
 from lagsplat.synth.realistic.scene import qpos_of, scene_xml
 
-__all__ = ["render_frames", "add_camera_nuisances", "write_mp4"]
+__all__ = ["import_mujoco", "render_frames", "add_camera_nuisances", "write_mp4"]
 
 # MuJoCo picks its GL backend when it is first imported: offscreen EGL unless the user chose one
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 
-def _mujoco():
+def import_mujoco():
+    """The ``mujoco`` module (with ``MUJOCO_GL`` set as the module docstring says).
+
+    Raises:
+        ImportError: naming the optional dependency group to install.
+    """
     try:
         import mujoco
     except ImportError as exc:  # an optional dependency: pip install -e .[suite]
@@ -38,7 +43,7 @@ def render_frames(system: str, q: np.ndarray, width: int, height: int) -> np.nda
         ImportError: without MuJoCo.
         RuntimeError: naming the GL backend when no offscreen context can be made.
     """
-    mujoco = _mujoco()
+    mujoco = import_mujoco()
     model = mujoco.MjModel.from_xml_string(scene_xml(system, distance_m=2.2))
     model.vis.global_.offwidth, model.vis.global_.offheight = max(width, 640), max(height, 480)
     data = mujoco.MjData(model)

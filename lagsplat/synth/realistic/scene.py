@@ -13,7 +13,7 @@ Units: metres, radians. The view is :data:`VIEW_WIDTH_M` wide at the object's pl
 
 from __future__ import annotations
 
-__all__ = ["scene_xml", "VIEW_WIDTH_M", "ROD_M", "qpos_of"]
+__all__ = ["scene_xml", "VIEW_WIDTH_M", "ROD_M", "ROOM_XML", "qpos_of"]
 
 import numpy as np
 
@@ -23,7 +23,7 @@ VIEW_WIDTH_M = 1.6
 ROD_M = 0.5
 """Pendulum rod length, m (the double pendulum's rods are 0.3 m, :mod:`lagsplat.synth.realistic.motion`)."""
 
-_ROOM = """
+ROOM_XML = """
   <asset>
     <texture name="wall" type="2d" builtin="checker" rgb1="0.62 0.58 0.52" rgb2="0.42 0.40 0.37" width="256" height="256" mark="random" random="0.04" markrgb="0.8 0.8 0.8"/>
     <material name="wall" texture="wall" texrepeat="6 6" reflectance="0"/>
@@ -42,6 +42,8 @@ _ROOM = """
 {body}
   </worldbody>
 """
+"""The room of every scene (``{dist}``: camera distance, m; ``{fovy}``: its vertical field of view, degrees; ``{body}``:
+the moving system's MJCF); the camera is named ``cam``."""
 
 _BODIES = {
     "pendulum": """
@@ -93,7 +95,7 @@ def scene_xml(system: str, distance_m: float = 2.2) -> str:
         raise ValueError(f"unknown system {system!r}; known: {sorted(_BODIES)}")
     fovy = float(np.degrees(2 * np.arctan(0.5 * VIEW_WIDTH_M / distance_m)))
     body = _BODIES[system].replace("{rod}", f"{ROD_M:g}")
-    return "<mujoco>" + _ROOM.replace("{dist}", f"{distance_m:g}").replace("{fovy}", f"{fovy:.4f}").replace("{body}", body) + "</mujoco>"
+    return "<mujoco>" + ROOM_XML.replace("{dist}", f"{distance_m:g}").replace("{fovy}", f"{fovy:.4f}").replace("{body}", body) + "</mujoco>"
 
 
 def qpos_of(system: str, q: np.ndarray) -> np.ndarray:
