@@ -106,18 +106,10 @@ def render_views(q: np.ndarray, extra: list[Camera], width: int, height: int, fo
     Raises:
         ImportError: without MuJoCo. RuntimeError: when no offscreen GL context can be made.
     """
-    import os
-
-    from lagsplat.synth.realistic.camera import import_mujoco
+    from lagsplat.synth.realistic.camera import import_mujoco, offscreen
 
     mujoco = import_mujoco()
-    model = mujoco.MjModel.from_xml_string(scene3d_xml(extra, width, height, fovy_deg))
-    model.vis.global_.offwidth, model.vis.global_.offheight = max(width, 640), max(height, 480)
-    data = mujoco.MjData(model)
-    try:
-        renderer = mujoco.Renderer(model, height, width)
-    except Exception as exc:  # noqa: BLE001 - GL errors come in several types
-        raise RuntimeError(f"MuJoCo cannot render offscreen with MUJOCO_GL={os.environ.get('MUJOCO_GL')}: {exc}") from exc
+    model, data, renderer = offscreen(scene3d_xml(extra, width, height, fovy_deg), width, height)
     ids = [model.camera("main").id] + [model.camera(f"view{i}").id for i in range(len(extra))]
     T, M = len(q), len(extra)
     main = np.empty((T, height, width, 3), np.uint8)

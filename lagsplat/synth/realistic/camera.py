@@ -17,7 +17,7 @@ import numpy as np
 
 from lagsplat.synth.realistic.scene import qpos_of, scene_xml
 
-__all__ = ["import_mujoco", "render_frames", "add_camera_nuisances", "write_mp4"]
+__all__ = ["import_mujoco", "offscreen", "render_frames", "add_camera_nuisances", "write_mp4"]
 
 # MuJoCo picks its GL backend when it is first imported: offscreen EGL unless the user chose one
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -36,6 +36,24 @@ def import_mujoco():
     return mujoco
 
 
+def offscreen(xml: str, width: int, height: int):
+    """MuJoCo model, data and offscreen renderer of the scene ``xml`` at ``width x height``.
+
+    Raises:
+        ImportError: without MuJoCo.
+        RuntimeError: naming the GL backend when no offscreen context can be made.
+    """
+    mujoco = import_mujoco()
+    model = mujoco.MjModel.from_xml_string(xml)
+    model.vis.global_.offwidth, model.vis.global_.offheight = max(width, 640), max(height, 480)
+    data = mujoco.MjData(model)
+    try:
+        renderer = mujoco.Renderer(model, height, width)
+    except Exception as exc:  # noqa: BLE001 - GL errors come in several types
+        raise RuntimeError(f"MuJoCo cannot render offscreen with MUJOCO_GL={os.environ.get('MUJOCO_GL')}: {exc}") from exc
+    return model, data, renderer
+
+
 def render_frames(system: str, q: np.ndarray, width: int, height: int) -> np.ndarray:
     """Render ``q [T, d]`` (ground-truth coordinates) of ``system`` to uint8 RGB frames ``[T, height, width, 3]``.
 
@@ -44,13 +62,7 @@ def render_frames(system: str, q: np.ndarray, width: int, height: int) -> np.nda
         RuntimeError: naming the GL backend when no offscreen context can be made.
     """
     mujoco = import_mujoco()
-    model = mujoco.MjModel.from_xml_string(scene_xml(system, distance_m=2.2))
-    model.vis.global_.offwidth, model.vis.global_.offheight = max(width, 640), max(height, 480)
-    data = mujoco.MjData(model)
-    try:
-        renderer = mujoco.Renderer(model, height, width)
-    except Exception as exc:  # noqa: BLE001 - GL errors come in several types
-        raise RuntimeError(f"MuJoCo cannot render offscreen with MUJOCO_GL={os.environ.get('MUJOCO_GL')}: {exc}") from exc
+    model, data, renderer = offscreen(scene_xml(system, distance_m=2.2), width, height)
     out = np.empty((len(q), height, width, 3), np.uint8)
     cam = model.camera("cam").id
     try:
