@@ -48,7 +48,7 @@ def _swing_axes() -> tuple[np.ndarray, np.ndarray]:
     return d, np.cross(d, [0.0, 0.0, 1.0])
 
 
-def scene3d_xml(extra: list[Camera], width: int, height: int, fovy_deg: float) -> str:
+def scene3d_xml(extra: list[Camera], fovy_deg: float) -> str:
     """MJCF of the scene with the main camera ``main`` and the extra cameras ``view0 ..`` (given in the
     convention of :mod:`lagsplat.render.camera`)."""
     from lagsplat.synth.realistic.scene import ROOM_XML
@@ -109,7 +109,7 @@ def render_views(q: np.ndarray, extra: list[Camera], width: int, height: int, fo
     from lagsplat.synth.realistic.camera import import_mujoco, offscreen
 
     mujoco = import_mujoco()
-    model, data, renderer = offscreen(scene3d_xml(extra, width, height, fovy_deg), width, height)
+    model, data, renderer = offscreen(scene3d_xml(extra, fovy_deg), width, height)
     ids = [model.camera("main").id] + [model.camera(f"view{i}").id for i in range(len(extra))]
     T, M = len(q), len(extra)
     main = np.empty((T, height, width, 3), np.uint8)
