@@ -606,3 +606,35 @@ def test_exp_polynomial_is_within_one_ulp_on_the_cut_range() -> None:
     assert rel.max() < 2.0e-7  # float32 ulp at 1 is 1.19e-7
     assert run(np.array([0.0], np.float32))[0] == 1.0
     assert run(np.array([-50.0], np.float32))[0] == pytest.approx(math.exp(-4.5), rel=2e-7)  # clamped
+
+
+_GRAD_SCRIPT = """
+import sys, numpy as np, torch
+torch.manual_seed(0)
+from lagsplat.render.rasterize import rasterize
+B, K, H, W = 2, 300, 32, 32
+means = (torch.rand(B, K, 2) * 32).requires_grad_(True)
+A = torch.randn(K, 2, 2) * 1.5
+covs = (A @ A.transpose(-1, -2) + 0.5 * torch.eye(2)).requires_grad_(True)
+op = torch.rand(B, K).requires_grad_(True)
+col = torch.rand(B, K, 3).requires_grad_(True)
+rasterize(means, covs, op, col, H, W, backend="cpu").square().sum().backward()
+np.savez(sys.argv[1], *[t.grad.numpy() for t in (means, covs, op, col)])
+"""
+
+
+def test_freshly_compiled_and_cached_kernels_give_the_same_gradients(tmp_path) -> None:
+    # the first process compiles the kernels into an empty cache, the second loads them: a run on a fresh
+    # checkout must train exactly like every later run
+    pytest.importorskip("numba")
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    script = tmp_path / "grads.py"
+    script.write_text(_GRAD_SCRIPT)
+    for k in (1, 2):
+        subprocess.run([sys.executable, str(script), str(tmp_path / f"g{k}.npz")], env=env, check=True, timeout=600)
+    a, b = np.load(tmp_path / "g1.npz"), np.load(tmp_path / "g2.npz")
+    assert all(np.array_equal(a[k], b[k]) for k in a.files)

@@ -252,12 +252,12 @@ def backward_kernel(pairs, key_start, means, conic, opac, r2, colors, y0, y1, H,
             g_pair[p, 3] = g_cb
             g_pair[p, 4] = g_cc
             g_pair[p, 5] = g_o
-            for c in range(C):
-                gcc = go[c, i0:i1]
-                sc = _F0
+            for c in range(C):  # in float64: a product of two float32 is exact there, so the sum does not depend on
+                gcc = go[c, i0:i1]  # how the compiler fuses or vectorises it (fresh and cached kernels agree)
+                sc = 0.0
                 for i in range(m):
-                    sc += gcc[i] * wv[i]
-                g_pair[p, 6 + c] = sc
+                    sc += np.float64(gcc[i]) * np.float64(wv[i])
+                g_pair[p, 6 + c] = np.float32(sc)
 
 
 @njit(cache=True)
