@@ -268,8 +268,9 @@ def robot_force_figure(
     The operating pressure is the median of the training frames' actuation; its equilibrium (no force) is the
     rest envelope, drawn as a white dashed contour of the moving body's coverage in every panel. Each force is
     applied with the visible brush (radius ``sigma`` px) at a point along the body and pulled back through the
-    decoder Jacobian (paper Eq. 9); every force has one magnitude, set so that the largest displacement of an
-    application point over the panels is ``displacement`` of the body's length, and the arrows share one scale.
+    decoder Jacobian (paper Eq. 9); every force has one magnitude, aimed (two rescalings from the response to a
+    unit force) at a largest application-point displacement of ``displacement`` times the body's length (a model that
+    stiffens under load stays below it: ``displacement_px`` in the record is what it did), and the arrows share one scale.
 
     Returns:
         ``{"pressure", "force", "length_px", "panels": [{"caption", "q_eq", "displacement_px"}], "figure"}``,
