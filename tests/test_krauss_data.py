@@ -223,7 +223,7 @@ def test_systems_compose():
     ("synthetic", {"krauss_synth", "ingest", "stage1", "chart", "stage2", "stage2_variant", "evaluate", "evaluate_variant", "krauss_table"}),
 ])
 def test_snakemake_dry_run_shows_the_whole_chain(tmp_path, source, jobs):
-    r = _run(["snakemake", "-n", "--nolock", "-c1", f"{tmp_path}/res/tables/krauss.tex", "--config",
+    r = _run(["snakemake", "-n", "-p", "--nolock", "-c1", f"{tmp_path}/res/tables/krauss.tex", "--config",
               f"results_dir={tmp_path}/res", f"raw_dir={tmp_path}/raw", f"krauss_source={source}"])
     assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
     lines = r.stdout.splitlines()
@@ -234,6 +234,8 @@ def test_snakemake_dry_run_shows_the_whole_chain(tmp_path, source, jobs):
     for s in ("krauss_1seg", "krauss_2seg"):
         assert f"{tmp_path}/res/{s}{sfx}/metrics.json" in r.stdout
     assert f"{tmp_path}/res/krauss_2seg{sfx}/variants/mass_decoder/metrics.json" in r.stdout
+    # the table job runs in the two-segment configuration, so --config overrides for the robots compose there too
+    assert f"python -m lagsplat krauss_table system=krauss_2seg{sfx} " in r.stdout
 
 
 def test_snakemake_rejects_unknown_source(tmp_path):

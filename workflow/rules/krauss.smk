@@ -144,7 +144,9 @@ rule krauss_synth:
 
 rule krauss_table:
     """Paper Table 4: published rows (lagsplat/report/data/krauss_published.csv) and ours, plus the
-    two-segment inertia ablation (decoder-induced and constant M on the same frozen chart)."""
+    two-segment inertia ablation (decoder-induced and constant M on the same frozen chart). It runs in the
+    two-segment system's configuration, so that --config overrides written for the robots
+    (e.g. system.source.sha256=... for a local archive) compose here as they do in every other job."""
     input:
         f"{RESULTS}/{KRAUSS['1seg']}/metrics.json",
         f"{RESULTS}/{KRAUSS['2seg']}/metrics.json",
@@ -158,7 +160,7 @@ rule krauss_table:
     params:
         ablation=",".join(KRAUSS_ABLATION),
     shell:
-        f"python -m lagsplat krauss_table krauss_table.one_segment={KRAUSS['1seg']} krauss_table.two_segments={KRAUSS['2seg']} "
+        f"python -m lagsplat krauss_table system={KRAUSS['2seg']} krauss_table.one_segment={KRAUSS['1seg']} krauss_table.two_segments={KRAUSS['2seg']} "
         f"'krauss_table.ablation=[{{params.ablation}}]' results_dir={RESULTS} {OVR} > {{log}} 2>&1"
 
 
