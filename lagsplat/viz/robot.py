@@ -24,6 +24,7 @@ from lagsplat.dynamics.integrators import actuation_schedule, initial_state, rol
 from lagsplat.force import ForceTransport  # noqa: E402
 from lagsplat.io.atomic import atomic_write, write_json  # noqa: E402
 from lagsplat.io.clip import HELD_OUT, TRAIN  # noqa: E402
+from lagsplat.viz.rollout import visibility_basis  # noqa: E402
 
 __all__ = ["RobotBody", "foreground", "robot_body", "force_panels", "panel_equilibria", "robot_rollout_figure", "robot_force_figure"]
 
@@ -221,9 +222,7 @@ def robot_rollout_figure(a: Artifacts, out: Path, seconds: float = 30.0, size: i
         mp, me = ft.means(torch.as_tensor(pred[-1:], dtype=torch.float32))[0].numpy(), ft.means(qe)[0].numpy()
         w = ft.opacity(qe)[0].numpy() * (np.linalg.norm(ft.J.numpy().reshape(len(me), -1), axis=1) > 0)
     offset = float((np.linalg.norm(mp - me, axis=1) * w).sum() / max(w.sum(), 1e-12))
-    lam, V = np.linalg.eigh(0.5 * (chart.G_bar + chart.G_bar.T))
-    order = np.argsort(lam)[::-1]
-    share, V = lam[order] / lam.sum(), V[:, order]
+    share, V = visibility_basis(chart.G_bar)
     t = chart.t[s0 : s0 + n] - chart.t[s0]
     renders = _render(ae, chart, np.stack([q_s[-1], pred[-1]]), size)
 

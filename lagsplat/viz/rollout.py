@@ -17,7 +17,7 @@ from lagsplat.dynamics.integrators import actuation_schedule, initial_state, rol
 from lagsplat.io.atomic import atomic_write  # noqa: E402
 from lagsplat.io.clip import HELD_OUT  # noqa: E402
 
-__all__ = ["rollout_figure", "held_out_frequency", "metrics_line"]
+__all__ = ["rollout_figure", "held_out_frequency", "metrics_line", "visibility_basis"]
 
 
 def metrics_line(metrics: dict) -> str:
@@ -29,6 +29,14 @@ def metrics_line(metrics: dict) -> str:
         if isinstance(v, (int, float)) and np.isfinite(v):
             parts.append(fmt.format(v))
     return ", ".join(parts) + ("  (held-out frames)" if parts else "")
+
+
+def visibility_basis(G_bar: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenbasis of the visibility metric, most visible first: ``(share [d], V [d,d])``, ``share`` each
+    direction's part of ``trace G_bar`` and ``V[:, k]`` its unit direction (plot ``q @ V``)."""
+    lam, V = np.linalg.eigh(0.5 * (G_bar + G_bar.T))
+    order = np.argsort(lam)[::-1]
+    return lam[order] / lam.sum(), V[:, order]
 
 
 def held_out_frequency(metrics: dict) -> float:
@@ -98,11 +106,7 @@ def rollout_figure(artifacts: Artifacts | str | Path, title: str = "", provenanc
     pred, _ = rollout(model, q0, v0, dt, len(idx), u=actuation_schedule(chart.u[idx][None], dt))
     pred = pred[0].numpy()
 
-    G = 0.5 * (chart.G_bar + chart.G_bar.T)
-    lam, V = np.linalg.eigh(G)
-    order = np.argsort(lam)[::-1]
-    lam, V = lam[order], V[:, order]
-    share = lam / lam.sum()
+    share, V = visibility_basis(chart.G_bar)
     enc_c, pred_c = q_s @ V, pred @ V
     t = chart.t[idx]
 
