@@ -134,13 +134,18 @@ def orbit(target: Sequence[float], radius: float, elevation_deg: float, n: int, 
     return cams
 
 
-def project_points(X: Tensor, cam: Camera) -> tuple[Tensor, Tensor]:
-    """Pixel positions ``[...,2]`` and camera depths ``z_c [...]`` of world points ``X [...,3]``."""
+def _camera_space(X: Tensor, cam: Camera) -> tuple[Tensor, Tensor, Tensor]:
+    """Camera coordinates ``x_c [...,3]``, pixels ``[...,2]`` (depth clamped at :data:`NEAR`) and depths ``z_c [...]``."""
     R, t = cam.tensors(X.dtype)
     xc = X @ R.T + t
-    z = xc[..., 2]
-    zs = z.clamp_min(NEAR)
+    zs = xc[..., 2].clamp_min(NEAR)
     uv = torch.stack([cam.fx * xc[..., 0] / zs + cam.cx, cam.fy * xc[..., 1] / zs + cam.cy], -1)
+    return xc, uv, xc[..., 2]
+
+
+def project_points(X: Tensor, cam: Camera) -> tuple[Tensor, Tensor]:
+    """Pixel positions ``[...,2]`` and camera depths ``z_c [...]`` of world points ``X [...,3]``."""
+    _, uv, z = _camera_space(X, cam)
     return uv, z
 
 
@@ -156,16 +161,13 @@ def project_gaussians(mu: Tensor, cov: Tensor, cam: Camera) -> tuple[Tensor, Ten
         ``(means [...,2] px, covs [...,2,2] px^2, depth [...])``; a Gaussian behind the near plane has depth
         ``<= NEAR`` (cull it, e.g. with a zero opacity).
     """
-    R, t = cam.tensors(mu.dtype)
-    xc = mu @ R.T + t
-    z = xc[..., 2]
+    xc, uv, z = _camera_space(mu, cam)
     zs = z.clamp_min(NEAR)
     zero = torch.zeros_like(zs)
     J = torch.stack([torch.stack([cam.fx / zs, zero, -cam.fx * xc[..., 0] / zs**2], -1),
                      torch.stack([zero, cam.fy / zs, -cam.fy * xc[..., 1] / zs**2], -1)], -2)  # fmt: skip
-    T = J @ R
+    T = J @ cam.tensors(mu.dtype)[0]
     cov2 = T @ cov @ T.transpose(-1, -2)
-    uv = torch.stack([cam.fx * xc[..., 0] / zs + cam.cx, cam.fy * xc[..., 1] / zs + cam.cy], -1)
     return uv, 0.5 * (cov2 + cov2.transpose(-1, -2)), z
 
 

@@ -68,14 +68,16 @@ def _krauss_projection():
 
     files = {**_KREAL, **_KSYN}
     base = [f"raw_dir={RAW}", f"results_dir={RESULTS}", *shlex.split(OVR)]
-    jobs = []
+    cfgs, jobs = {}, []
     for j in workflow.dag.needrun_jobs():
         w = dict(j.wildcards)
         system = w.get("system") or files.get(w.get("file"))
         if system not in KRAUSS.values():
             continue
-        ovr = [f"system={system}", *base] + ([f"variant={w['variant']}"] if w.get("variant") else [])
-        jobs.append((j.rule.name, system, apply_variant(compose(ovr))))
+        key = (system, w.get("variant"))
+        if key not in cfgs:  # one composition per system and variant, not per job
+            cfgs[key] = apply_variant(compose([f"system={system}", *base] + ([f"variant={key[1]}"] if key[1] else [])))
+        jobs.append((j.rule.name, system, cfgs[key]))
     for line in projection_lines(project(jobs, workflow.resource_settings.cores or 1)):
         print(line, flush=True)
 
