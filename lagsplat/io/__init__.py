@@ -22,6 +22,7 @@ _EXPORTS = {
     "atomic_write": "atomic",
     "save_torch": "atomic",
     "write_json": "atomic",
+    "write_npz": "atomic",
     "Clip": "clip",
     "ClipError": "clip",
     "HELD_OUT": "clip",

@@ -9,7 +9,7 @@ import tempfile
 from pathlib import Path
 from typing import Any, Iterator
 
-__all__ = ["atomic_write", "write_json", "save_torch"]
+__all__ = ["atomic_write", "write_json", "write_npz", "save_torch"]
 
 
 @contextlib.contextmanager
@@ -54,6 +54,16 @@ def write_json(path: str | Path, obj: Any) -> Path:
     """Write ``obj`` as indented JSON, atomically. Returns the path."""
     with atomic_write(path) as tmp:
         tmp.write_text(json.dumps(obj, indent=2, sort_keys=False) + "\n")
+    return Path(path)
+
+
+def write_npz(path: str | Path, compressed: bool = True, **arrays: Any) -> Path:
+    """Write ``arrays`` as an ``.npz`` (``np.savez_compressed``, or ``np.savez``), atomically. Returns the path."""
+    import numpy as np
+
+    with atomic_write(path) as tmp:
+        with open(tmp, "wb") as fh:  # a file object: numpy must not append ".npz" to the temporary name
+            (np.savez_compressed if compressed else np.savez)(fh, **arrays)
     return Path(path)
 
 

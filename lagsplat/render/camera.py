@@ -184,12 +184,9 @@ def depth_order(depth: Tensor, *per_gaussian: Tensor) -> tuple[Tensor, ...]:
 
 def save_cameras(path: str | Path, cameras: Sequence[Camera]) -> Path:
     """Write cameras as a JSON list (module docstring), atomically."""
-    from lagsplat.io.atomic import atomic_write
+    from lagsplat.io.atomic import write_json
 
-    path = Path(path)
-    with atomic_write(path) as tmp:
-        tmp.write_text(json.dumps([c.to_dict() for c in cameras], indent=1))
-    return path
+    return write_json(path, [c.to_dict() for c in cameras])
 
 
 def load_cameras(path: str | Path) -> list[Camera]:

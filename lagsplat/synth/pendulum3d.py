@@ -19,7 +19,6 @@ Outputs of :func:`make_pendulum3d` (``<out>`` a path without suffix):
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
@@ -138,7 +137,7 @@ def make_pendulum3d(out: str | Path, fps: float = 30.0, duration_s: float = 12.0
     right of the main camera, at 10 degrees of elevation; every image gets the realistic suite's vignette and
     seeded sensor noise (``noise_std`` grey levels).
     """
-    from lagsplat.io.atomic import atomic_write
+    from lagsplat.io.atomic import write_json, write_npz
     from lagsplat.render.camera import look_at
     from lagsplat.synth.realistic.camera import add_camera_nuisances
 
@@ -158,15 +157,12 @@ def make_pendulum3d(out: str | Path, fps: float = 30.0, duration_s: float = 12.0
     main = add_camera_nuisances(main, noise_std, seed)
     views = np.stack([add_camera_nuisances(views[:, k], noise_std, seed + 1 + k) for k in range(views.shape[1])], 1) if n_views else views
     stem = out.with_suffix("")
-    for suffix, arrays in ((".npz", {"images": main, "t": m["t"]}), (".views.npz", {"images": views, "t": m["t"]}),
-                           (".truth.npz", {k: np.asarray(v) for k, v in m.items() if k != "t"} | {"t": m["t"]})):  # fmt: skip
-        with atomic_write(stem.with_suffix(suffix)) as tmp:
-            with open(tmp, "wb") as fh:
-                np.savez_compressed(fh, **arrays)
+    write_npz(stem.with_suffix(".npz"), images=main, t=m["t"])
+    write_npz(stem.with_suffix(".views.npz"), images=views, t=m["t"])
+    write_npz(stem.with_suffix(".truth.npz"), **{k: np.asarray(v) for k, v in m.items()})
     save_cameras(stem.with_suffix(".cameras.json"), cams)
-    with atomic_write(stem.with_suffix(".json")) as tmp:
-        tmp.write_text(json.dumps({"fps": fps, "duration_s": duration_s, "size": size, "n_views": n_views, "seed": seed, "oblique_deg": OBLIQUE_DEG,
-                                   "f0_hz": m["f0_hz"], "zeta": m["zeta"], "rod_m": ROD_M}, indent=1))  # fmt: skip
+    write_json(stem.with_suffix(".json"), {"fps": fps, "duration_s": duration_s, "size": size, "n_views": n_views, "seed": seed,
+                                           "oblique_deg": OBLIQUE_DEG, "f0_hz": m["f0_hz"], "zeta": m["zeta"], "rod_m": ROD_M})  # fmt: skip
     return stem.with_suffix(".npz")
 
 
