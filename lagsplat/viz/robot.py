@@ -29,6 +29,12 @@ from lagsplat.viz.rollout import visibility_basis  # noqa: E402
 __all__ = ["RobotBody", "foreground", "robot_body", "force_panels", "panel_equilibria", "robot_rollout_figure", "robot_force_figure"]
 
 
+def _principal_direction(points: np.ndarray) -> np.ndarray:
+    """Unit direction ``[2]`` of largest spread of ``points [P,2]`` (sign arbitrary)."""
+    x = points - points.mean(0)
+    return np.linalg.eigh(x.T @ x)[1][:, -1]
+
+
 @dataclass(frozen=True)
 class RobotBody:
     """The moving body at one state, read off the decoder's motion field (chart pixels).
@@ -38,7 +44,6 @@ class RobotBody:
         base, axis: ``[2]`` the clamped end (the end that moves least) and the unit direction from it to the free end.
         length: px, from the base to the free end along ``axis`` (2nd to 98th percentile of the projections).
         s: ``[P]`` each body pixel's position along the body, 0 at the base and 1 at the free end.
-        moving: ``[K]`` bool, the primitives whose Jacobian is at least a quarter of the largest.
     """
 
     pixels: np.ndarray
@@ -46,7 +51,6 @@ class RobotBody:
     axis: np.ndarray
     length: float
     s: np.ndarray
-    moving: np.ndarray
 
     def point(self, s: float) -> np.ndarray:
         """The point ``[2]`` (px) at ``s`` along the body: the mean of the body pixels nearest to ``s``."""
@@ -58,8 +62,7 @@ class RobotBody:
         near = np.abs(self.s - s) <= half_width
         if near.sum() < 3:
             return self.axis
-        x = self.pixels[near] - self.pixels[near].mean(0)
-        e = np.linalg.eigh(x.T @ x)[1][:, -1]
+        e = _principal_direction(self.pixels[near])
         return e if e @ self.axis >= 0 else -e
 
 
@@ -90,13 +93,12 @@ def robot_body(ft: ForceTransport, q: torch.Tensor, image: np.ndarray, sigma: fl
         raise ValueError(f"only {int(body.sum())} foreground pixels move: no body to apply forces to")
     px, m = grid[body], mag[body]
     c = px.mean(0)
-    axis = np.linalg.eigh((px - c).T @ (px - c))[1][:, -1]
+    axis = _principal_direction(px)
     proj = (px - c) @ axis
     lo, hi = np.percentile(proj, [2, 98])
     if m[proj <= np.percentile(proj, 25)].mean() > m[proj >= np.percentile(proj, 75)].mean():  # the clamped end moves least
         axis, proj, (lo, hi) = -axis, -proj, (-hi, -lo)
-    Jn = np.linalg.norm(ft.J.double().numpy().reshape(ft.J.shape[0], -1), axis=1)
-    return RobotBody(pixels=px, base=c + lo * axis, axis=axis, length=float(hi - lo), s=(proj - lo) / max(hi - lo, 1e-9), moving=Jn >= 0.25 * Jn.max())
+    return RobotBody(pixels=px, base=c + lo * axis, axis=axis, length=float(hi - lo), s=(proj - lo) / max(hi - lo, 1e-9))
 
 
 def force_panels(segments: int) -> list[tuple[str, list[tuple[float, str, float]]]]:
@@ -265,7 +267,7 @@ def robot_force_figure(
     """Loaded equilibria at one operating pressure under the panels of :func:`force_panels` (paper Fig. krauss-force).
 
     The operating pressure is the median of the training frames' actuation; its equilibrium (no force) is the
-    rest envelope, drawn as a white dashed contour of the moving body's coverage in every panel. Each force is
+    rest envelope, drawn in every panel as a white dashed contour of the decoded unloaded image's foreground (:func:`foreground`). Each force is
     applied with the visible brush (radius ``sigma`` px) at a point along the body and pulled back through the
     decoder Jacobian (paper Eq. 9); every force has one magnitude, aimed (two rescalings from the response to a
     unit force) at a largest application-point displacement of ``displacement`` times the body's length (a model that
