@@ -88,14 +88,14 @@ def latent_gate(z: Tensor, mu_q: Tensor, L_qq: Tensor, L_qq_inv: Tensor | None =
 
 @dataclass
 class DecoderGeometry:
-    """The decoder's state-independent geometry, in normalised image units.
+    """The decoder's state-independent geometry (normalised image units in 2-D, world units in 3-D).
 
     Attributes:
-        mu_s: ``[K,2]`` spatial means.
+        mu_s: ``[K,n]`` spatial means (``n = n_space``: normalised image units for 2, world units for 3).
         mu_q: ``[K,d]`` latent means.
         L_qq: ``[K,d,d]`` lower-triangular latent Cholesky block.
-        J: ``[K,2,d]`` constant Jacobians ``d mu_k / d q`` (paper Eq. 9).
-        cov: ``[K,2,2]`` conditional (rendered) covariances (paper Eq. 3).
+        J: ``[K,n,d]`` constant Jacobians ``d mu_k / d q`` (paper Eq. 9).
+        cov: ``[K,n,n]`` conditional (rendered) covariances (paper Eq. 3).
         alpha: ``[K]`` base opacities in (0, 1).
         colors: ``[K,3]`` RGB in (0, 1).
         L_qq_inv: ``[K,d,d]`` inverse of ``L_qq`` (:func:`tril_inverse`).
@@ -128,6 +128,8 @@ class ConditionedGaussians(nn.Module):
     """
 
     kind = "conditioned"
+    n_space = 2
+    """Spatial dimension ``n`` of the primitives (2: the image plane; 3: world space, :mod:`lagsplat.models.decoder3d`)."""
 
     def __init__(
         self,
@@ -141,11 +143,11 @@ class ConditionedGaussians(nn.Module):
             raise ValueError(f"need n_gaussians >= 1 and d >= 1, got {n_gaussians}, {d}")
         self.K, self.d, self.backend = int(n_gaussians), int(d), backend
         self.latent_block = self.d
-        n = 2 + d
+        n = self.n_space + d
         self.register_buffer("tril_i", torch.tril_indices(n, n)[0], persistent=False)
         self.register_buffer("tril_j", torch.tril_indices(n, n)[1], persistent=False)
         self.register_buffer("background", torch.tensor(background, dtype=torch.float32))
-        self.mu_raw = nn.Parameter(torch.zeros(self.K, 2))
+        self.mu_raw = nn.Parameter(torch.zeros(self.K, self.n_space))
         self.mu_q = nn.Parameter(torch.zeros(self.K, d))
         self.L_raw = nn.Parameter(torch.zeros(self.K, n * (n + 1) // 2))
         self.logit_alpha = nn.Parameter(torch.zeros(self.K))
@@ -160,9 +162,18 @@ class ConditionedGaussians(nn.Module):
         return [p for n, p in self.named_parameters() if "." not in n]
 
     # ---------------------------------------------------------------- geometry
+    def spatial_mean(self, raw: Tensor) -> Tensor:
+        """Spatial means ``[...,n]`` of raw parameters: ``1.2 sigmoid(raw) - 0.1`` (normalised image units,
+        a margin of 0.1 outside the frame)."""
+        return 1.2 * torch.sigmoid(raw) - 0.1
+
+    def spatial_raw(self, mu_s: Tensor) -> Tensor:
+        """Inverse of :meth:`spatial_mean` (means clamped into its range)."""
+        return torch.logit(((mu_s + 0.1) / 1.2).clamp(0.01, 0.99))
+
     def cholesky(self) -> Tensor:
-        """Full lower-triangular factor ``L`` in (q, s) order, ``[K, 2+d, 2+d]``."""
-        n = 2 + self.d
+        """Full lower-triangular factor ``L`` in (q, s) order, ``[K, n+d, n+d]``."""
+        n = self.n_space + self.d
         vals = self.L_raw
         diag = self.tril_i == self.tril_j
         vals = torch.where(diag, F.softplus(vals) + DIAG_FLOOR, vals)
@@ -171,7 +182,7 @@ class ConditionedGaussians(nn.Module):
         return L
 
     def covariance(self) -> Tensor:
-        """Full covariance ``Sigma = L L^T`` in (q, s) order, ``[K, 2+d, 2+d]``."""
+        """Full covariance ``Sigma = L L^T`` in (q, s) order, ``[K, n+d, n+d]``."""
         L = self.cholesky()
         return L @ L.transpose(-1, -2)
 
@@ -183,7 +194,7 @@ class ConditionedGaussians(nn.Module):
         L_qq_inv = tril_inverse(L_qq)
         J = L_sq @ L_qq_inv  # J = Sigma_sq Sigma_qq^-1 = L_sq L_qq^-1
         return DecoderGeometry(
-            mu_s=1.2 * torch.sigmoid(self.mu_raw) - 0.1,
+            mu_s=self.spatial_mean(self.mu_raw),
             mu_q=self.mu_q,
             L_qq=L_qq,
             J=J,
@@ -304,6 +315,16 @@ class ConditionedGaussians(nn.Module):
         return self.render(z, height, width, extra=(J_px * q_std.reshape(1, 1, -1)).reshape(self.K, -1))
 
     # ----------------------------------------------------------- initialisation
+    def spatial_sigma(self, sigma_xy: float) -> float:
+        """A spatial extent given in normalised image units (``stage1.sigma_xy``) in this decoder's spatial units
+        (the same here; world units in 3-D)."""
+        return float(sigma_xy)
+
+    def placement_raw(self, idx: Tensor, height: int, width: int, generator: torch.Generator | None = None) -> Tensor:
+        """Raw spatial parameters ``[n, n_space]`` of new primitives at the pixels of flat indices ``idx`` of the
+        training view (here the pixel centres themselves; ``generator`` unused)."""
+        return self._raw_positions(idx, height, width)
+
     @staticmethod
     def _raw_positions(idx: Tensor, height: int, width: int) -> Tensor:
         """Raw spatial parameters ``[n,2]`` placing primitives at the centres of flat pixel indices ``idx``."""
@@ -311,11 +332,12 @@ class ConditionedGaussians(nn.Module):
         return torch.logit(((pos + 0.1) / 1.2).clamp(0.01, 0.99))
 
     def _raw_diagonal(self, sigma_q: Tensor, sigma_xy: float, n: int) -> Tensor:
-        """Raw Cholesky entries ``[n, (2+d)(3+d)/2]`` of a diagonal factor (latent stds ``sigma_q [d]``, spatial ``sigma_xy``)."""
-        m = 2 + self.d
+        """Raw Cholesky entries ``[n, m(m+1)/2]`` (``m = n_space + d``) of a diagonal factor (latent stds ``sigma_q [d]``,
+        spatial ``sigma_xy``)."""
+        m = self.n_space + self.d
         raw = torch.zeros(n, m * (m + 1) // 2)
         is_diag = (self.tril_i == self.tril_j).cpu()
-        raw[:, is_diag] = inverse_softplus(torch.cat([sigma_q, torch.full((2,), sigma_xy)]) - DIAG_FLOOR)
+        raw[:, is_diag] = inverse_softplus(torch.cat([sigma_q, torch.full((self.n_space,), sigma_xy)]) - DIAG_FLOOR)
         return raw
 
     @torch.no_grad()
@@ -340,7 +362,7 @@ class ConditionedGaussians(nn.Module):
         Args:
             frame: ``[3,H,W]`` image in [0, 1].
             z: ``[N,d]`` encodings of the training frames by the initial encoder.
-            sigma_xy: spatial standard deviation, normalised units.
+            sigma_xy: spatial standard deviation, in the decoder's spatial units (:meth:`spatial_sigma`).
             sigma_q_floor: lower bound of the latent standard deviation.
             generator: RNG for reproducibility.
             prob: ``[H*W]`` unnormalised placement probability, or ``None``.
@@ -351,7 +373,7 @@ class ConditionedGaussians(nn.Module):
 
             prob = placement_probability(frame)
         idx = torch.multinomial(prob, self.K, replacement=self.K > H * W, generator=generator)
-        self.mu_raw.copy_(self._raw_positions(idx, H, W))
+        self.mu_raw.copy_(self.placement_raw(idx, H, W, generator))
         mean, std = z.mean(0), z.std(0).clamp_min(1e-3)
         self.mu_q.copy_(mean + std * torch.randn(self.K, self.d, generator=generator))
         sigma_q = torch.clamp(std.max(), min=sigma_q_floor).repeat(self.d)
@@ -393,7 +415,7 @@ class ConditionedGaussians(nn.Module):
         err = (rendered - frame).abs().mean(0).flatten()
         prob = err if float(err.sum()) > 1e-10 else torch.ones_like(err)
         idx = torch.multinomial(prob, n_dead, replacement=True, generator=generator)
-        self.mu_raw[dead] = self._raw_positions(idx, H, W).to(dev)
+        self.mu_raw[dead] = self.placement_raw(idx, H, W, generator).to(dev)
         self.mu_q[dead] = z_frame.expand(n_dead, -1).to(dev)
         self.L_raw[dead] = self._raw_diagonal(z_std.clamp_min(1e-3), sigma_xy, n_dead).to(dev)
         self.logit_color[dead] = torch.logit(frame[:, idx // W, idx % W].T.clamp(0.01, 0.99)).to(dev)

@@ -46,6 +46,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from lagsplat.models.decoder import DIAG_FLOOR, ConditionedGaussians, DecoderGeometry, inverse_softplus
+from lagsplat.models.decoder3d import ConditionedGaussians3D
 from lagsplat.render.rasterize import Backend
 
 __all__ = ["DeformationGaussians", "DECODERS", "build_decoder"]
@@ -124,7 +125,7 @@ class DeformationGaussians(ConditionedGaussians):
         """
         L = self.cholesky()
         return DecoderGeometry(
-            mu_s=1.2 * torch.sigmoid(self.mu_raw) - 0.1,
+            mu_s=self.spatial_mean(self.mu_raw),
             mu_q=self.mu_q,
             L_qq=L.new_zeros(self.K, 0, 0),
             J=L.new_full((self.K, 2, self.d), math.nan),
@@ -284,14 +285,17 @@ class DeformationGaussians(ConditionedGaussians):
         self.logit_alpha[dead] = -3.0
 
 
-DECODERS: dict[str, type[ConditionedGaussians]] = {"conditioned": ConditionedGaussians, "deformation": DeformationGaussians}
-"""Decoder families by the name ``stage1.decoder`` selects (paper §3.2 and App. B)."""
+DECODERS: dict[str, type[ConditionedGaussians]] = {"conditioned": ConditionedGaussians, "deformation": DeformationGaussians,
+                                                   "conditioned3d": ConditionedGaussians3D}  # fmt: skip
+"""Decoder families by the name ``stage1.decoder`` selects (paper §3.2 and App. B; ``conditioned3d``: §3.2 with
+``n = 3``, :mod:`lagsplat.models.decoder3d`)."""
 
 
 def build_decoder(
     kind: str, n_gaussians: int, d: int, backend: Backend = "auto", background=(0.0, 0.0, 0.0), **options
 ) -> ConditionedGaussians:
-    """A decoder of family ``kind`` (:data:`DECODERS`); ``options`` go to the deformation decoder only.
+    """A decoder of family ``kind`` (:data:`DECODERS`); ``options`` go to the deformation decoder
+    (``hidden``, ``n_freqs``) and the 3-D decoder (``camera``, ``depth_range``).
 
     Raises:
         ValueError: for an unknown ``kind`` (naming the known ones).
@@ -300,4 +304,8 @@ def build_decoder(
         raise ValueError(f"unknown decoder {kind!r}; expected one of {sorted(DECODERS)} (stage1.decoder)")
     if kind == "conditioned":
         return ConditionedGaussians(n_gaussians, d, backend=backend, background=tuple(background))
+    if kind == "conditioned3d":
+        if "camera" not in options:
+            raise ValueError("the 3-D decoder needs the main camera (decoder option 'camera'; a 3-D system's views give it)")
+        return ConditionedGaussians3D(n_gaussians, d, backend=backend, background=tuple(background), **options)
     return DeformationGaussians(n_gaussians, d, backend=backend, background=tuple(background), **options)

@@ -10,7 +10,7 @@ the background. Two moves of paper App. C keep primitives on what moves:
   primitives in proportion to how much it changes, not to its area;
 * :func:`split_overloaded`: the paper's other recycling move, missing from the
   reference code: an overloaded alive Gaussian is split in two along the
-  principal eigenvector of its full ``(2 + d)``-D covariance (in units of the
+  principal eigenvector of its full ``(n + d)``-D covariance (in units of the
   initial extents). A primitive stretched along the latent axis (one Gaussian
   drawing the object over the whole range of ``q``) becomes two, each over
   half the range with its own linear motion, so that a rotation or any curved
@@ -54,15 +54,15 @@ def placement_probability(frame: Tensor, motion_std: Tensor | None = None, w_mot
 
 
 def _scales(dec: ConditionedGaussians, z_std: Tensor, sigma_xy: float) -> Tensor:
-    """``[2+d]`` units of the (q, s) coordinates: the latent spread and the initial spatial extent
+    """``[n+d]`` units of the (q, s) coordinates: the latent spread and the initial spatial extent
     (``[2]``, spatial only, for a decoder without a latent block, ``dec.latent_block = 0``)."""
     z_std = z_std[: dec.latent_block]
-    return torch.cat([z_std.clamp_min(1e-3), torch.full((2,), float(sigma_xy))]).to(dec.mu_raw)
+    return torch.cat([z_std.clamp_min(1e-3), torch.full((dec.n_space,), float(sigma_xy))]).to(dec.mu_raw)
 
 
 @torch.no_grad()
 def overload(dec: ConditionedGaussians, z_std: Tensor, sigma_xy: float) -> tuple[Tensor, Tensor]:
-    """How overloaded each primitive is: ``(score [K], principal eigenvector [K,2+d])``.
+    """How overloaded each primitive is: ``(score [K], principal eigenvector [K,n+d])``.
 
     The score is ``alpha * lambda_max`` of the covariance in units of
     :func:`_scales` (``D^-1 Sigma D^-1``): an opaque primitive stretched far
@@ -109,17 +109,16 @@ def split_overloaded(dec: ConditionedGaussians, dead: Tensor, z_std: Tensor, sig
     cov = dec.covariance()[parents]
     half = 0.5 * e[parents]  # (q, s) order
     new_cov = cov - 0.75 * (2 * half)[:, :, None] * (2 * half)[:, None, :]
-    n_dim = 2 + d
+    n_dim = dec.n_space + d
     new_cov = 0.5 * (new_cov + new_cov.transpose(1, 2)) + 1e-9 * torch.eye(n_dim, dtype=cov.dtype)
     L = torch.linalg.cholesky(new_cov)
     raw = L[:, dec.tril_i, dec.tril_j]
     diag = dec.tril_i == dec.tril_j
     raw[:, diag] = inverse_softplus((raw[:, diag] - DIAG_FLOOR).clamp_min(1e-6))
-    mu_s = 1.2 * torch.sigmoid(dec.mu_raw[parents]) - 0.1
+    mu_s = dec.spatial_mean(dec.mu_raw[parents])
     for sign, rows in ((1.0, children), (-1.0, parents)):
         dec.mu_q[rows] = dec.mu_q[parents] + sign * half[:, :d]
-        s = ((mu_s + sign * half[:, d:] + 0.1) / 1.2).clamp(0.01, 0.99)
-        dec.mu_raw[rows] = torch.logit(s)
+        dec.mu_raw[rows] = dec.spatial_raw(mu_s + sign * half[:, d:])
         dec.L_raw[rows] = raw
     dec.logit_color[children] = dec.logit_color[parents]
     dec.logit_alpha[children] = dec.logit_alpha[parents]

@@ -28,7 +28,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-__all__ = ["Camera", "look_at", "orbit", "project_points", "project_gaussians", "depth_order", "save_cameras", "load_cameras"]
+__all__ = ["Camera", "look_at", "orbit", "orbit_through", "project_points", "project_gaussians", "depth_order", "save_cameras", "load_cameras"]
 
 #: Points closer than this to the camera plane (world units along z) are culled (their projection is unstable).
 NEAR = 1e-3
@@ -77,6 +77,19 @@ class Camera:
         """``(R [3,3], t [3])`` as tensors."""
         return torch.as_tensor(self.R, dtype=dtype), torch.as_tensor(self.t, dtype=dtype)
 
+    def resized(self, width: int, height: int) -> "Camera":
+        """The same camera imaging ``width x height`` px (intrinsics scaled per axis; the identity at its own size)."""
+        if (int(width), int(height)) == (self.width, self.height):
+            return self
+        sx, sy = width / self.width, height / self.height
+        return Camera(int(width), int(height), self.fx * sx, self.fy * sy, self.cx * sx, self.cy * sy, self.R, self.t)
+
+    def unproject(self, uv: Tensor, depth: Tensor) -> Tensor:
+        """World points ``[...,3]`` seen at pixels ``uv [...,2]`` at camera depths ``depth [...]`` (world units along z)."""
+        R, t = self.tensors(uv.dtype)
+        xc = torch.stack([(uv[..., 0] - self.cx) / self.fx * depth, (uv[..., 1] - self.cy) / self.fy * depth, depth], -1)
+        return (xc - t) @ R
+
     def to_dict(self) -> dict:
         """The JSON record of this camera (module docstring)."""
         return {"width": int(self.width), "height": int(self.height), "fx": float(self.fx), "fy": float(self.fy), "cx": float(self.cx),
@@ -119,12 +132,7 @@ def orbit(target: Sequence[float], radius: float, elevation_deg: float, n: int, 
     """``n`` cameras evenly spaced in azimuth on a circle of ``radius`` around ``target`` (about the ``up`` axis),
     raised by ``elevation_deg``, all looking at ``target``. The default ``up`` is world ``-y`` (a scene in the
     main camera's frame, y down). Azimuth 0 puts the camera on the world ``-z`` side of the target."""
-    up_v = np.asarray(up, float) / np.linalg.norm(up)
-    ref = np.array([0.0, 0.0, -1.0]) - up_v * -up_v[2]  # world -z, made perpendicular to up
-    if np.linalg.norm(ref) < 1e-9:
-        ref = np.array([1.0, 0.0, 0.0]) - up_v * up_v[0]
-    ref /= np.linalg.norm(ref)
-    side = np.cross(up_v, ref)
+    up_v, ref, side = _orbit_basis(up)
     el = math.radians(elevation_deg)
     cams = []
     for k in range(n):
@@ -132,6 +140,31 @@ def orbit(target: Sequence[float], radius: float, elevation_deg: float, n: int, 
         d = math.cos(el) * (math.cos(az) * ref + math.sin(az) * side) + math.sin(el) * up_v
         cams.append(look_at(np.asarray(target, float) + radius * d, target, up_v, width, height, fov_y_deg))
     return cams
+
+
+def _orbit_basis(up: Sequence[float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(up, ref, side)``: unit ``up``, azimuth 0 (world ``-z`` made perpendicular to ``up``, or ``+x``) and azimuth 90 degrees."""
+    up_v = np.asarray(up, float) / np.linalg.norm(up)
+    ref = np.array([0.0, 0.0, -1.0]) - up_v * -up_v[2]  # world -z, made perpendicular to up
+    if np.linalg.norm(ref) < 1e-9:
+        ref = np.array([1.0, 0.0, 0.0]) - up_v * up_v[0]
+    ref /= np.linalg.norm(ref)
+    return up_v, ref, np.cross(up_v, ref)
+
+
+def orbit_through(camera: Camera, target: Sequence[float], n: int, width: int | None = None, height: int | None = None) -> list[Camera]:
+    """``n`` cameras on the orbit around ``target`` that passes through ``camera`` (its distance, elevation and field
+    of view; up is the camera's image up), the first one at ``camera``'s own azimuth (:func:`orbit`)."""
+    R = np.asarray(camera.R, float)
+    up = -R[1]  # image y points down
+    up_v, ref, side = _orbit_basis(up)
+    offset = camera.center - np.asarray(target, float)
+    radius = float(np.linalg.norm(offset))
+    el = math.degrees(math.asin(float(np.clip(offset @ up_v / radius, -1.0, 1.0))))
+    az0 = math.degrees(math.atan2(float(offset @ side), float(offset @ ref)))
+    w, h = width or camera.width, height or camera.height
+    fov = math.degrees(2 * math.atan(0.5 * camera.height / camera.fy))
+    return orbit(target, radius, el, n, w, h, up_v, fov, az0)
 
 
 def _camera_space(X: Tensor, cam: Camera) -> tuple[Tensor, Tensor, Tensor]:

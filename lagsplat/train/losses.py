@@ -81,7 +81,8 @@ def anisotropy_penalty(decoder: ConditionedGaussians, height: int, width: int, m
 
     Mean over primitives of ``max(0, log r - log max_ratio)``, with ``r`` the
     axis ratio ``sqrt(lambda_max / lambda_min)`` of the *marginal* spatial block
-    ``Sigma_ss`` in pixel units (so the cap means the same on non-square images).
+    ``Sigma_ss`` in pixel units (so the cap means the same on non-square images); for 3-D primitives
+    (world units, :mod:`lagsplat.models.decoder3d`) the ratio of the largest to the smallest of the three axes.
 
     Returns:
         Scalar tensor.
@@ -89,12 +90,17 @@ def anisotropy_penalty(decoder: ConditionedGaussians, height: int, width: int, m
     d = decoder.latent_block  # 0 for the deformation decoder: its Cholesky factor is the spatial one
     L = decoder.cholesky()
     L_s = L[:, d:, :]  # rows of the spatial coordinates: Sigma_ss = L_s L_s^T
-    scale = L.new_tensor([float(width), float(height)])
-    S = (L_s @ L_s.transpose(-1, -2)) * scale[None, :, None] * scale[None, None, :]
-    a, b, c = S[:, 0, 0], S[:, 0, 1], S[:, 1, 1]
-    m = 0.5 * (a + c)
-    p = torch.sqrt((0.5 * (a - c)) ** 2 + b * b + 1e-20)
-    lam_max, lam_min = m + p, (m - p).clamp_min(1e-8)
+    S = L_s @ L_s.transpose(-1, -2)
+    if S.shape[-1] == 2:
+        scale = L.new_tensor([float(width), float(height)])
+        S = S * scale[None, :, None] * scale[None, None, :]
+        a, b, c = S[:, 0, 0], S[:, 0, 1], S[:, 1, 1]
+        m = 0.5 * (a + c)
+        p = torch.sqrt((0.5 * (a - c)) ** 2 + b * b + 1e-20)
+        lam_max, lam_min = m + p, (m - p).clamp_min(1e-8)
+    else:
+        lam = torch.linalg.eigvalsh(S)
+        lam_max, lam_min = lam[:, -1], lam[:, 0].clamp_min(1e-12)
     log_r = 0.5 * torch.log(lam_max / lam_min)
     return torch.relu(log_r - math.log(max_ratio)).mean()
 

@@ -1,0 +1,159 @@
+"""The conditioned-Gaussian decoder in three dimensions: ``(3 + d)``-D primitives seen through pinhole cameras.
+
+The same family as :class:`lagsplat.models.decoder.ConditionedGaussians` with a spatial block of three
+world coordinates (paper §3.2 with ``n = 3``; App. C reconstructs the rocker this way under multi-view
+supervision). Slicing a primitive at the state ``z`` is unchanged (Schur conditioning, paper Eq. 2 and 3:
+``mu_k(z) = mu_s + J_k (z - mu_q)`` with ``J_k [3,d]`` in world units per latent unit, and a state-independent
+``[3,3]`` covariance; the latent gate of Eq. 4). Rendering then projects every conditioned Gaussian through a
+camera (:func:`lagsplat.render.camera.project_gaussians`, EWA: ``Sigma_2D = J W Sigma_3D W^T J^T``), sorts
+them front to back per state (:func:`~lagsplat.render.camera.depth_order`) and composites them with the 2-D
+rasteriser of :mod:`lagsplat.render.rasterize`. A primitive behind the camera's near plane is not drawn.
+
+The decoder holds its *main* camera, the one the clip was filmed with: ``forward(z, H, W)`` renders there, so
+the encoder, the chart and everything downstream of Stage 1 read it exactly like the 2-D decoder. Any other
+camera is passed to :meth:`ConditionedGaussians3D.render` (cached novel views in Stage 1, novel-view renders).
+World units are those of the cameras' extrinsics (metres for a calibrated rig).
+"""
+
+from __future__ import annotations
+
+from typing import Mapping, Sequence
+
+import torch
+from torch import Tensor
+
+from lagsplat.models.decoder import ConditionedGaussians, DecoderGeometry
+from lagsplat.render.camera import NEAR, Camera, depth_order, project_gaussians
+from lagsplat.render.rasterize import Backend, rasterize
+
+__all__ = ["ConditionedGaussians3D"]
+
+
+class ConditionedGaussians3D(ConditionedGaussians):
+    """Decoder: ``K`` Gaussians in ``(3 + d)``-D world--state space, rendered through pinhole cameras.
+
+    Args:
+        n_gaussians, d, backend, background: as :class:`~lagsplat.models.decoder.ConditionedGaussians`.
+        camera: the main camera (a :class:`~lagsplat.render.camera.Camera` or its JSON record).
+        depth_range: ``(near, far)`` depths along the main camera's axis (world units) between which new
+            primitives are placed on the rays of their pixels (initialisation and recycling).
+
+    Raises:
+        ValueError: for a depth range that is not ``0 < near <= far``, or a malformed camera record.
+    """
+
+    kind = "conditioned3d"
+    n_space = 3
+
+    def __init__(
+        self,
+        n_gaussians: int,
+        d: int,
+        camera: Camera | Mapping,
+        depth_range: Sequence[float] = (1.0, 3.0),
+        backend: Backend = "auto",
+        background: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    ) -> None:
+        super().__init__(n_gaussians, d, backend, background)
+        self.camera = camera if isinstance(camera, Camera) else Camera.from_dict(dict(camera))
+        near, far = (float(v) for v in depth_range)
+        if not 0.0 < near <= far:
+            raise ValueError(f"depth_range must satisfy 0 < near <= far, got {tuple(depth_range)}")
+        self.depth_range = (near, far)
+
+    def options(self) -> dict:
+        """Constructor keywords beyond ``(K, d, backend, background)``, saved in ``stage1.pt``."""
+        return {"camera": self.camera.to_dict(), "depth_range": list(self.depth_range)}
+
+    # ---------------------------------------------------------------- geometry
+    def spatial_mean(self, raw: Tensor) -> Tensor:
+        """World means are the raw parameters themselves (world units)."""
+        return raw
+
+    def spatial_raw(self, mu_s: Tensor) -> Tensor:
+        """Inverse of :meth:`spatial_mean` (the identity)."""
+        return mu_s
+
+    def spatial_sigma(self, sigma_xy: float) -> float:
+        """``sigma_xy`` (a fraction of the image width) in world units at the middle of the depth range."""
+        return float(sigma_xy) * self.camera.width * 0.5 * sum(self.depth_range) / self.camera.fx
+
+    def placement_raw(self, idx: Tensor, height: int, width: int, generator: torch.Generator | None = None) -> Tensor:
+        """World points ``[n,3]`` on the main camera's rays through the pixels ``idx`` (flat, of a
+        ``height x width`` image), at depths drawn uniformly in ``depth_range``."""
+        cam = self.camera.resized(width, height)
+        uv = torch.stack([(idx % width).float() + 0.5, (idx // width).float() + 0.5], -1)
+        near, far = self.depth_range
+        depth = near + (far - near) * torch.rand(len(idx), generator=generator)
+        return cam.unproject(uv, depth)
+
+    def pixel_geometry(self, height: int, width: int, geom: DecoderGeometry | None = None) -> tuple[Tensor, Tensor]:
+        """Not defined in 3-D: a primitive's image-plane Jacobian depends on the camera and the state.
+
+        Raises:
+            NotImplementedError: always; read :meth:`geometry` (world units) or project through a camera.
+        """
+        raise NotImplementedError("the 3-D decoder has no constant pixel Jacobians; use geometry() (world units) and a camera")
+
+    def render_motion(self, z: Tensor, height: int, width: int, q_std: Tensor) -> tuple[Tensor, Tensor]:
+        """Not defined in 3-D (the static-pixel prior, ``stage1.w_static``, is a 2-D prior).
+
+        Raises:
+            NotImplementedError: always.
+        """
+        raise NotImplementedError("the 3-D decoder has no image-plane motion field; set stage1.w_static=0")
+
+    @torch.no_grad()
+    def chart_kinematics(self, W_inv, mean, height: int, width: int) -> tuple[Tensor, Tensor]:
+        """Affine primitive motion in a whitened chart, in world units: ``mu_i(q) = c_i + J_i q``.
+
+        As :meth:`ConditionedGaussians.chart_kinematics` (paper Eq. 9) with ``c [K,3]``, ``J [K,3,d]`` in world
+        units (``height``, ``width`` unused): the Jacobians that carry world-space forces and the
+        decoder-induced inertia.
+        """
+        g = self.geometry()
+        W_inv = torch.as_tensor(W_inv, dtype=torch.float32)
+        mean = torch.as_tensor(mean, dtype=torch.float32)
+        c = g.mu_s + torch.einsum("kij,kj->ki", g.J, mean[None] - g.mu_q)
+        return c, torch.einsum("kij,lj->kil", g.J, W_inv)
+
+    # --------------------------------------------------------------- rendering
+    def render(
+        self,
+        z: Tensor,
+        height: int,
+        width: int,
+        backend: Backend | None = None,
+        geom: DecoderGeometry | None = None,
+        extra: Tensor | None = None,
+        camera: Camera | None = None,
+    ) -> tuple[Tensor, Tensor | None]:
+        """Render ``z [B,d]`` through ``camera`` (default the main camera), at ``height x width`` px.
+
+        Args:
+            z, backend, geom, extra: as :meth:`ConditionedGaussians.render` (``extra [K,C]`` or ``[B,K,C]``).
+            height, width: output size; the camera's intrinsics are scaled to it (:meth:`Camera.resized`).
+            camera: the camera to render from.
+
+        Returns:
+            ``(image [B,3,H,W] in [0, 1], extra image [B,C,H,W] or None)``.
+        """
+        means, gate, g = self.condition(z, geom)
+        cam = (camera or self.camera).resized(width, height)
+        uv, cov2, depth = project_gaussians(means, g.cov[None], cam)
+        B = z.shape[0]
+        opac = g.alpha[None] * gate * (depth > NEAR).to(gate.dtype)
+        colors, bg = g.colors.expand(B, -1, -1), self.background
+        if extra is not None:
+            ex = extra.to(colors.dtype)
+            colors = torch.cat([colors, ex if ex.dim() == 3 else ex.expand(B, -1, -1)], -1)
+            bg = torch.cat([bg, bg.new_zeros(extra.shape[-1])])
+        uv, cov2, opac, colors, _ = depth_order(depth, uv, cov2.expand(B, -1, -1, -1), opac, colors)
+        img = rasterize(uv, cov2, opac, colors, height, width, background=bg, backend=backend or self.backend)
+        return img[:, :3].clamp(0.0, 1.0), (img[:, 3:] if extra is not None else None)
+
+    def forward(
+        self, z: Tensor, height: int, width: int, backend: Backend | None = None, geom: DecoderGeometry | None = None, camera: Camera | None = None
+    ) -> Tensor:
+        """Render the states ``z [B,d]`` to images ``[B,3,H,W]`` through ``camera`` (default the main camera)."""
+        return self.render(z, height, width, backend, geom, camera=camera)[0]

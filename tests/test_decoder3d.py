@@ -1,0 +1,149 @@
+"""The 3-D conditioned decoder: world-space Schur conditioning, EWA projection, depth order, checkpoints."""
+
+import math
+
+import pytest
+import torch
+
+from lagsplat.models.autoencoder import AutoEncoder, load_stage1, save_stage1
+from lagsplat.models.decoder3d import ConditionedGaussians3D
+from lagsplat.models.deformation import build_decoder
+from lagsplat.models.densify import split_overloaded
+from lagsplat.models.encoder import CpAEEncoder
+from lagsplat.render.camera import look_at, project_points
+from lagsplat.train.losses import anisotropy_penalty
+
+H = W = 32
+
+
+def _cam(eye=(0.0, 0.0, -2.0)):
+    return look_at(eye, (0.0, 0.0, 0.0), (0.0, -1.0, 0.0), W, H, 40.0)
+
+
+def _decoder(K=2, d=1, cam=None):
+    dec = ConditionedGaussians3D(K, d, cam or _cam(), depth_range=(1.5, 2.5), backend="dense")
+    with torch.no_grad():
+        dec.L_raw.copy_(dec._raw_diagonal(torch.ones(d), 0.05, K))
+        dec.mu_q.zero_()
+        dec.logit_alpha.fill_(4.0)
+    return dec
+
+
+def _centroid(img):
+    w = img.detach().sum(0)
+    ys, xs = torch.meshgrid(torch.arange(H) + 0.5, torch.arange(W) + 0.5, indexing="ij")
+    return float((w * xs).sum() / w.sum()), float((w * ys).sum() / w.sum())
+
+
+def test_conditioned_mean_is_affine_in_z_and_projects_where_the_camera_says():
+    dec = _decoder(K=1)
+    with torch.no_grad():
+        dec.mu_raw.copy_(torch.tensor([[0.1, -0.05, 0.2]]))
+        L = torch.diag(torch.tensor([1.0, 0.05, 0.05, 0.05]))
+        L[1, 0] = 0.3  # Sigma_sq: the world x coordinate moves with z, J = L_sq L_qq^-1
+        raw = L[dec.tril_i, dec.tril_j].clone()
+        diag = dec.tril_i == dec.tril_j
+        raw[diag] = torch.log(torch.expm1(raw[diag] - 1e-4))
+        dec.L_raw.copy_(raw[None])
+        dec.logit_color.fill_(5.0)
+    g = dec.geometry()
+    assert g.J.shape == (1, 3, 1) and g.cov.shape == (1, 3, 3)
+    assert torch.allclose(g.J[0, :, 0], torch.tensor([0.3, 0.0, 0.0]), atol=1e-4)
+    z = torch.tensor([[0.0], [0.5]])
+    means, gate, _ = dec.condition(z)
+    assert torch.allclose(means[1] - means[0], torch.tensor([[0.15, 0.0, 0.0]]), atol=1e-4)
+    img = dec(z, H, W)
+    uv, _ = project_points(means.detach(), dec.camera)
+    for b in range(2):
+        cx, cy = _centroid(img[b])
+        assert abs(cx - float(uv[b, 0, 0])) < 0.3 and abs(cy - float(uv[b, 0, 1])) < 0.3
+    assert _centroid(img[1])[0] > _centroid(img[0])[0] + 1.0  # world +x is image right for this camera
+
+
+def test_the_nearer_primitive_covers_the_farther_one_whichever_its_index():
+    dec = _decoder(K=2)
+    with torch.no_grad():
+        dec.logit_color.copy_(torch.tensor([[6.0, -6.0, -6.0], [-6.0, 6.0, -6.0]]))  # red, green
+        dec.logit_alpha.fill_(8.0)
+        for near in (0, 1):
+            far = 1 - near
+            dec.mu_raw.copy_(torch.zeros(2, 3))
+            dec.mu_raw[near, 2] = -0.5  # the camera sits at z = -2 looking along +z
+            dec.mu_raw[far, 2] = 0.5
+            img = dec(torch.zeros(1, 1), H, W)[0]
+            centre = img[:, H // 2, W // 2]
+            assert centre[near] > 0.8 and centre[far] < 0.2
+
+
+def test_a_primitive_behind_the_camera_is_not_drawn():
+    dec = _decoder(K=1)
+    with torch.no_grad():
+        dec.mu_raw.copy_(torch.tensor([[0.0, 0.0, -3.0]]))
+        dec.logit_color.fill_(5.0)
+    assert float(dec(torch.zeros(1, 1), H, W).max()) == 0.0
+
+
+def test_other_cameras_and_resolutions_see_the_same_world():
+    dec = _decoder(K=1)
+    with torch.no_grad():
+        dec.mu_raw.copy_(torch.tensor([[0.2, 0.1, 0.0]]))
+        dec.logit_color.fill_(5.0)
+    side = look_at((2.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, -1.0, 0.0), W, H, 40.0)
+    for cam, h, w in ((side, H, W), (dec.camera, 2 * H, 2 * W)):
+        img = dec.render(torch.zeros(1, 1), h, w, camera=cam)[0][0]
+        uv, _ = project_points(torch.tensor([0.2, 0.1, 0.0]), cam.resized(w, h))
+        wsum = img.sum(0)
+        ys, xs = torch.meshgrid(torch.arange(h) + 0.5, torch.arange(w) + 0.5, indexing="ij")
+        c = torch.stack([(wsum * xs).sum(), (wsum * ys).sum()]) / wsum.sum()
+        assert torch.allclose(c, uv, atol=0.4 * w / W)
+
+
+def test_gradients_reach_every_parameter_through_projection_and_sorting():
+    torch.manual_seed(0)
+    dec = ConditionedGaussians3D(16, 2, _cam(), depth_range=(1.5, 2.5), backend="cpu")
+    frame = torch.rand(3, H, W)
+    dec.init_from_frame(frame, torch.randn(8, 2), sigma_xy=dec.spatial_sigma(0.05), generator=torch.Generator().manual_seed(0))
+    # initial placement: on the pixels' rays, inside the depth range
+    _, depth = project_points(dec.geometry().mu_s, dec.camera)
+    assert float(depth.min()) >= 1.5 - 1e-5 and float(depth.max()) <= 2.5 + 1e-5
+    loss = (dec(torch.randn(4, 2), H, W) - frame).abs().mean() + anisotropy_penalty(dec, H, W, 1.5)
+    loss.backward()
+    for name, p in dec.named_parameters():
+        assert p.grad is not None and torch.isfinite(p.grad).all() and float(p.grad.abs().sum()) > 0, name
+
+
+def test_splitting_keeps_world_positions_and_the_pair_straddles_the_parent():
+    torch.manual_seed(1)
+    dec = ConditionedGaussians3D(4, 1, _cam(), depth_range=(1.5, 2.5))
+    dec.init_from_frame(torch.rand(3, H, W), torch.randn(8, 1), sigma_xy=0.02, generator=torch.Generator().manual_seed(1))
+    with torch.no_grad():
+        dec.L_raw[0, -1] = 3.0  # primitive 0 stretched along world z
+    mu0 = dec.geometry().mu_s[0].clone()
+    dead = torch.tensor([False, False, False, True])
+    used, split = split_overloaded(dec, dead, torch.ones(1), 0.02)
+    assert bool(used[3]) and bool(split[0])
+    mu = dec.geometry().mu_s
+    assert torch.allclose(0.5 * (mu[0] + mu[3]), mu0, atol=1e-5)
+    assert float((mu[0] - mu[3]).abs()[2]) > 0.5  # split along the long axis
+
+
+def test_checkpoint_round_trip_keeps_the_camera(tmp_path):
+    cam = _cam((0.3, -0.2, -2.0))
+    dec = build_decoder("conditioned3d", 8, 1, backend="dense", camera=cam.to_dict(), depth_range=[1.0, 3.0])
+    dec.init_from_frame(torch.rand(3, H, W), torch.randn(4, 1), sigma_xy=0.02, generator=torch.Generator().manual_seed(0))
+    enc = CpAEEncoder(1, (2, 2, 2), 5)
+    path = save_stage1(tmp_path / "stage1.pt", AutoEncoder(enc, dec, H, W), {"backend": "dense"}, {}, 1)
+    ae = load_stage1(path)
+    assert ae.decoder.kind == "conditioned3d" and ae.decoder.camera == cam
+    z = torch.randn(2, 1)
+    assert torch.equal(ae.decode(z), dec(z, H, W))
+
+
+def test_bad_construction_is_refused():
+    with pytest.raises(ValueError, match="camera"):
+        build_decoder("conditioned3d", 4, 1)
+    with pytest.raises(ValueError, match="depth_range"):
+        ConditionedGaussians3D(4, 1, _cam(), depth_range=(2.0, 1.0))
+    with pytest.raises(NotImplementedError):
+        _decoder().pixel_geometry(H, W)
+    assert math.isclose(_decoder().spatial_sigma(0.1), 0.1 * W * 2.0 / _cam().fx)
