@@ -94,6 +94,7 @@ wildcard_constraints:
 
 
 include: "workflow/rules/ingest.smk"
+include: "workflow/rules/views.smk"
 include: "workflow/rules/stage1.smk"
 include: "workflow/rules/chart.smk"
 include: "workflow/rules/stage2.smk"

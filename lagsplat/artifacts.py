@@ -4,6 +4,7 @@ One system's run writes, under ``${results_dir}/<system>/`` (paper §3, the
 two-stage pipeline; ``docs/architecture.md``)::
 
     clip.npz        ingest    frames, timestamps, actuation, split          (lagsplat.io.clip)
+    views/          views     cached novel views per frame and their cameras (3-D systems; lagsplat.views)
     stage1.pt       stage1    encoder + conditioned-Gaussian decoder         (lagsplat.models.autoencoder)
     chart.npz       chart     whitening, q, G_bar, AE floor                  (lagsplat.chart)
     stage2.pt       stage2    latent Lagrangian                              (lagsplat.train.stage2)
@@ -33,6 +34,7 @@ from lagsplat.chart import Chart, load_chart
 from lagsplat.io.clip import Clip, load_clip
 from lagsplat.models.autoencoder import AutoEncoder, load_stage1
 from lagsplat.train.stage2 import load_stage2
+from lagsplat.views import ViewSet, load_views
 
 __all__ = [
     "Artifacts",
@@ -63,11 +65,12 @@ class Artifacts:
     """The artifact paths of one system's run (module docstring).
 
     Attributes:
-        clip, stage1, chart: the frozen upstream artifacts (system folder).
+        clip, views, stage1, chart: the frozen upstream artifacts (system folder; ``views`` a folder, 3-D systems only).
         stage2, metrics, rollout_figure, forces, forces_figure: the model's artifacts (model folder).
         extrapolation, extrapolation_figure: the extrapolation protocol's record and figure (paper §4.3, Fig. 5; model folder).
         diagnosis: the diagnosis folder (``report.md``, ``report.json``, ``figures/``, ``refit.pt``).
         deformation_figure: the decoder comparison's figure (paper App. B, Fig. deform-velocity; system folder).
+        novel_views_video, novel_views_figure: a 3-D model's novel views, orbit video and contact sheet (model folder).
         robot_rollout_figure, robot_forces_figure, robot_forces: the soft robot's figures and the force
             figure's record (paper §4.4-4.5; model folder).
         system_dir, model_dir: the two folders.
@@ -76,6 +79,7 @@ class Artifacts:
     system_dir: Path
     model_dir: Path
     clip: Path
+    views: Path
     stage1: Path
     chart: Path
     stage2: Path
@@ -87,6 +91,8 @@ class Artifacts:
     extrapolation: Path
     extrapolation_figure: Path
     deformation_figure: Path
+    novel_views_video: Path
+    novel_views_figure: Path
     robot_rollout_figure: Path
     robot_forces_figure: Path
     robot_forces: Path
@@ -100,6 +106,7 @@ class Artifacts:
             system_dir=s,
             model_dir=m,
             clip=s / "clip.npz",
+            views=s / "views",
             stage1=s / "stage1.pt",
             chart=s / "chart.npz",
             stage2=m / "stage2.pt",
@@ -111,6 +118,8 @@ class Artifacts:
             extrapolation=m / "extrapolation.json",
             extrapolation_figure=m / "figures" / "extrapolation.png",
             deformation_figure=s / "figures" / "deformation.png",
+            novel_views_video=m / "figures" / "novel_views.mp4",
+            novel_views_figure=m / "figures" / "novel_views.png",
             robot_rollout_figure=m / "figures" / "robot_rollout.png",
             robot_forces_figure=m / "figures" / "robot_forces.png",
             robot_forces=m / "robot_forces.json",
@@ -148,7 +157,7 @@ class Artifacts:
 
     def config(self, stage: str) -> Path:
         """The resolved configuration saved by ``stage``: ``config/<stage>.yaml`` beside its output."""
-        up = stage in ("ingest", "stage1", "chart")
+        up = stage in ("ingest", "views", "stage1", "chart")
         return (self.system_dir if up else self.model_dir) / "config" / f"{stage}.yaml"
 
     @property
@@ -175,6 +184,10 @@ class Artifacts:
     def load_clip(self) -> Clip:
         """``clip.npz`` (:func:`lagsplat.io.clip.load_clip`; raises ``ClipError``/``FileNotFoundError`` naming the file)."""
         return load_clip(self.clip)
+
+    def load_views(self) -> ViewSet:
+        """``views/`` (:func:`lagsplat.views.load_views`; raises ``FileNotFoundError`` naming the folder if never computed)."""
+        return load_views(self.views)
 
     def load_stage1(self) -> AutoEncoder:
         """``stage1.pt`` (:func:`lagsplat.models.autoencoder.load_stage1`)."""

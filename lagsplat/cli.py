@@ -24,10 +24,10 @@ from typing import Callable
 from omegaconf import DictConfig
 
 from lagsplat.cli_common import apply_variant, compose, find_conf_dir
-from lagsplat.stages import stage_chart, stage_download, stage_evaluate, stage_figures, stage_ingest, stage_stage1, stage_stage2
+from lagsplat.stages import stage_chart, stage_download, stage_evaluate, stage_figures, stage_ingest, stage_stage1, stage_stage2, stage_views
 from lagsplat.stages_baselines import stage_extrapolation, stage_extrapolation_table
 from lagsplat.stages_deformation import stage_deformation
-from lagsplat.stages_report import stage_ablation, stage_diagnose, stage_forces, stage_krauss_table, stage_robot_figures, stage_seed_table, stage_table, stage_view
+from lagsplat.stages_report import stage_ablation, stage_diagnose, stage_forces, stage_krauss_table, stage_robot_figures, stage_render, stage_seed_table, stage_table, stage_view
 
 __all__ = ["main", "STAGES", "stage_all", "stage_help", "run_logged"]
 
@@ -36,6 +36,7 @@ USAGE = """usage: python -m lagsplat <stage> system=<name> [key=value ...]
 stages:
   download   fetch the system's source clip (URL + SHA256 from conf/system/<name>.yaml)
   ingest     source clip -> results/<name>/clip.npz
+  views      clip.npz -> views/ (3-D systems: cached novel views of every frame and their cameras; system.views)
   stage1     clip.npz -> stage1.pt           (encoder + conditioned-Gaussian decoder)
   chart      stage1.pt -> chart.npz          (whitening, G_bar, A, AE floor)
   stage2     chart.npz -> stage2.pt          (latent Lagrangian)
@@ -57,7 +58,9 @@ stages:
   krauss_table  soft-robot benchmark (paper Table 4) -> results/tables/krauss.tex/.csv/.md
   seed_table one system trained with each of seed_table.seeds (results/seeds/seed<k>/<name>/metrics.json)
              -> results/tables/<name>_seeds.md/.csv (per-seed rows, mean, std, min, max)
-  all        ingest .. figures for one system
+  all        ingest (.. views) .. figures for one system
+  render     a 3-D model's novel views -> figures/novel_views.mp4, .png (render.camera=orbit|<cameras.json>,
+             render.rollout_s: along a free rollout)
   view       interactive viewer: drag the identified model in a local web page
              (http://127.0.0.1:<view.port>/; settings in the `view` group of conf/config.yaml)
 
@@ -75,7 +78,8 @@ examples:
 
 def stage_all(cfg: DictConfig) -> None:
     """Run ingest .. figures for one system in this process."""
-    for name in ("ingest", "stage1", "chart", "stage2", "evaluate", "figures"):
+    names = ("ingest", "views", "stage1", "chart", "stage2", "evaluate", "figures")
+    for name in names if cfg.system.get("views") else [n for n in names if n != "views"]:
         t0 = time.time()
         STAGES[name](cfg)
         print(f"[lagsplat] {cfg.system.name}: {name} done in {time.time() - t0:.1f} s", flush=True)
@@ -85,6 +89,7 @@ def stage_all(cfg: DictConfig) -> None:
 STAGES: dict[str, Callable[[DictConfig], None]] = {
     "download": stage_download,
     "ingest": stage_ingest,
+    "views": stage_views,
     "stage1": stage_stage1,
     "chart": stage_chart,
     "stage2": stage_stage2,
@@ -102,6 +107,7 @@ STAGES: dict[str, Callable[[DictConfig], None]] = {
     "seed_table": stage_seed_table,
     "all": stage_all,
     "view": stage_view,
+    "render": stage_render,
 }
 
 

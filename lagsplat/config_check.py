@@ -71,6 +71,7 @@ CHECKS: dict[str, Bound] = {
     "system.frames[]": COUNT, "system.crop[]": COUNT, "system.resize[]": POSITIVE_INT,
     "system.source.fps": POSITIVE, "system.source.dt": POSITIVE, "system.source.max_fps": POSITIVE,
     "system.source.jitter_tol": NON_NEGATIVE, "system.source.frames[]": COUNT,
+    "system.views.fps": POSITIVE, "system.views.holdout[]": COUNT,
     # stage1 (Stage1Config)
     "stage1.n_gaussians": POSITIVE_INT, "stage1.steps": POSITIVE_INT, "stage1.batch": POSITIVE_INT,
     "stage1.lr_encoder": POSITIVE, "stage1.lr_decoder": POSITIVE, "stage1.w_l1": NON_NEGATIVE, "stage1.w_ssim": NON_NEGATIVE,
@@ -82,6 +83,9 @@ CHECKS: dict[str, Bound] = {
     "stage1.threads": COUNT, "stage1.retries": COUNT, "stage1.w_motion_init": NON_NEGATIVE, "stage1.split_share": FRACTION,
     "stage1.w_temporal": NON_NEGATIVE, "stage1.plateau_patience": COUNT, "stage1.plateau_tol": NON_NEGATIVE, "stage1.max_minutes": POSITIVE,
     "stage1.deform_hidden[]": POSITIVE_INT, "stage1.deform_freqs": COUNT,
+    "render.n_cameras": POSITIVE_INT, "render.size[]": POSITIVE_INT, "render.frame": COUNT, "render.rollout_s": NON_NEGATIVE,
+    "render.fps": POSITIVE,
+    "stage1.w_views": NON_NEGATIVE, "stage1.views_per_step": POSITIVE_INT, "stage1.depth_range[]": POSITIVE,
     # chart
     "chart.n_metric_samples": POSITIVE_INT, "chart.rho": POSITIVE, "chart.refine_iters": COUNT,
     # stage2 (Stage2Config)

@@ -41,7 +41,7 @@ from lagsplat.train.stage2 import Stage2Config
 
 __all__ = [
     "register_schemas", "structured_node", "SCHEMAS", "NESTED", "RunConfig", "SystemConfig", "SourceConfig", "SplitConfig", "ChartConfig",
-    "ViewConfig", "DownloadConfig", "TableConfig", "SeedTableConfig", "KraussTableConfig", "ArtifactsConfig",
+    "ViewConfig", "ViewsConfig", "RenderConfig", "DownloadConfig", "TableConfig", "SeedTableConfig", "KraussTableConfig", "ArtifactsConfig",
 ]  # fmt: skip
 
 
@@ -63,7 +63,8 @@ class SourceConfig:
         max_fps, jitter_tol: timing rule (:mod:`lagsplat.io.timing`): highest plausible rate (Hz), jitter tolerance.
         synth: a procedural clip of :mod:`lagsplat.synth` (generator name) instead of ``path``.
         params: the generator's keyword arguments.
-        generator: the simulated soft robot: how the download rule makes the file (:mod:`lagsplat.synth.continuum_robot`).
+        generator: how a rule makes a simulated source file (the soft robot, :mod:`lagsplat.synth.continuum_robot`;
+            the 3-D pendulum, :mod:`lagsplat.synth.pendulum3d`).
         held_out: ``system.sources`` entries: this recording is kept out of training.
         frames: ``system.sources`` entries: ``[start, stop)`` of this recording's frames.
     """
@@ -97,6 +98,29 @@ class SplitConfig:
 
 
 @dataclass
+class ViewsConfig:
+    """A 3-D system's cached novel views (``system.views``; :mod:`lagsplat.views`).
+
+    Attributes:
+        source: ``synthetic`` | ``cameras`` | ``sharp`` (:data:`lagsplat.views.VIEW_SOURCES`).
+        path, cameras: ``synthetic``: the views NPZ (``images [T,M,H,W,3]``, ``t``) and the JSON of its ``M + 1`` cameras.
+        videos, calibration, fps: ``cameras``: one video per extra camera, the JSON of ``M + 1`` cameras (main first), their rate.
+        command, checkpoint: ``sharp``: the command (default ``sharp``) and the weights file.
+        holdout: views never used for training, scored as novel views (indices into the ``M`` views).
+    """
+
+    source: Literal["synthetic", "cameras", "sharp"] = "synthetic"
+    path: Optional[str] = None
+    cameras: Optional[str] = None
+    videos: Optional[list[str]] = None
+    calibration: Optional[str] = None
+    fps: Optional[float] = None
+    command: Optional[str] = None
+    checkpoint: Optional[str] = None
+    holdout: list[int] = field(default_factory=list)
+
+
+@dataclass
 class SystemConfig:
     """One system (``conf/system/<name>.yaml``, group ``system``; read by :mod:`lagsplat.ingest` and the stages).
 
@@ -107,7 +131,8 @@ class SystemConfig:
         protocol: evaluation protocol (:data:`lagsplat.evaluate.PROTOCOLS`; ``default`` = ``paper``).
         data: what the clip is (tables label rows by it); ``None``: ``synthetic`` for a ``synth``
             source, else ``real`` (:func:`lagsplat.cli_common.data_kind`).
-        truth: the simulated soft robot's sidecar JSON (its natural frequencies).
+        truth: the simulator's truth beside the source: the soft robot's sidecar JSON (its natural frequencies), or an
+            NPZ with the true coordinate ``q`` per source frame (the paper protocol's ``eps_freq_truth``).
         segments: soft robot: number of segments.
         source, sources: one recording, or several (multi-clip training; see :mod:`lagsplat.ingest`).
         frames: ``[start, stop)`` of source frames (``stop`` may be null).
@@ -116,6 +141,7 @@ class SystemConfig:
         resize: ``[width, height]`` of the clip, pixels; ``auto`` (video sources): the working
             resolution at which the moving object spans enough pixels; ``None``: native size.
         split: :class:`SplitConfig`.
+        views: :class:`ViewsConfig` of a 3-D system (``stage1.decoder: conditioned3d``), ``None`` for a 2-D one.
     """
 
     name: str = "?"
@@ -132,6 +158,7 @@ class SystemConfig:
     crop: Optional[Union[Literal["auto"], tuple[int, int, int, int]]] = "auto"
     resize: Optional[Union[Literal["auto"], tuple[int, int]]] = "auto"
     split: SplitConfig = field(default_factory=SplitConfig)
+    views: Optional[ViewsConfig] = None
 
 
 @dataclass
@@ -180,6 +207,27 @@ class ViewConfig:
     max_substeps: int = 8
     open_browser: bool = False
     max_seconds: Optional[float] = None
+
+
+@dataclass
+class RenderConfig:
+    """Novel views of a 3-D model (``render`` group; :func:`lagsplat.stages_report.stage_render`, :mod:`lagsplat.viz.novel_views`).
+
+    Attributes:
+        camera: ``orbit`` (an orbit through the main camera around where the cameras look) or a JSON file of cameras.
+        n_cameras: cameras on the orbit (>= 1).
+        size: ``[width, height]`` of the renders, px; ``None``: twice the training resolution.
+        frame: the clip frame whose encoded state is shown (and the rollout starts from); ``None``: the first held-out frame.
+        rollout_s: seconds of free Stage-2 rollout from that state, one frame per camera step (0: the state alone).
+        fps: frame rate of the video.
+    """
+
+    camera: str = "orbit"
+    n_cameras: int = 36
+    size: Optional[tuple[int, int]] = None
+    frame: Optional[int] = None
+    rollout_s: float = 0.0
+    fps: float = 15.0
 
 
 @dataclass
@@ -290,6 +338,7 @@ SCHEMAS: dict[str, type] = {
     "gp2d": GP2DConfig,
     "robot_figures": RobotFigureConfig,
     "view": ViewConfig,
+    "render": RenderConfig,
     "table": TableConfig,
     "seed_table": SeedTableConfig,
     "krauss_table": KraussTableConfig,

@@ -1,4 +1,5 @@
-"""The pipeline stages of the command line, one per Snakemake rule: download, ingest, stage1, chart, stage2, evaluate, figures.
+"""The pipeline stages of the command line, one per Snakemake rule: download, ingest, views (3-D systems), stage1, chart,
+stage2, evaluate, figures.
 
 Each reads only upstream artifacts under ``${results_dir}/${system.name}/``
 (:class:`lagsplat.artifacts.Artifacts`) and writes its own atomically, with
@@ -17,7 +18,7 @@ from lagsplat.cli_common import artifacts_of, data_kind, plain, save_stage_confi
 if TYPE_CHECKING:
     from lagsplat.artifacts import Artifacts
 
-__all__ = ["stage_download", "stage_ingest", "stage_stage1", "stage_chart", "stage_stage2", "stage_evaluate", "stage_figures"]
+__all__ = ["stage_download", "stage_ingest", "stage_views", "stage_stage1", "stage_chart", "stage_stage2", "stage_evaluate", "stage_figures"]
 
 
 def stage_download(cfg: DictConfig) -> None:
@@ -70,6 +71,27 @@ def stage_ingest(cfg: DictConfig) -> None:
     save_stage_config(cfg, "ingest")
 
 
+def view_settings(cfg: DictConfig) -> dict:
+    """``system.views`` without its unset keys (the settings the views' cache key reads); empty for a 2-D system."""
+    return {k: v for k, v in plain(cfg.system.get("views") or {}).items() if v is not None}
+
+
+def stage_views(cfg: DictConfig, a: "Artifacts | None" = None) -> None:
+    """``clip.npz`` -> ``views/``: a 3-D system's cached novel views of every frame and their cameras
+    (``system.views``; :mod:`lagsplat.views`), recomputed only when the clip or the view settings change."""
+    from lagsplat.views import ensure_views
+
+    a = a or artifacts_of(cfg)
+    settings = view_settings(cfg)
+    if not settings:
+        raise ValueError(f"system {cfg.system.name!r} has no views (system.views): only a 3-D system caches novel views")
+    views, computed = ensure_views(a.views, a.load_clip(), settings)
+    held = f", held out {views.holdout}" if views.holdout else ""
+    print(f"[lagsplat] {cfg.system.name}: {views.n_views} views of {len(views.images)} frames ({settings['source']}{held}), "
+          + ("computed" if computed else "cached, unchanged"), flush=True)  # fmt: skip
+    save_stage_config(cfg, "views", a)
+
+
 def stage_stage1(cfg: DictConfig, a: "Artifacts | None" = None) -> None:
     """``clip.npz`` -> ``stage1.pt`` (paths: ``a``, default the run's :func:`~lagsplat.cli_common.artifacts_of`)."""
     from lagsplat.models.autoencoder import save_stage1
@@ -79,10 +101,11 @@ def stage_stage1(cfg: DictConfig, a: "Artifacts | None" = None) -> None:
     a = a or artifacts_of(cfg)
     clip = a.load_clip()
     s1 = Stage1Config.from_mapping(plain(cfg.stage1))
+    views = a.load_views() if s1.decoder == "conditioned3d" else None
     chart_kw = {"n_metric_samples": int(cfg.chart.n_metric_samples), "rho": float(cfg.chart.rho), "refine_iters": int(cfg.chart.refine_iters)}
     model, hist, attempts = train_stage1_gated(
         clip, s1, int(cfg.system.d), seed=int(cfg.seed), retries=s1.retries if bool(cfg.chart.gate) else 0, chart_kwargs=chart_kw,
-        progress=bool(cfg.progress), device=str(cfg.device), label=f"{cfg.system.name} stage1",
+        progress=bool(cfg.progress), device=str(cfg.device), label=f"{cfg.system.name} stage1", views=views,
     )  # fmt: skip
     hist["attempts"] = attempts
     save_stage1(a.stage1, model, plain(cfg.stage1), hist, int(cfg.system.d))
@@ -139,7 +162,12 @@ def stage_evaluate(cfg: DictConfig) -> None:
     model, ck = a.load_stage2()
     protocol = protocol_for(cfg.system)  # the published soft-robot protocol for system.protocol=krauss (paper §4.4, Table 4)
     settings = cfg.get(SETTINGS_GROUP[protocol])
-    m = run_protocol(protocol, clip, a.load_stage1(), chart, model, plain(settings) if settings else {}, plain(cfg.system), str(a.clip))
+    ae = a.load_stage1()
+    m = run_protocol(protocol, clip, ae, chart, model, plain(settings) if settings else {}, plain(cfg.system), str(a.clip))
+    if getattr(ae.decoder, "n_space", 2) == 3:  # a 3-D model: its novel viewpoints too (paper §3.2, App. C)
+        from lagsplat.evaluate.views import view_metrics
+
+        m.update(view_metrics(ae, clip, a.load_views()))
     gate = chart.meta.get("gate")
     if gate is not None and not gate["passed"]:  # run with chart.gate=false: every number says what it stands on
         from lagsplat.chart_gate import gate_summary

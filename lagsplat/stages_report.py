@@ -11,7 +11,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from lagsplat.cli_common import artifacts_of, plain
 
-__all__ = ["stage_forces", "stage_diagnose", "stage_table", "stage_ablation", "stage_seed_table", "stage_krauss_table", "stage_view"]
+__all__ = ["stage_forces", "stage_diagnose", "stage_table", "stage_ablation", "stage_seed_table", "stage_krauss_table", "stage_render", "stage_view"]
 
 
 def stage_forces(cfg: DictConfig) -> None:
@@ -179,6 +179,43 @@ def stage_robot_figures(cfg: DictConfig) -> None:
     print(f"[lagsplat] {cfg.system.name}: {r['seconds']:.1f} s of free rollout, offset at the last step {r['offset_px']:.2f} px -> {r['figure']}")
     f = robot_force_figure(a, a.robot_forces_figure, a.robot_forces, int(cfg.system.get("segments", 1) or 1), rc.size, rc.brush_sigma, rc.displacement, title)
     print(f"[lagsplat] {cfg.system.name}: {len(f['panels'])} loaded equilibria at pressure {f['pressure']} -> {f['figure']}")
+
+
+def stage_render(cfg: DictConfig) -> None:
+    """A 3-D model's novel views (``render`` group) -> ``figures/novel_views.mp4`` and ``figures/novel_views.png``:
+    the encoded state of one frame (or a free Stage-2 rollout from it) seen from an orbit or from cameras in a JSON."""
+    import numpy as np
+    import torch
+
+    from lagsplat.dynamics.integrators import initial_state, rollout
+    from lagsplat.render.camera import load_cameras, orbit_through
+    from lagsplat.viz.novel_views import novel_view_frames, write_novel_views
+
+    a, r = artifacts_of(cfg), cfg.render
+    ae, chart, clip = a.load_stage1(), a.load_chart(), a.load_clip()
+    if getattr(ae.decoder, "n_space", 2) != 3:
+        raise ValueError(f"{a.stage1}: a 2-D model has no novel views (render needs stage1.decoder=conditioned3d)")
+    W, H = (int(v) for v in r.size) if r.get("size") else (2 * ae.width, 2 * ae.height)
+    if str(r.camera) == "orbit":
+        from lagsplat.views import scene_center
+
+        cams = orbit_through(ae.decoder.camera, scene_center(a.load_views().cameras), int(r.n_cameras), W, H)
+    else:
+        cams = [c.resized(W, H) for c in load_cameras(str(r.camera))]
+    frame = int(r.frame) if r.get("frame") is not None else int(clip.held_out_idx[0] if len(clip.held_out_idx) else 0)
+    if not 0 <= frame < len(chart.q) - 2:
+        raise ValueError(f"render.frame={frame} outside the clip's {len(chart.q)} frames (need two after it)")
+    q = chart.q[frame : frame + 1]
+    if float(r.rollout_s) > 0:
+        model, _ = a.load_stage2()
+        q0, v0 = initial_state(chart.q, np.array([frame]), clip.dt)
+        q = rollout(model, q0, v0, clip.dt, max(2, int(round(float(r.rollout_s) / clip.dt))))[0][0].numpy()
+        cams = [cams[k % len(cams)] for k in range(len(q))]
+    z = chart.to_raw(torch.as_tensor(q, dtype=torch.float32))
+    frames = novel_view_frames(ae.decoder, z, cams, H, W)
+    what = f"{float(r.rollout_s):g} s rollout from frame {frame}" if float(r.rollout_s) > 0 else f"frame {frame}"
+    video, sheet = write_novel_views(frames, a.novel_views_video, a.novel_views_figure, float(r.fps), f"{cfg.system.name}: {what}, {len(cams)} views")
+    print(f"[lagsplat] {cfg.system.name}: novel views -> {video}, {sheet}", flush=True)
 
 
 def stage_view(cfg: DictConfig) -> None:

@@ -6,7 +6,10 @@ configuration gives as ``system.protocol``:
 
 * ``paper`` (also ``default``, the value when a system names none): the
   paper's frequency error, latent NRMSE and image error over free rollouts
-  (:mod:`lagsplat.evaluate.paper`), settings from the ``evaluate`` group;
+  (:mod:`lagsplat.evaluate.paper`), settings from the ``evaluate`` group; a
+  simulated source whose ``system.truth`` names an NPZ with the true
+  coordinate ``q [T0, ...]`` per source frame (e.g. :mod:`lagsplat.synth.pendulum3d`)
+  is also scored against the true frequency on the held-out frames;
 * ``krauss``: the published soft-robot protocol (:mod:`lagsplat.evaluate.krauss`),
   settings from the ``krauss_eval`` group, the simulator's truth from the
   sidecar JSON named by ``system.truth``.
@@ -17,23 +20,54 @@ The returned mapping is the ``metrics`` block of ``metrics.json`` (name ->
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 from typing import Any, Callable, Mapping
+
+import numpy as np
 
 from lagsplat.chart import Chart
 from lagsplat.evaluate.krauss import KraussEvalConfig, evaluate_krauss
 from lagsplat.evaluate.paper import EvalConfig, evaluate
 from lagsplat.io.clip import Clip
 from lagsplat.models.autoencoder import AutoEncoder
+from lagsplat.timeseries import spectral_peak_frequency
 
 __all__ = ["EvalConfig", "evaluate", "KraussEvalConfig", "evaluate_krauss", "PROTOCOLS", "protocol_for", "run_protocol"]
 
 Protocol = Callable[[Clip, AutoEncoder, Chart, Any, Mapping[str, Any], Mapping[str, Any], str], dict]
 
 
+def observed_truth_frequency(clip: Clip, truth_path: str | Path) -> float:
+    """The true frequency on the clip's held-out frames (Hz): the spectral peak
+    (:func:`lagsplat.timeseries.spectral_peak_frequency`) of the first coordinate of ``q`` in the NPZ
+    ``truth_path``, one row per source frame (the clip's frames start at ``meta["frames"][0]``).
+
+    Raises:
+        FileNotFoundError: naming the file if it does not exist.
+        ValueError: naming the file if it has no ``q`` or too few rows for the clip.
+    """
+    path = Path(truth_path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: simulator truth (system.truth) not found")
+    with np.load(path) as z:
+        if "q" not in z.files:
+            raise ValueError(f"{path}: the truth needs q (the true coordinate per source frame)")
+        q = np.asarray(z["q"], float).reshape(len(z["q"]), -1)[:, 0]
+    idx = int((clip.meta.get("frames") or [0])[0] or 0) + clip.held_out_idx
+    if len(idx) == 0 or idx[-1] >= len(q):
+        raise ValueError(f"{path}: {len(q)} truth rows, the clip's held-out frames reach source frame {idx[-1] if len(idx) else '-'}")
+    return float(spectral_peak_frequency(q[idx], clip.dt))
+
+
 def paper_protocol(clip: Clip, ae: AutoEncoder, chart: Chart, model: Any, settings: Mapping[str, Any], system: Mapping[str, Any], source: str) -> dict:
-    """The paper's protocol (:func:`lagsplat.evaluate.paper.evaluate`); ``settings``: the ``evaluate`` group."""
+    """The paper's protocol (:func:`lagsplat.evaluate.paper.evaluate`); ``settings``: the ``evaluate`` group; with an NPZ
+    ``system.truth``, the true held-out frequency (:func:`observed_truth_frequency`) joins the clip's truth."""
+    truth_path = system.get("truth")
+    if truth_path and str(truth_path).endswith(".npz"):
+        truth = {**clip.meta.get("truth", {}), "f_observed_hz": observed_truth_frequency(clip, truth_path)}
+        clip = dataclasses.replace(clip, meta={**clip.meta, "truth": truth})
     return evaluate(clip, ae, chart, model, EvalConfig(**dict(settings or {})), source=source)
 
 

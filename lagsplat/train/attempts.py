@@ -26,6 +26,7 @@ from lagsplat.chart_gate import chart_gate, gate_summary
 from lagsplat.io.clip import Clip
 from lagsplat.models.autoencoder import AutoEncoder
 from lagsplat.train.stage1 import Stage1Config, train_stage1
+from lagsplat.views import ViewSet
 
 __all__ = ["retry_config", "train_stage1_gated"]
 
@@ -60,11 +61,12 @@ def train_stage1_gated(
     progress: bool = True,
     device: str = "cpu",
     label: str = "stage1",
+    views: ViewSet | None = None,
 ) -> tuple[AutoEncoder, dict, list[dict[str, Any]]]:
     """Train Stage 1, retrying while the chart fails the gate.
 
     Args:
-        clip, cfg, d, progress, device, label: as :func:`lagsplat.train.stage1.train_stage1`.
+        clip, cfg, d, progress, device, label, views: as :func:`lagsplat.train.stage1.train_stage1`.
         seed: seed of the first attempt; retry ``k`` uses ``seed + 1000 k``.
         retries: attempts after the first (0: train once; the gate is still run and recorded).
         chart_kwargs: :func:`lagsplat.chart.build_chart` keywords (``n_metric_samples``, ``rho``,
@@ -88,7 +90,7 @@ def train_stage1_gated(
         c = retry_config(cfg, k, torn=torn)
         s = seed + 1000 * k
         t0 = time.perf_counter()
-        model, hist = train_stage1(clip, c, d, seed=s, progress=progress, device=device, label=f"{label} attempt {k + 1}" if k else label)
+        model, hist = train_stage1(clip, c, d, seed=s, progress=progress, device=device, label=f"{label} attempt {k + 1}" if k else label, views=views)
         gate = chart_gate(model, clip, build_chart(model, clip, seed=seed, **kw))  # the chart stage's own chart
         stopped = hist.get("stopped") or {}
         attempts.append({"seed": s, "steps": c.steps, "steps_run": stopped.get("step", c.steps), "stopped": stopped.get("reason"),

@@ -22,6 +22,7 @@ from lagsplat.train.device import resolve_device
 from lagsplat.train.plateau import Plateau
 from lagsplat.train.losses import reconstruction_loss, static_motion_penalty, temporal_curvature_penalty
 from lagsplat.train.progress import Progress
+from lagsplat.views import ViewSet, scene_depth_range
 
 __all__ = ["Stage1Config", "train_stage1", "static_pixels"]
 
@@ -41,7 +42,12 @@ class Stage1Config:
     Gaussians warped by an MLP of ``(gamma(mu_i), q)`` of trunk widths
     ``deform_hidden`` and ``deform_freqs`` Fourier octaves,
     :class:`~lagsplat.models.deformation.DeformationGaussians`), trained
-    with everything else the same.
+    with everything else the same; or ``conditioned3d`` (paper §3.2 with ``n = 3``,
+    :class:`~lagsplat.models.decoder3d.ConditionedGaussians3D`), trained on the main view plus the cached
+    views of :mod:`lagsplat.views`: each step adds, for ``views_per_step`` training view cameras drawn at
+    random, ``w_views`` times the same reconstruction loss on those views of the batch's frames; new
+    primitives go on their pixels' rays at depths in ``depth_range`` (world units; ``None``: around where
+    the cameras' axes meet, :func:`~lagsplat.views.scene_depth_range`).
     """
 
     n_gaussians: int = 1024
@@ -75,9 +81,12 @@ class Stage1Config:
     plateau_patience: int = 1000
     plateau_tol: float = 0.01
     max_minutes: float = 60.0
-    decoder: Literal["conditioned", "deformation"] = "conditioned"
+    decoder: Literal["conditioned", "deformation", "conditioned3d"] = "conditioned"
     deform_hidden: tuple[int, ...] = (64, 64)
     deform_freqs: int = 4
+    w_views: float = 1.0
+    views_per_step: int = 1
+    depth_range: tuple[float, float] | None = None
 
     @classmethod
     def from_mapping(cls, m: Mapping[str, Any]) -> "Stage1Config":
@@ -103,6 +112,7 @@ def train_stage1(
     progress: bool = True,
     device: str = "cpu",
     label: str = "stage1",
+    views: ViewSet | None = None,
 ) -> tuple[AutoEncoder, dict]:
     """Fit encoder and decoder jointly on the clip's training frames.
 
@@ -118,6 +128,7 @@ def train_stage1(
             initialised on the CPU (the same random draws on every device),
             trained on the device, and returned on the CPU.
         label: what the progress report is headed with (e.g. ``"toy stage1"``).
+        views: the clip's cached views (:class:`~lagsplat.views.ViewSet`), for the 3-D decoder.
 
     Each step's phases are labelled for ``torch.profiler``
     (``stage1.encode``, ``stage1.decode``, ``stage1.loss``,
@@ -129,8 +140,9 @@ def train_stage1(
         and the recycling events.
 
     Raises:
-        ValueError: if the clip has fewer training frames than 2, or on a
-            device that is not available.
+        ValueError: if the clip has fewer training frames than 2, on a
+            device that is not available, or for the 3-D decoder without views
+            (or views with another number of frames than the clip).
     """
     dev = resolve_device(device)
     if cfg.threads:
@@ -150,11 +162,19 @@ def train_stage1(
 
     enc = CpAEEncoder(d, cfg.encoder_channels, cfg.encoder_kernel)
     opts = {"hidden": tuple(cfg.deform_hidden), "n_freqs": cfg.deform_freqs} if cfg.decoder == "deformation" else {}
+    V, view_cams, train_views = None, [], []
+    if cfg.decoder == "conditioned3d":
+        if views is None or len(views.images) != len(clip.t):
+            raise ValueError("stage1.decoder=conditioned3d needs the clip's cached views (the views stage), one per frame")
+        opts = {"camera": views.cameras[0], "depth_range": tuple(cfg.depth_range) if cfg.depth_range else scene_depth_range(views.cameras)}
+        V = torch.from_numpy(np.ascontiguousarray(views.images[clip.train_idx]))  # uint8 [N,M,h,w,3]
+        view_cams, train_views = views.cameras[1:], views.train_views
     dec = build_decoder(cfg.decoder, cfg.n_gaussians, d, backend=cfg.backend, background=cfg.background, **opts)
     with torch.no_grad():
         z0 = torch.cat([enc(X[i : i + 256]) for i in range(0, N, 256)])
     motion_std = X.std(0).mean(0) if cfg.w_motion_init > 0 else None  # [H,W] temporal std of the training frames
-    dec.init_from_frame(X[0], z0, cfg.sigma_xy, cfg.sigma_q_floor, generator=gen, prob=placement_probability(X[0], motion_std, cfg.w_motion_init))
+    sxy = dec.spatial_sigma(cfg.sigma_xy)  # the initial spatial extent in the decoder's units
+    dec.init_from_frame(X[0], z0, sxy, cfg.sigma_q_floor, generator=gen, prob=placement_probability(X[0], motion_std, cfg.w_motion_init))
     model = AutoEncoder(enc, dec, H, W).to(dev)
     X = X.to(dev)
     static = None if static is None else static.to(dev)
@@ -191,10 +211,17 @@ def train_stage1(
                 pred, motion = dec.render_motion(z, H, W, zs)
             else:
                 pred = dec(z, H, W)
+            view_preds = []
+            for m in rng.choice(train_views, size=min(cfg.views_per_step, len(train_views)), replace=False) if V is not None else []:
+                target = V[torch.as_tensor(idx), int(m)].to(dev).permute(0, 3, 1, 2).float().div_(255.0)
+                view_preds.append((dec.render(z, target.shape[2], target.shape[3], camera=view_cams[int(m)])[0], target))
         with record_function("stage1.loss"):
             loss, parts = reconstruction_loss(
                 pred, x, dec, cfg.w_l1, cfg.w_ssim, cfg.w_aniso, cfg.ssim_window, cfg.aniso_max_ratio
             )
+            for pv, target in view_preds:
+                lv, _ = reconstruction_loss(pv, target, dec, cfg.w_l1, cfg.w_ssim, 0.0, cfg.ssim_window, cfg.aniso_max_ratio)
+                loss = loss + cfg.w_views / len(view_preds) * lv
             if cfg.w_nonlocal > 0:
                 loss = loss + cfg.w_nonlocal * nonlocal_filter_penalty(enc.large_kernels())
             if static is not None:
@@ -232,8 +259,8 @@ def train_stage1(
                     zs = torch.cat([enc(X[i : i + 256]) for i in range(0, N, 256)]).std(0)
                     n_split = int(round(cfg.split_share * n_dead))
                     to_split = dead & (torch.cumsum(dead.long(), 0) <= n_split)
-                    used, split = split_overloaded(dec, to_split, zs, cfg.sigma_xy) if n_split else (torch.zeros_like(dead),) * 2
-                    dec.recycle(dead & ~used, X[j], rendered, zj[0], zs, cfg.sigma_xy, generator=gen)
+                    used, split = split_overloaded(dec, to_split, zs, sxy) if n_split else (torch.zeros_like(dead),) * 2
+                    dec.recycle(dead & ~used, X[j], rendered, zj[0], zs, sxy, generator=gen)
                     _reset_adam_rows(opt, dec.primitive_parameters(), dead | split)
                 history["recycled"].append((step, n_dead))
     return model.cpu().eval(), history

@@ -1,7 +1,7 @@
 rule stage1:
-    """Joint encoder / conditioned-Gaussian decoder training (paper §3.2)."""
+    """Joint encoder / conditioned-Gaussian decoder training (paper §3.2); a 3-D system also reads its cached views."""
     input:
-        clip=str(ART.clip),
+        unpack(lambda w: stage1_input(w.system)),
     output:
         stage1=str(ART.stage1),
     log:

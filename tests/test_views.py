@@ -1,0 +1,146 @@
+"""The views stage: cached novel views per frame, their cameras, the cache key, the sources and their errors."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from lagsplat.io.clip import Clip, ClipError
+from lagsplat.render.camera import look_at, save_cameras
+from lagsplat.views import build_views, ensure_views, load_views, main_camera_of, save_views, scene_depth_range
+
+T, M, S = 12, 3, 16
+
+
+def _cams(n=M + 1, size=S):
+    return [look_at((2.0 * np.sin(a), 0.0, -2.0 * np.cos(a)), (0.0, 0.0, 0.0), (0.0, -1.0, 0.0), size, size) for a in np.linspace(0, 0.8, n)]
+
+
+def _clip(start=0, n=T, fps=30.0):
+    rng = np.random.default_rng(0)
+    meta = {"frames": [start, start + n], "original_size": [S, S], "crop": None, "resize": None}
+    return Clip(images=rng.integers(0, 255, (n, S, S, 3), dtype=np.uint8), t=np.arange(n) / fps, meta=meta)
+
+
+@pytest.fixture
+def source(tmp_path):
+    """A synthetic view source: frame i of view m is filled with the value 10 i + m."""
+    n = T + 4
+    images = np.zeros((n, M, S, S, 3), np.uint8) + (10 * np.arange(n)[:, None] + np.arange(M)[None]).astype(np.uint8)[:, :, None, None, None]
+    np.savez(tmp_path / "v.views.npz", images=images, t=np.arange(n) / 30.0)
+    save_cameras(tmp_path / "v.cameras.json", _cams())
+    return {"source": "synthetic", "path": str(tmp_path / "v.views.npz"), "cameras": str(tmp_path / "v.cameras.json"), "holdout": [1]}
+
+
+def test_views_line_up_with_the_clip_frames_in_time(source):
+    vs = build_views(_clip(start=3), source)
+    assert vs.images.shape == (T, M, S, S, 3)
+    assert [int(v) for v in vs.images[:, 2, 0, 0, 0]] == [10 * (3 + i) + 2 for i in range(T)]
+    assert vs.cameras[0] == _cams()[0] and len(vs.cameras) == M + 1
+    assert vs.train_views == [0, 2] and vs.holdout == [1]
+
+
+def test_round_trip_and_the_cache_recomputes_only_on_change(source, tmp_path):
+    clip, folder = _clip(), tmp_path / "views"
+    vs, computed = ensure_views(folder, clip, source)
+    assert computed
+    back = load_views(folder)
+    assert np.array_equal(back.images, vs.images) and back.cameras == vs.cameras and back.holdout == [1] and back.key == vs.key
+    cached, computed = ensure_views(folder, clip, source)
+    assert not computed and cached.key == vs.key
+    assert ensure_views(folder, clip, {**source, "holdout": [0]})[1]  # settings changed
+    assert not ensure_views(folder, clip, {**source, "holdout": [0]})[1]
+    images = np.load(source["path"])["images"]
+    np.savez(source["path"], images=images[:, ::-1], t=np.arange(len(images)) / 30.0)  # the source file's bytes changed
+    vs2, computed = ensure_views(folder, clip, {**source, "holdout": [0]})
+    assert computed and int(vs2.images[0, 0, 0, 0, 0]) == 2
+    other = _clip()
+    other.images[0, 0, 0, 0] ^= 1  # the clip changed
+    assert ensure_views(folder, other, {**source, "holdout": [0]})[1]
+
+
+def test_bad_sources_stop_with_the_file_named(source, tmp_path):
+    clip = _clip()
+    with pytest.raises(ClipError, match="source must be one of"):
+        build_views(clip, {**source, "source": "magic"})
+    with pytest.raises(ClipError, match="nowhere.npz: views file not found"):
+        build_views(clip, {**source, "path": str(tmp_path / "nowhere.npz")})
+    np.savez(tmp_path / "flat.npz", images=np.zeros((T, S, S, 3), np.uint8), t=np.arange(T) / 30.0)
+    with pytest.raises(ClipError, match=r"flat.npz: views must be uint8 \[T,M,H,W,3\]"):
+        build_views(clip, {**source, "path": str(tmp_path / "flat.npz")})
+    save_cameras(tmp_path / "two.json", _cams(2))
+    with pytest.raises(ClipError, match="two.json: 2 cameras for 3 views"):
+        build_views(clip, {**source, "cameras": str(tmp_path / "two.json")})
+    np.savez(tmp_path / "slow.npz", images=np.zeros((T, M, S, S, 3), np.uint8), t=np.arange(T) / 20.0)
+    with pytest.raises(ClipError, match="slow.npz: no view frame within"):
+        build_views(clip, {**source, "path": str(tmp_path / "slow.npz")})
+    with pytest.raises(ClipError, match="holdout"):
+        build_views(clip, {**source, "holdout": [0, 1, 2]})
+    with pytest.raises(ClipError, match="holdout"):
+        build_views(clip, {**source, "holdout": [7]})
+
+
+def test_sharp_names_what_is_missing(tmp_path, monkeypatch):
+    monkeypatch.setenv("PATH", str(tmp_path))
+    with pytest.raises(ClipError, match="'sharp' command") as e:
+        build_views(_clip(), {"source": "sharp", "checkpoint": str(tmp_path / "w.pt")})
+    assert "\n" not in str(e.value)
+    exe = tmp_path / "sharp"
+    exe.write_text("#!/bin/sh\nexit 1\n")
+    exe.chmod(0o755)
+    with pytest.raises(ClipError, match="needs its weights"):
+        build_views(_clip(), {"source": "sharp", "checkpoint": str(tmp_path / "w.pt")})
+
+
+def test_real_extra_cameras_are_read_as_videos(tmp_path):
+    clip = _clip(start=2)
+    paths = []
+    for m in range(2):
+        p = tmp_path / f"cam{m}.avi"
+        w = cv2.VideoWriter(str(p), cv2.VideoWriter_fourcc(*"MJPG"), 30.0, (S, S))
+        for i in range(T + 2):
+            w.write(np.full((S, S, 3), 15 * i + 5 * m, np.uint8))
+        w.release()
+        paths.append(str(p))
+    save_cameras(tmp_path / "calib.json", _cams(3))
+    vs = build_views(clip, {"source": "cameras", "videos": paths, "calibration": str(tmp_path / "calib.json")})
+    assert vs.images.shape == (T, 2, S, S, 3)
+    assert np.abs(vs.images[:, 1, 8, 8, 0].astype(int) - (15 * (np.arange(T) + 2) + 5)).max() <= 3  # MJPG is lossy
+    save_cameras(tmp_path / "big.json", _cams(3, size=2 * S))
+    with pytest.raises(ClipError, match="cam0.avi: frames of 16x16 px, its calibration says 32x32"):
+        build_views(clip, {"source": "cameras", "videos": paths, "calibration": str(tmp_path / "big.json")})
+
+
+def test_the_main_camera_follows_the_clips_crop_and_resize():
+    cam = _cams(1, size=40)[0]
+    clip = _clip()
+    clip.meta.update(crop=[4, 8, 36, 40], original_size=[40, 40])
+    c = main_camera_of(cam, clip)  # 32x32 crop stored at 16x16
+    assert (c.width, c.height) == (S, S)
+    assert np.isclose(c.cx, (cam.cx - 4) / 2) and np.isclose(c.cy, (cam.cy - 8) / 2) and np.isclose(c.fx, cam.fx / 2)
+    clip.meta.update(original_size=[64, 48])
+    with pytest.raises(ClipError, match="64x48"):
+        main_camera_of(cam, clip)
+
+
+def test_scene_depth_is_where_the_camera_axes_meet():
+    near, far = scene_depth_range(_cams(), spread=0.5)
+    assert np.isclose(near, 1.0, atol=1e-6) and np.isclose(far, 3.0, atol=1e-6)
+    with pytest.raises(ValueError):
+        scene_depth_range(_cams(1))
+
+
+def test_save_writes_the_index_last(source, tmp_path):
+    vs = build_views(_clip(), source)
+    save_views(tmp_path / "f", vs)
+    info = json.loads((tmp_path / "f" / "views.json").read_text())
+    assert info["key"] == vs.key and info["n_views"] == M and info["holdout"] == [1]
+
+
+def test_the_cache_survives_its_index_being_deleted(source, tmp_path):
+    clip, folder = _clip(), tmp_path / "views"
+    ensure_views(folder, clip, source)
+    (folder / "views.json").unlink()  # what a workflow manager does to a rerun job's declared output
+    vs, computed = ensure_views(folder, clip, source)
+    assert not computed and (folder / "views.json").is_file() and vs.holdout == [1]
