@@ -58,7 +58,7 @@ from torch import Tensor
 from lagsplat.models.decoder import latent_gate
 from lagsplat.models.lagrangian import Lagrangian
 
-__all__ = ["ForceTransport", "Selection", "EditedDynamics", "calibrate_kappa", "BRUSHES"]
+__all__ = ["ForceTransport", "Selection", "EditedDynamics", "calibrate_kappa", "compositing_weights", "BRUSHES"]
 
 #: Brush weightings of :meth:`ForceTransport.select` (module docstring).
 BRUSHES = ("visible", "paper")
@@ -69,6 +69,40 @@ class Selection:
     """Frozen brush weights over primitives: ``weights [B,K]``, each row summing to 1 (or 0 when empty)."""
 
     weights: Tensor
+
+
+def compositing_weights(mu: Tensor, cov: Tensor, opacity: Tensor, points: Tensor, min_transmittance: float = 0.0) -> Tensor:
+    """Share of each primitive in the rendered colour at each point, ``[P,K]``.
+
+    ``T_i(p) a_i(p)`` with ``a_i`` the primitive's alpha at ``p`` and ``T_i``
+    the transmittance of the primitives in front of it: the compositing rule
+    of :mod:`lagsplat.render.rule` (front to back in index order, same
+    dilation, support and alpha cut-offs).
+
+    Args:
+        mu: ``[K,2]`` positions (px) at the state of interest, front to back.
+        cov: ``[K,2,2]`` footprints, px^2.
+        opacity: ``[K]`` rendered opacities ``alpha_i g_i(q)``.
+        points: ``[P,2]`` pixel positions.
+        min_transmittance: weights of primitives whose transmittance is
+            below this are set to 0 (the visible brush's front surface);
+            0 keeps them all, so the weights sum to the rendered coverage.
+    """
+    from lagsplat.render.rule import ALPHA_MAX, ALPHA_MIN, EPS2D, SUPPORT_SIGMA
+
+    cov = cov + EPS2D * torch.eye(2, dtype=cov.dtype)
+    sxx, sxy, syy = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
+    det = (sxx * syy - sxy * sxy).clamp_min(1e-12)
+    dx = points[:, None, 0] - mu[None, :, 0]
+    dy = points[:, None, 1] - mu[None, :, 1]
+    d2 = (syy * dx * dx - 2.0 * sxy * dx * dy + sxx * dy * dy) / det
+    a = torch.clamp(opacity[None] * torch.exp(-0.5 * d2), max=ALPHA_MAX)
+    r2 = torch.clamp(2.0 * torch.log(255.0 * opacity.clamp_min(1e-30)), max=SUPPORT_SIGMA**2)
+    a = torch.where((d2 <= r2[None]) & (a >= ALPHA_MIN), a, torch.zeros_like(a))
+    log1m = torch.log1p(-a).double()
+    trans = torch.exp(torch.cumsum(log1m, 1) - log1m).to(a.dtype)
+    w = trans * a
+    return w if min_transmittance <= 0 else torch.where(trans >= min_transmittance, w, torch.zeros_like(w))
 
 
 class ForceTransport:
@@ -152,36 +186,9 @@ class ForceTransport:
         return self.alpha[None] * latent_gate(q @ self.W_inv + self.mean, self.mu_q, self.L_qq)
 
     def compositing_weights(self, mu: Tensor, opacity: Tensor, points: Tensor, min_transmittance: float = 0.0) -> Tensor:
-        """Share of each primitive in the rendered colour at each point, ``[P,K]``.
-
-        ``T_i(p) a_i(p)`` with ``a_i`` the primitive's alpha at ``p`` and ``T_i``
-        the transmittance of the primitives in front of it: the compositing rule
-        of :mod:`lagsplat.render.rule` (front to back in index order, same
-        dilation, support and alpha cut-offs).
-
-        Args:
-            mu: ``[K,2]`` positions (px) at the state of interest.
-            opacity: ``[K]`` rendered opacities ``alpha_i g_i(q)``.
-            points: ``[P,2]`` pixel positions.
-            min_transmittance: weights of primitives whose transmittance is
-                below this are set to 0 (the visible brush's front surface);
-                0 keeps them all, so the weights sum to the rendered coverage.
-        """
-        from lagsplat.render.rule import ALPHA_MAX, ALPHA_MIN, EPS2D, SUPPORT_SIGMA
-
-        cov = self.cov + EPS2D * torch.eye(2)
-        sxx, sxy, syy = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
-        det = (sxx * syy - sxy * sxy).clamp_min(1e-12)
-        dx = points[:, None, 0] - mu[None, :, 0]
-        dy = points[:, None, 1] - mu[None, :, 1]
-        d2 = (syy * dx * dx - 2.0 * sxy * dx * dy + sxx * dy * dy) / det
-        a = torch.clamp(opacity[None] * torch.exp(-0.5 * d2), max=ALPHA_MAX)
-        r2 = torch.clamp(2.0 * torch.log(255.0 * opacity.clamp_min(1e-30)), max=SUPPORT_SIGMA**2)
-        a = torch.where((d2 <= r2[None]) & (a >= ALPHA_MIN), a, torch.zeros_like(a))
-        log1m = torch.log1p(-a).double()
-        trans = torch.exp(torch.cumsum(log1m, 1) - log1m).to(a.dtype)
-        w = trans * a
-        return w if min_transmittance <= 0 else torch.where(trans >= min_transmittance, w, torch.zeros_like(w))
+        """Share of each primitive in the rendered colour at each point, ``[P,K]``
+        (:func:`compositing_weights` with this decoder's footprints ``cov``)."""
+        return compositing_weights(mu, self.cov, opacity, points, min_transmittance)
 
     def _weights(self, mu: Tensor, opacity: Tensor, x: Tensor, sigma: float) -> Tensor:
         """Unnormalised brush weights ``[P,K]`` at points ``x [P,2]`` for one state."""
