@@ -127,7 +127,7 @@ CHECKS: dict[str, Bound] = {
     "gp2d.gcn_hidden": POSITIVE_INT, "gp2d.gcn_epochs": POSITIVE_INT, "gp2d.gcn_lr": POSITIVE, "gp2d.gcn_lr_min": POSITIVE, "gp2d.gcn_batch": POSITIVE_INT, "gp2d.gcn_max_steps": COUNT,
     # view (ViewConfig)
     "view.port": Bound(0, 65535, words="a port number in [0, 65535]"), "view.sigma": POSITIVE, "view.force_scale": POSITIVE,
-    "view.kappa": POSITIVE, "view.render_scale": POSITIVE, "view.max_substeps": POSITIVE_INT, "view.max_seconds": POSITIVE,
+    "view.kappa": POSITIVE, "view.render_scale": POSITIVE, "view.max_substeps": POSITIVE_INT, "view.max_seconds": POSITIVE, "view.force_3d": POSITIVE,
     # tables
     "seed_table.seeds[]": COUNT,
 }  # fmt: skip

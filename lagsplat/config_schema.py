@@ -195,6 +195,8 @@ class ViewConfig:
         max_substeps: integrator sub-steps per frame interval, at most (>= 1).
         open_browser: open the page in the default browser.
         max_seconds: stop after this many seconds (> 0); ``None``: until Ctrl-C.
+        force_3d: a 3-D model (viser viewer): the push, world units (> 0), or ``"auto"``
+            (:class:`lagsplat.viewer.viewer3d.Session3D`).
     """
 
     port: int = 8765
@@ -207,6 +209,7 @@ class ViewConfig:
     max_substeps: int = 8
     open_browser: bool = False
     max_seconds: Optional[float] = None
+    force_3d: Union[Literal["auto"], float] = "auto"
 
 
 @dataclass

@@ -223,11 +223,24 @@ def stage_view(cfg: DictConfig) -> None:
 
     Reads ``stage1.pt``, ``chart.npz`` and ``stage2.pt`` (of the variant when
     ``variant`` is set); writes nothing. Runs until Ctrl-C or ``view.max_seconds``.
+    A 3-D model opens the viser viewer instead (:mod:`lagsplat.viewer.viewer3d`): orbit it, click to push it
+    along the line of sight (``view.force_3d`` world units, ``auto`` by default).
     """
     from lagsplat.viewer.server import Viewer
     from lagsplat.viewer.session import load_session
 
     v = cfg.view
+    a = artifacts_of(cfg)
+    ae = a.load_stage1()
+    if getattr(ae.decoder, "n_space", 2) == 3:
+        from lagsplat.viewer.viewer3d import Session3D, serve_viser
+
+        a.require("chart", "stage2")
+        s3 = Session3D(ae, a.load_chart(), a.load_stage2()[0], force=v.get("force_3d", "auto"), kappa=float(v.kappa))
+        max_s = v.get("max_seconds")
+        serve_viser(s3, int(v.port), None if max_s is None else float(max_s),
+                    on_ready=lambda url: print(f"lagsplat view: {cfg.system.name} (3-D) at {url}  (push {s3.force:.3g} world units; Ctrl-C stops)", flush=True))  # fmt: skip
+        return
     fs = v.get("force_scale", "auto")
     session = load_session(
         artifacts_of(cfg),

@@ -52,3 +52,35 @@ def test_the_3d_chain_end_to_end(tmp_path):
     cap.release()
     assert n == 15 and size == (64, 64)  # 1 s at 15 fps, twice the training resolution
     assert (res / "pendulum3d" / "figures" / "novel_views.png").stat().st_size > 1000
+
+    # the viewer: a click on the most mobile material pushes it; viser serves the splats
+    import socket
+
+    import numpy as np
+    import torch
+
+    from lagsplat.artifacts import Artifacts
+    from lagsplat.viewer.viewer3d import Session3D, serve_viser
+
+    a = Artifacts.at(res / "pendulum3d")
+    s = Session3D(a.load_stage1(), a.load_chart(), a.load_stage2()[0])
+    q_start = s.q.clone()
+    i = int(torch.linalg.matrix_norm(s.ft.J, ord=2).argmax())
+    target = s.ft.means(s.q)[0, i].numpy()
+    origin = s.ae.decoder.camera.center
+    assert s.press_ray(origin, target - origin)
+    assert float(s.generalized_force().abs().max()) > 0
+    s.step(5)
+    pushed = s.q.clone()
+    s.reset()
+    assert torch.equal(s.q, q_start) and s.generalized_force() is None
+    s.step(5)
+    assert not torch.allclose(s.q, pushed)
+    assert set(s.splats()) == {"centers", "covariances", "rgbs", "opacities"} and s.splats()["centers"].shape[1] == 3
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    urls = []
+    serve_viser(s, port, max_seconds=1.0, on_ready=urls.append)
+    assert urls == [f"http://127.0.0.1:{port}/"]
+    assert np.isfinite(s.q.numpy()).all()

@@ -1,0 +1,169 @@
+"""The 3-D viewer: orbit an identified 3-D model in the browser (viser) and push it in any direction.
+
+:class:`Session3D` holds one latent state ``(q, qdot)`` of a 3-D system (Stage-1 autoencoder with the 3-D
+decoder, frozen chart, Stage-2 Lagrangian) and advances it by velocity Verlet
+(:func:`~lagsplat.dynamics.integrators.verlet_step`) in steps of the clip's frame interval. A click casts a
+ray (origin and direction in world units, as viser reports it): the material the ray meets first is
+selected (:meth:`lagsplat.force3d.ForceTransport3D.select`, through a virtual camera on the ray) and a
+world-space force of ``force`` world units along the ray (a push into depth) or opposite to it (a pull)
+acts on it, pulled back as ``kappa sum_i w_i J_i^T f`` (paper Eq. 9, §4.5), until released.
+
+:func:`serve_viser` shows the model's Gaussians at the current state as splats
+(``viser.SceneApi.add_gaussian_splats``: world means, covariances, colours, opacities times the latent gate)
+with viser's orbit camera, and a panel: force, push / pull, release, reset.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Callable
+
+import numpy as np
+import torch
+
+from lagsplat.dynamics.integrators import initial_state, verlet_step
+from lagsplat.force import Selection
+from lagsplat.force3d import ForceTransport3D
+from lagsplat.models.decoder import latent_gate
+from lagsplat.render.camera import look_at
+
+__all__ = ["Session3D", "serve_viser"]
+
+
+class Session3D:
+    """One simulation of an identified 3-D system (thread-safe).
+
+    Args:
+        ae: the Stage-1 autoencoder with the 3-D decoder.
+        chart: its frozen chart.
+        model: the Stage-2 Lagrangian.
+        force: magnitude of a push, world units (> 0), or ``"auto"``: the force whose generalized force, on the
+            median primitive's Jacobian, moves the state by half a chart unit against the stiffest direction of
+            the potential at rest (``0.5 lambda_max(hess V) / median_i |J_i|``).
+        kappa: energy factor of forces (:func:`lagsplat.force.calibrate_kappa`).
+
+    Raises:
+        ValueError: if the decoder is not a 3-D one, or ``force <= 0``.
+    """
+
+    def __init__(self, ae, chart, model, force: float | str = "auto", kappa: float = 1.0) -> None:
+        self.ae, self.chart, self.model = ae, chart, model
+        self.ft = ForceTransport3D.from_autoencoder(ae, chart, min_transmittance=0.5)
+        self.dt = float(np.median(np.diff(chart.t)))
+        if force == "auto":
+            k = float(torch.linalg.eigvalsh(model.potential_hessian(model.q_rest.detach()[None]).reshape(self.ft.d, self.ft.d).double()).max())
+            force = 0.5 * max(k, 1e-9) / max(float(torch.linalg.matrix_norm(self.ft.J, ord=2).median()), 1e-9)
+        if not float(force) > 0:
+            raise ValueError(f"force must be positive, got {force}")
+        self.force, self.kappa = float(force), float(kappa)
+        self.geom = ae.decoder.geometry()
+        self._lock = threading.Lock()
+        self._sel: Selection | None = None
+        self._dir = torch.zeros(1, 3)
+        self.reset()
+
+    def reset(self) -> None:
+        """Back to the first held-out frame's encoded state and velocity (or the first frame's), no force."""
+        held = np.flatnonzero(self.chart.split == 1)
+        i = int(held[0]) if len(held) and held[0] + 2 < len(self.chart.q) else 0
+        q0, v0 = initial_state(self.chart.q, np.array([i]), self.dt)
+        with self._lock:
+            self.q, self.qdot, self._sel = q0.float(), v0.float(), None
+
+    def press_ray(self, origin, direction, sign: float = 1.0) -> bool:
+        """Select the material the ray ``origin + s direction`` (world, ``[3]`` each) meets first and push it along
+        ``sign * direction``. Returns whether the ray met anything."""
+        o, d = np.asarray(origin, float), np.asarray(direction, float)
+        d = d / np.linalg.norm(d)
+        up = np.array([0.0, 0.0, 1.0]) if abs(d[2]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        cam = look_at(o, o + d, up, 65, 65, 5.0)  # a narrow virtual camera on the ray: the ray is its centre pixel
+        with self._lock:
+            sel = self.ft.select(self.q, cam, torch.tensor([32.5, 32.5]), sigma=1.0)
+            hit = float(sel.weights.sum()) > 0
+            self._sel = sel if hit else None
+            self._dir = torch.as_tensor(sign * d, dtype=torch.float32)[None]
+        return hit
+
+    def release(self) -> None:
+        """Stop pushing."""
+        with self._lock:
+            self._sel = None
+
+    def generalized_force(self) -> torch.Tensor | None:
+        """The push's generalized force ``[1,d]``, or ``None`` when nothing is pushed."""
+        if self._sel is None:
+            return None
+        return self.ft.pullback(self._sel, self.force * self._dir, self.kappa)
+
+    @torch.no_grad()
+    def step(self, n: int = 1) -> None:
+        """Advance ``n`` frame intervals under the current push."""
+        with self._lock:
+            f = self.generalized_force()
+            for _ in range(n):
+                self.q, self.qdot = verlet_step(self.model, self.q, self.qdot, self.dt, f_ext=f)
+
+    @torch.no_grad()
+    def splats(self) -> dict[str, np.ndarray]:
+        """The Gaussians at the current state, as viser takes them: ``centers [K,3]``, ``covariances [K,3,3]``,
+        ``rgbs [K,3]``, ``opacities [K,1]`` (base opacity times the latent gate, paper Eq. 4)."""
+        with self._lock:
+            q = self.q.clone()
+        g = self.geom
+        z = self.chart.to_raw(q)
+        means, gate, _ = self.ae.decoder.condition(z, g)
+        op = g.alpha[None] * latent_gate(z, g.mu_q, g.L_qq, g.L_qq_inv)
+        return {"centers": means[0].numpy(), "covariances": g.cov.numpy(), "rgbs": g.colors.numpy(), "opacities": op[0, :, None].numpy()}
+
+
+def serve_viser(session: Session3D, port: int = 8080, max_seconds: float | None = None, on_ready: Callable[[str], None] | None = None):
+    """Serve ``session`` with viser on ``http://127.0.0.1:<port>/`` until Ctrl-C or ``max_seconds``; returns the server
+    (stopped). Clicking the model pushes it along the click's ray (module docstring).
+
+    Raises:
+        ModuleNotFoundError: with the install line, if viser is missing.
+    """
+    try:
+        import viser
+    except ModuleNotFoundError as e:
+        raise ModuleNotFoundError("the 3-D viewer needs viser: pip install 'lagsplat[viewer3d]' (or pip install viser)") from e
+    server = viser.ViserServer(host="127.0.0.1", port=int(port), verbose=False)
+    R = np.asarray(session.ae.decoder.camera.R, float)
+    server.scene.set_up_direction(tuple(-R[1]))  # the main camera's image up
+    force = server.gui.add_slider("force (world units)", min=0.01, max=10.0 * session.force, step=0.01, initial_value=session.force)
+    pull = server.gui.add_checkbox("pull instead of push", initial_value=False)
+    release, reset = server.gui.add_button("release"), server.gui.add_button("reset")
+    status = server.gui.add_markdown("click the model to push it along your line of sight")
+
+    @force.on_update
+    def _(_e) -> None:
+        session.force = float(force.value)
+
+    @release.on_click
+    def _(_e) -> None:
+        session.release()
+
+    @reset.on_click
+    def _(_e) -> None:
+        session.reset()
+
+    @server.scene.on_click()
+    def _(event) -> None:
+        hit = session.press_ray(event.ray_origin, event.ray_direction, -1.0 if pull.value else 1.0)
+        status.content = "pushing (release stops)" if hit else "the ray met nothing"
+
+    if on_ready is not None:
+        on_ready(f"http://127.0.0.1:{server.get_port()}/")
+    t_end = None if max_seconds is None else time.monotonic() + float(max_seconds)
+    try:
+        while t_end is None or time.monotonic() < t_end:
+            t0 = time.monotonic()
+            session.step()
+            server.scene.add_gaussian_splats("/model", **session.splats())
+            time.sleep(max(0.0, session.dt - (time.monotonic() - t0)))
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.stop()
+    return server
