@@ -147,3 +147,18 @@ def test_bad_construction_is_refused():
     with pytest.raises(NotImplementedError):
         _decoder().pixel_geometry(H, W)
     assert math.isclose(_decoder().spatial_sigma(0.1), 0.1 * W * 2.0 / _cam().fx)
+
+
+def test_new_primitives_go_on_the_rays_of_the_camera_that_saw_the_pixels():
+    dec = _decoder(K=1)
+    side = look_at((2.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, -1.0, 0.0), W, H, 40.0)
+    idx = torch.tensor([0, 5 * W + 7, H * W - 1])
+    X = dec.placement_raw(idx, H, W, torch.Generator().manual_seed(0), camera=side)
+    uv, depth = project_points(X, side)
+    expect = torch.stack([(idx % W).float() + 0.5, (idx // W).float() + 0.5], -1)
+    assert torch.allclose(uv, expect, atol=1e-3)
+    assert float(depth.min()) >= 1.5 - 1e-4 and float(depth.max()) <= 2.5 + 1e-4  # both cameras stand 2 m from the centre
+    with pytest.raises(ValueError, match="no camera"):
+        from lagsplat.models.decoder import ConditionedGaussians
+
+        ConditionedGaussians(2, 1).placement_raw(idx, H, W, camera=side)

@@ -320,9 +320,16 @@ class ConditionedGaussians(nn.Module):
         (the same here; world units in 3-D)."""
         return float(sigma_xy)
 
-    def placement_raw(self, idx: Tensor, height: int, width: int, generator: torch.Generator | None = None) -> Tensor:
+    def placement_raw(self, idx: Tensor, height: int, width: int, generator: torch.Generator | None = None, camera=None) -> Tensor:
         """Raw spatial parameters ``[n, n_space]`` of new primitives at the pixels of flat indices ``idx`` of the
-        training view (here the pixel centres themselves; ``generator`` unused)."""
+        training view (here the pixel centres themselves; ``generator`` unused; ``camera`` must be ``None``: a 2-D
+        decoder has one view).
+
+        Raises:
+            ValueError: if a camera is given.
+        """
+        if camera is not None:
+            raise ValueError("a 2-D decoder places primitives in its one image plane (no camera)")
         return self._raw_positions(idx, height, width)
 
     @staticmethod
@@ -391,6 +398,7 @@ class ConditionedGaussians(nn.Module):
         z_std: Tensor,
         sigma_xy: float = 0.05,
         generator: torch.Generator | None = None,
+        camera=None,
     ) -> None:
         """Teleport the primitives flagged in ``dead`` to high-error pixels.
 
@@ -404,6 +412,7 @@ class ConditionedGaussians(nn.Module):
             frame, rendered: ``[3,H,W]`` target and current reconstruction.
             z_frame: ``[d]`` raw latent of ``frame``.
             z_std: ``[d]`` per-dimension spread of the training latents.
+            camera: the camera ``frame`` was seen by (3-D decoder, :meth:`placement_raw`; ``None``: the main view).
         """
         n_dead = int(dead.sum())
         if n_dead == 0:
@@ -415,7 +424,7 @@ class ConditionedGaussians(nn.Module):
         err = (rendered - frame).abs().mean(0).flatten()
         prob = err if float(err.sum()) > 1e-10 else torch.ones_like(err)
         idx = torch.multinomial(prob, n_dead, replacement=True, generator=generator)
-        self.mu_raw[dead] = self.placement_raw(idx, H, W, generator).to(dev)
+        self.mu_raw[dead] = self.placement_raw(idx, H, W, generator, camera).to(dev)
         self.mu_q[dead] = z_frame.expand(n_dead, -1).to(dev)
         self.L_raw[dead] = self._raw_diagonal(z_std.clamp_min(1e-3), sigma_xy, n_dead).to(dev)
         self.logit_color[dead] = torch.logit(frame[:, idx // W, idx % W].T.clamp(0.01, 0.99)).to(dev)

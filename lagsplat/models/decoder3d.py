@@ -23,7 +23,7 @@ import torch
 from torch import Tensor
 
 from lagsplat.models.decoder import ConditionedGaussians, DecoderGeometry
-from lagsplat.render.camera import NEAR, Camera, depth_order, project_gaussians
+from lagsplat.render.camera import NEAR, Camera, depth_order, project_gaussians, project_points
 from lagsplat.render.rasterize import Backend, rasterize
 
 __all__ = ["ConditionedGaussians3D"]
@@ -78,12 +78,18 @@ class ConditionedGaussians3D(ConditionedGaussians):
         """``sigma_xy`` (a fraction of the image width) in world units at the middle of the depth range."""
         return float(sigma_xy) * self.camera.width * 0.5 * sum(self.depth_range) / self.camera.fx
 
-    def placement_raw(self, idx: Tensor, height: int, width: int, generator: torch.Generator | None = None) -> Tensor:
-        """World points ``[n,3]`` on the main camera's rays through the pixels ``idx`` (flat, of a
-        ``height x width`` image), at depths drawn uniformly in ``depth_range``."""
-        cam = self.camera.resized(width, height)
+    def placement_raw(self, idx: Tensor, height: int, width: int, generator: torch.Generator | None = None, camera: Camera | None = None) -> Tensor:
+        """World points ``[n,3]`` on the rays of ``camera`` (default the main camera) through the pixels ``idx`` (flat,
+        of a ``height x width`` image), at distances drawn uniformly in ``depth_range`` from it (the range is the
+        main camera's; another camera at another distance from the scene gets it shifted by the difference of
+        their distances to the main camera's mid-range point)."""
+        cam = (camera or self.camera).resized(width, height)
         uv = torch.stack([(idx % width).float() + 0.5, (idx // width).float() + 0.5], -1)
         near, far = self.depth_range
+        if camera is not None:  # the same slab of the scene, seen from this camera
+            mid = self.camera.unproject(torch.tensor([[self.camera.cx, self.camera.cy]]), torch.tensor([0.5 * (near + far)]))[0]
+            shift = float(project_points(mid, camera)[1]) - 0.5 * (near + far)
+            near, far = max(near + shift, 1e-3), max(far + shift, 2e-3)
         depth = near + (far - near) * torch.rand(len(idx), generator=generator)
         return cam.unproject(uv, depth)
 

@@ -268,8 +268,11 @@ class DeformationGaussians(ConditionedGaussians):
         self.logit_alpha.zero_()
 
     @torch.no_grad()
-    def recycle(self, dead, frame, rendered, z_frame, z_std, sigma_xy: float = 0.05, generator=None) -> None:
-        """Teleport the primitives flagged in ``dead`` to high-error pixels (:meth:`ConditionedGaussians.recycle`, spatial part)."""
+    def recycle(self, dead, frame, rendered, z_frame, z_std, sigma_xy: float = 0.05, generator=None, camera=None) -> None:
+        """Teleport the primitives flagged in ``dead`` to high-error pixels (:meth:`ConditionedGaussians.recycle`, spatial part;
+        ``camera`` must be ``None``, :meth:`ConditionedGaussians.placement_raw`)."""
+        if camera is not None:
+            raise ValueError("a 2-D decoder places primitives in its one image plane (no camera)")
         n_dead = int(dead.sum())
         if n_dead == 0:
             return

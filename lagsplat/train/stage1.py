@@ -255,12 +255,18 @@ def train_stage1(
                 if n_dead:
                     j = int(rng.integers(N))
                     zj = enc(X[j : j + 1])
-                    rendered = dec(zj, H, W)[0]
+                    cam, target = None, X[j]
+                    if V is not None:  # 3-D: the high-error pixels of the main camera or of a training view, at random
+                        m = int(rng.integers(len(train_views) + 1)) - 1
+                        if m >= 0:
+                            cam = view_cams[train_views[m]]
+                            target = V[j, train_views[m]].to(dev).permute(2, 0, 1).float().div_(255.0)
+                    rendered = dec(zj, H, W)[0] if cam is None else dec.render(zj, target.shape[1], target.shape[2], camera=cam)[0][0]
                     zs = torch.cat([enc(X[i : i + 256]) for i in range(0, N, 256)]).std(0)
                     n_split = int(round(cfg.split_share * n_dead))
                     to_split = dead & (torch.cumsum(dead.long(), 0) <= n_split)
                     used, split = split_overloaded(dec, to_split, zs, sxy) if n_split else (torch.zeros_like(dead),) * 2
-                    dec.recycle(dead & ~used, X[j], rendered, zj[0], zs, sxy, generator=gen)
+                    dec.recycle(dead & ~used, target, rendered, zj[0], zs, sxy, generator=gen, camera=cam)
                     _reset_adam_rows(opt, dec.primitive_parameters(), dead | split)
                 history["recycled"].append((step, n_dead))
     return model.cpu().eval(), history
