@@ -45,7 +45,8 @@ from lagsplat.io.clip import Clip, ClipError
 from lagsplat.io.common import jsonable
 from lagsplat.render.camera import Camera, load_cameras, save_cameras
 
-__all__ = ["VIEW_SOURCES", "ViewSet", "view_key", "build_views", "save_views", "load_views", "ensure_views", "main_camera_of", "scene_center", "scene_depth_range"]
+__all__ = ["VIEW_SOURCES", "ViewSet", "view_key", "build_views", "save_views", "load_views", "ensure_views", "main_camera_of", "scene_center", "scene_depth_range",
+           "plane_sweep_depth"]
 
 VIEW_SOURCES = ("synthetic", "cameras", "sharp")
 """The view sources ``system.views.source`` selects (module docstring)."""
@@ -298,3 +299,56 @@ def scene_depth_range(cameras: list[Camera], spread: float = 0.5) -> tuple[float
     if not D > 0:
         raise ValueError(f"the cameras' axes meet behind the main camera (depth {D:.3g})")
     return D * (1.0 - spread), D * (1.0 + spread)
+
+
+def plane_sweep_depth(images: np.ndarray, cameras: list[Camera], ref: int, depth_range: tuple[float, float], n_depths: int = 48,
+                      window: int = 5) -> np.ndarray:  # fmt: skip
+    """Depth map ``[H,W]`` (world units along camera ``ref``'s axis) of one instant seen by several cameras: plane-sweep
+    multi-view stereo (Collins 1996). For each of ``n_depths`` depths, even in inverse depth over ``depth_range``,
+    every pixel of camera ``ref`` is back-projected, projected into the other cameras and compared with what they
+    see there (mean absolute colour difference over the cameras that see the point, averaged over a
+    ``window x window`` box); each pixel takes the depth of least cost.
+
+    Args:
+        images: uint8 ``[C,H,W,3]``, the same instant seen by the ``C`` cameras (sizes may differ only if passed
+            as a list).
+        cameras: the ``C`` cameras.
+        ref: index of the camera whose depth map is wanted.
+        depth_range: ``(near, far)``, world units.
+
+    Raises:
+        ValueError: with fewer than two cameras, or a depth range that is not ``0 < near < far``.
+    """
+    import torch
+    import torch.nn.functional as F
+
+    from lagsplat.render.camera import project_points
+
+    if len(cameras) < 2 or len(images) != len(cameras):
+        raise ValueError(f"plane sweep needs one image per camera and at least two cameras, got {len(images)} and {len(cameras)}")
+    near, far = (float(v) for v in depth_range)
+    if not 0 < near < far:
+        raise ValueError(f"depth_range must satisfy 0 < near < far, got {depth_range}")
+    imgs = [torch.from_numpy(np.ascontiguousarray(im)).permute(2, 0, 1).float()[None] / 255.0 for im in images]
+    H, W = imgs[ref].shape[2:]
+    cam = cameras[ref].resized(W, H)
+    ys, xs = torch.meshgrid(torch.arange(H) + 0.5, torch.arange(W) + 0.5, indexing="ij")
+    uv = torch.stack([xs, ys], -1).reshape(-1, 2)
+    depths = 1.0 / torch.linspace(1.0 / near, 1.0 / far, n_depths)
+    cost = torch.empty(n_depths, H, W)
+    for k, dep in enumerate(depths):
+        X = cam.unproject(uv, dep.expand(len(uv)))
+        total, seen = torch.zeros(H * W), torch.zeros(H * W)
+        for c, (img, other) in enumerate(zip(imgs, cameras)):
+            if c == ref:
+                continue
+            h, w = img.shape[2:]
+            p, z = project_points(X, other.resized(w, h))
+            grid = torch.stack([2 * p[:, 0] / w - 1, 2 * p[:, 1] / h - 1], -1)
+            inside = (grid.abs() <= 1).all(-1) & (z > 0)
+            col = F.grid_sample(img, grid[None, None], align_corners=False)[0, :, 0]  # [3, HW]
+            total += torch.where(inside, (col - imgs[ref].reshape(3, -1)).abs().mean(0), torch.zeros(()))
+            seen += inside.float()
+        c_k = torch.where(seen > 0, total / seen.clamp_min(1), torch.full_like(total, 1.0)).reshape(1, 1, H, W)
+        cost[k] = F.avg_pool2d(F.pad(c_k, (window // 2,) * 4, mode="replicate"), window, 1)[0, 0]
+    return depths[cost.argmin(0)].numpy()

@@ -144,3 +144,30 @@ def test_the_cache_survives_its_index_being_deleted(source, tmp_path):
     (folder / "views.json").unlink()  # what a workflow manager does to a rerun job's declared output
     vs, computed = ensure_views(folder, clip, source)
     assert not computed and (folder / "views.json").is_file() and vs.holdout == [1]
+
+
+def test_plane_sweep_finds_the_depth_of_a_textured_wall():
+    import torch
+
+    from lagsplat.models.decoder3d import ConditionedGaussians3D
+    from lagsplat.views import plane_sweep_depth
+
+    size = 48
+    cams = [look_at((x, 0.0, -2.0), (0.0, 0.0, 0.5), (0.0, -1.0, 0.0), size, size, 50.0) for x in (0.0, -0.6, 0.6)]
+    g = torch.Generator().manual_seed(0)
+    side = torch.linspace(-1.5, 1.5, 31)  # 0.1 apart
+    xy = torch.stack(torch.meshgrid(side, side, indexing="ij"), -1).reshape(-1, 2)
+    n = len(xy)
+    dec = ConditionedGaussians3D(n, 1, cams[0], depth_range=(1.0, 4.0), backend="cpu")
+    with torch.no_grad():  # a wall of small random-coloured dots at world z = 0.5 (depth 2.5 from the main camera), apart
+        dec.mu_raw.copy_(torch.cat([xy, torch.full((n, 1), 0.5)], 1))
+        dec.L_raw.copy_(dec._raw_diagonal(torch.ones(1), 0.025, n))
+        dec.mu_q.zero_()
+        dec.logit_alpha.fill_(3.0)
+        dec.logit_color.copy_(torch.randn(n, 3, generator=g) * 2)
+        images = np.stack([(dec.render(torch.zeros(1, 1), size, size, camera=c)[0][0].permute(1, 2, 0).numpy() * 255).astype(np.uint8) for c in cams])
+    depth = plane_sweep_depth(images, cams, 0, (1.2, 5.0))
+    inner = depth[8:-8, 8:-8]
+    assert abs(float(np.median(inner)) - 2.5) < 0.08 and np.mean(np.abs(inner - 2.5) < 0.2) > 0.8
+    with pytest.raises(ValueError):
+        plane_sweep_depth(images[:1], cams[:1], 0, (1.0, 2.0))

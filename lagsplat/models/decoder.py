@@ -320,16 +320,18 @@ class ConditionedGaussians(nn.Module):
         (the same here; world units in 3-D)."""
         return float(sigma_xy)
 
-    def placement_raw(self, idx: Tensor, height: int, width: int, generator: torch.Generator | None = None, camera=None) -> Tensor:
+    def placement_raw(
+        self, idx: Tensor, height: int, width: int, generator: torch.Generator | None = None, camera=None, depth: Tensor | None = None
+    ) -> Tensor:
         """Raw spatial parameters ``[n, n_space]`` of new primitives at the pixels of flat indices ``idx`` of the
-        training view (here the pixel centres themselves; ``generator`` unused; ``camera`` must be ``None``: a 2-D
-        decoder has one view).
+        training view (here the pixel centres themselves; ``generator`` unused; ``camera`` and ``depth`` must be
+        ``None``: a 2-D decoder has one view and no depth).
 
         Raises:
-            ValueError: if a camera is given.
+            ValueError: if a camera or a depth is given.
         """
-        if camera is not None:
-            raise ValueError("a 2-D decoder places primitives in its one image plane (no camera)")
+        if camera is not None or depth is not None:
+            raise ValueError("a 2-D decoder places primitives in its one image plane (no camera, no depth)")
         return self._raw_positions(idx, height, width)
 
     @staticmethod
@@ -356,6 +358,7 @@ class ConditionedGaussians(nn.Module):
         sigma_q_floor: float = 0.5,
         generator: torch.Generator | None = None,
         prob: Tensor | None = None,
+        depth: Tensor | None = None,
     ) -> None:
         """Place primitives on one frame, edges favoured (reference "smart init").
 
@@ -373,6 +376,7 @@ class ConditionedGaussians(nn.Module):
             sigma_q_floor: lower bound of the latent standard deviation.
             generator: RNG for reproducibility.
             prob: ``[H*W]`` unnormalised placement probability, or ``None``.
+            depth: ``[H*W]`` depth of each pixel along the main camera (3-D decoder, :meth:`placement_raw`), or ``None``.
         """
         _, H, W = frame.shape
         if prob is None:
@@ -380,7 +384,7 @@ class ConditionedGaussians(nn.Module):
 
             prob = placement_probability(frame)
         idx = torch.multinomial(prob, self.K, replacement=self.K > H * W, generator=generator)
-        self.mu_raw.copy_(self.placement_raw(idx, H, W, generator))
+        self.mu_raw.copy_(self.placement_raw(idx, H, W, generator, None, None if depth is None else depth[idx]))
         mean, std = z.mean(0), z.std(0).clamp_min(1e-3)
         self.mu_q.copy_(mean + std * torch.randn(self.K, self.d, generator=generator))
         sigma_q = torch.clamp(std.max(), min=sigma_q_floor).repeat(self.d)
@@ -399,6 +403,7 @@ class ConditionedGaussians(nn.Module):
         sigma_xy: float = 0.05,
         generator: torch.Generator | None = None,
         camera=None,
+        depth: Tensor | None = None,
     ) -> None:
         """Teleport the primitives flagged in ``dead`` to high-error pixels.
 
@@ -413,6 +418,7 @@ class ConditionedGaussians(nn.Module):
             z_frame: ``[d]`` raw latent of ``frame``.
             z_std: ``[d]`` per-dimension spread of the training latents.
             camera: the camera ``frame`` was seen by (3-D decoder, :meth:`placement_raw`; ``None``: the main view).
+            depth: ``[H*W]`` depth of each pixel of ``frame`` along that camera (3-D decoder), or ``None``.
         """
         n_dead = int(dead.sum())
         if n_dead == 0:
@@ -424,7 +430,7 @@ class ConditionedGaussians(nn.Module):
         err = (rendered - frame).abs().mean(0).flatten()
         prob = err if float(err.sum()) > 1e-10 else torch.ones_like(err)
         idx = torch.multinomial(prob, n_dead, replacement=True, generator=generator)
-        self.mu_raw[dead] = self.placement_raw(idx, H, W, generator, camera).to(dev)
+        self.mu_raw[dead] = self.placement_raw(idx, H, W, generator, camera, None if depth is None else depth.cpu()[idx]).to(dev)
         self.mu_q[dead] = z_frame.expand(n_dead, -1).to(dev)
         self.L_raw[dead] = self._raw_diagonal(z_std.clamp_min(1e-3), sigma_xy, n_dead).to(dev)
         self.logit_color[dead] = torch.logit(frame[:, idx // W, idx % W].T.clamp(0.01, 0.99)).to(dev)

@@ -78,13 +78,19 @@ class ConditionedGaussians3D(ConditionedGaussians):
         """``sigma_xy`` (a fraction of the image width) in world units at the middle of the depth range."""
         return float(sigma_xy) * self.camera.width * 0.5 * sum(self.depth_range) / self.camera.fx
 
-    def placement_raw(self, idx: Tensor, height: int, width: int, generator: torch.Generator | None = None, camera: Camera | None = None) -> Tensor:
+    def placement_raw(
+        self, idx: Tensor, height: int, width: int, generator: torch.Generator | None = None, camera: Camera | None = None,
+        depth: Tensor | None = None,
+    ) -> Tensor:  # fmt: skip
         """World points ``[n,3]`` on the rays of ``camera`` (default the main camera) through the pixels ``idx`` (flat,
-        of a ``height x width`` image), at distances drawn uniformly in ``depth_range`` from it (the range is the
-        main camera's; another camera at another distance from the scene gets it shifted by the difference of
-        their distances to the main camera's mid-range point)."""
+        of a ``height x width`` image): at ``depth [n]`` (world units along the camera's axis, e.g. a multi-view
+        stereo estimate, :func:`lagsplat.views.plane_sweep_depth`) times ``1 -+ 5 %`` drawn at random, or, without
+        it, at depths drawn uniformly in ``depth_range`` (the main camera's range; another camera at another
+        distance from the scene gets it shifted by the difference of their distances to its mid-range point)."""
         cam = (camera or self.camera).resized(width, height)
         uv = torch.stack([(idx % width).float() + 0.5, (idx // width).float() + 0.5], -1)
+        if depth is not None:
+            return cam.unproject(uv, depth.float() * (1.0 + 0.05 * (2.0 * torch.rand(len(idx), generator=generator) - 1.0)))
         near, far = self.depth_range
         if camera is not None:  # the same slab of the scene, seen from this camera
             mid = self.camera.unproject(torch.tensor([[self.camera.cx, self.camera.cy]]), torch.tensor([0.5 * (near + far)]))[0]

@@ -22,7 +22,7 @@ from lagsplat.train.device import resolve_device
 from lagsplat.train.plateau import Plateau
 from lagsplat.train.losses import reconstruction_loss, static_motion_penalty, temporal_curvature_penalty
 from lagsplat.train.progress import Progress
-from lagsplat.views import ViewSet, scene_depth_range
+from lagsplat.views import ViewSet, plane_sweep_depth, scene_depth_range
 
 __all__ = ["Stage1Config", "train_stage1", "static_pixels"]
 
@@ -46,8 +46,10 @@ class Stage1Config:
     :class:`~lagsplat.models.decoder3d.ConditionedGaussians3D`), trained on the main view plus the cached
     views of :mod:`lagsplat.views`: each step adds, for ``views_per_step`` training view cameras drawn at
     random, ``w_views`` times the same reconstruction loss on those views of the batch's frames; new
-    primitives go on their pixels' rays at depths in ``depth_range`` (world units; ``None``: around where
-    the cameras' axes meet, :func:`~lagsplat.views.scene_depth_range`).
+    primitives (initial and recycled, on the main camera or a training view) go on their pixels' rays at the
+    plane-sweep stereo depth of that instant (:func:`~lagsplat.views.plane_sweep_depth`), searched in
+    ``depth_range`` (world units; ``None``: around where the cameras' axes meet,
+    :func:`~lagsplat.views.scene_depth_range`).
     """
 
     n_gaussians: int = 1024
@@ -174,7 +176,12 @@ def train_stage1(
         z0 = torch.cat([enc(X[i : i + 256]) for i in range(0, N, 256)])
     motion_std = X.std(0).mean(0) if cfg.w_motion_init > 0 else None  # [H,W] temporal std of the training frames
     sxy = dec.spatial_sigma(cfg.sigma_xy)  # the initial spatial extent in the decoder's units
-    dec.init_from_frame(X[0], z0, sxy, cfg.sigma_q_floor, generator=gen, prob=placement_probability(X[0], motion_std, cfg.w_motion_init))
+    # 3-D: new primitives go at the multi-view stereo depth of their pixel (the main camera and the training views, one instant)
+    depth_of = (lambda j, c: torch.from_numpy(plane_sweep_depth(np.concatenate([frames[j : j + 1], views.images[clip.train_idx[j], train_views]]),
+                                                                [views.cameras[0]] + [view_cams[m] for m in train_views], c, dec.depth_range)).flatten()
+                ) if V is not None else None  # fmt: skip
+    dec.init_from_frame(X[0], z0, sxy, cfg.sigma_q_floor, generator=gen, prob=placement_probability(X[0], motion_std, cfg.w_motion_init),
+                        **({"depth": depth_of(0, 0)} if V is not None else {}))  # fmt: skip
     model = AutoEncoder(enc, dec, H, W).to(dev)
     X = X.to(dev)
     static = None if static is None else static.to(dev)
@@ -255,18 +262,19 @@ def train_stage1(
                 if n_dead:
                     j = int(rng.integers(N))
                     zj = enc(X[j : j + 1])
-                    cam, target = None, X[j]
+                    cam, target, extra = None, X[j], {}
                     if V is not None:  # 3-D: the high-error pixels of the main camera or of a training view, at random
                         m = int(rng.integers(len(train_views) + 1)) - 1
                         if m >= 0:
                             cam = view_cams[train_views[m]]
                             target = V[j, train_views[m]].to(dev).permute(2, 0, 1).float().div_(255.0)
+                        extra = {"camera": cam, "depth": depth_of(j, m + 1)}
                     rendered = dec(zj, H, W)[0] if cam is None else dec.render(zj, target.shape[1], target.shape[2], camera=cam)[0][0]
                     zs = torch.cat([enc(X[i : i + 256]) for i in range(0, N, 256)]).std(0)
                     n_split = int(round(cfg.split_share * n_dead))
                     to_split = dead & (torch.cumsum(dead.long(), 0) <= n_split)
                     used, split = split_overloaded(dec, to_split, zs, sxy) if n_split else (torch.zeros_like(dead),) * 2
-                    dec.recycle(dead & ~used, target, rendered, zj[0], zs, sxy, generator=gen, camera=cam)
+                    dec.recycle(dead & ~used, target, rendered, zj[0], zs, sxy, generator=gen, **extra)
                     _reset_adam_rows(opt, dec.primitive_parameters(), dead | split)
                 history["recycled"].append((step, n_dead))
     return model.cpu().eval(), history
