@@ -58,7 +58,7 @@ from torch import Tensor
 from lagsplat.models.decoder import latent_gate
 from lagsplat.models.lagrangian import Lagrangian
 
-__all__ = ["ForceTransport", "Selection", "EditedDynamics", "calibrate_kappa", "compositing_weights", "BRUSHES"]
+__all__ = ["ChartKinematics", "ForceTransport", "Selection", "EditedDynamics", "calibrate_kappa", "compositing_weights", "BRUSHES"]
 
 #: Brush weightings of :meth:`ForceTransport.select` (module docstring).
 BRUSHES = ("visible", "paper")
@@ -105,7 +105,34 @@ def compositing_weights(mu: Tensor, cov: Tensor, opacity: Tensor, points: Tensor
     return w if min_transmittance <= 0 else torch.where(trans >= min_transmittance, w, torch.zeros_like(w))
 
 
-class ForceTransport:
+class ChartKinematics:
+    """Affine primitive motion in the whitened chart, ``mu_i(q) = c_i + J_i q`` (Schur mean, paper Eq. 2 and 9), with
+    the latent gates of the opacities (paper Eq. 4): the part of the force transport shared by the image-plane
+    (:class:`ForceTransport`, ``n = 2``, pixels) and the world-space one (:class:`lagsplat.force3d.ForceTransport3D`,
+    ``n = 3``). Needs ``c [K,n]``, ``J [K,n,d]``, ``alpha [K]``, ``mu_q``, ``L_qq``, ``W_inv``, ``mean``."""
+
+    c: Tensor
+    J: Tensor
+
+    @property
+    def d(self) -> int:
+        """Latent dimension."""
+        return int(self.J.shape[2])
+
+    def means(self, q: Tensor) -> Tensor:
+        """Primitive positions ``mu_i(q) [B,K,n]`` (pixels in 2-D, world units in 3-D)."""
+        return self.c[None] + torch.einsum("kij,bj->bki", self.J, q)
+
+    def opacity(self, q: Tensor) -> Tensor:
+        """Rendered opacity ``alpha_i g_i(q) [B,K]`` (paper Eq. 4)."""
+        return self.alpha[None] * latent_gate(q @ self.W_inv + self.mean, self.mu_q, self.L_qq)
+
+    def application_point(self, q: Tensor, sel: Selection) -> Tensor:
+        """Where the selected material is at state ``q``: ``sum_i w_i mu_i(q) [B,n]``."""
+        return torch.einsum("bk,bki->bi", sel.weights, self.means(q))
+
+
+class ForceTransport(ChartKinematics):
     """Per-primitive kinematics of a trained decoder in the whitened chart (paper Eq. 9).
 
     Attributes:
@@ -171,19 +198,6 @@ class ForceTransport:
             c, J, g.alpha.clone(), g.mu_q.clone(), g.L_qq.clone(), W_inv, mean, cov.clone(), brush, (ae.height, ae.width),
             min_transmittance,
         )
-
-    @property
-    def d(self) -> int:
-        """Latent dimension."""
-        return int(self.J.shape[2])
-
-    def means(self, q: Tensor) -> Tensor:
-        """Primitive positions ``mu_i(q) [B,K,2]`` in pixels."""
-        return self.c[None] + torch.einsum("kij,bj->bki", self.J, q)
-
-    def opacity(self, q: Tensor) -> Tensor:
-        """Rendered opacity ``alpha_i g_i(q) [B,K]`` (paper Eq. 4)."""
-        return self.alpha[None] * latent_gate(q @ self.W_inv + self.mean, self.mu_q, self.L_qq)
 
     def compositing_weights(self, mu: Tensor, opacity: Tensor, points: Tensor, min_transmittance: float = 0.0) -> Tensor:
         """Share of each primitive in the rendered colour at each point, ``[P,K]``
@@ -258,10 +272,6 @@ class ForceTransport:
             w = self._normalise(self._weights(mu, op, points[s : s + step], sigma))
             out.append(torch.einsum("pk,kid->pid", w, self.J))
         return torch.cat(out) if out else self.J.new_zeros(0, 2, self.d)
-
-    def application_point(self, q: Tensor, sel: Selection) -> Tensor:
-        """Where the selected material is at state ``q``: ``sum_i w_i mu_i(q) [B,2]`` px."""
-        return torch.einsum("bk,bki->bi", sel.weights, self.means(q))
 
     def observed_motion(self, sel: Selection, q: Tensor) -> Tensor:
         """How far the selected material moves over the states ``q [T,d]``: rms displacement ``[B]`` px.

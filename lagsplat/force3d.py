@@ -19,14 +19,13 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from lagsplat.force import Selection, compositing_weights
-from lagsplat.models.decoder import latent_gate
+from lagsplat.force import ChartKinematics, Selection, compositing_weights
 from lagsplat.render.camera import Camera, depth_order, project_gaussians
 
 __all__ = ["ForceTransport3D"]
 
 
-class ForceTransport3D:
+class ForceTransport3D(ChartKinematics):
     """World-space kinematics of a trained 3-D decoder in the whitened chart (paper Eq. 9 with ``n = 3``).
 
     Attributes:
@@ -60,19 +59,6 @@ class ForceTransport3D:
         mean = torch.as_tensor(chart.mean, dtype=torch.float32)
         return cls(c, J, g.cov.clone(), g.alpha.clone(), g.mu_q.clone(), g.L_qq.clone(), W_inv, mean, min_transmittance)
 
-    @property
-    def d(self) -> int:
-        """Latent dimension."""
-        return int(self.J.shape[2])
-
-    def means(self, q: Tensor) -> Tensor:
-        """World positions ``mu_i(q) [B,K,3]``."""
-        return self.c[None] + torch.einsum("kij,bj->bki", self.J, q)
-
-    def opacity(self, q: Tensor) -> Tensor:
-        """Rendered opacity ``alpha_i g_i(q) [B,K]`` (paper Eq. 4)."""
-        return self.alpha[None] * latent_gate(q @ self.W_inv + self.mean, self.mu_q, self.L_qq)
-
     @torch.no_grad()
     def select(self, q: Tensor, camera: Camera, x: Tensor, sigma: float = 1.0) -> Selection:
         """The material under the pixel ``x [2]`` of ``camera`` at the state ``q [1,d]``: compositing weights of the
@@ -95,10 +81,6 @@ class ForceTransport3D:
         w = torch.zeros_like(w_sorted).scatter_(0, order[0], w_sorted)
         tot = w.sum()
         return Selection((w / tot if tot > 1e-12 else torch.zeros_like(w))[None])
-
-    def application_point(self, q: Tensor, sel: Selection) -> Tensor:
-        """Where the selected material is at state ``q``: ``sum_i w_i mu_i(q) [B,3]`` (world units)."""
-        return torch.einsum("bk,bki->bi", sel.weights, self.means(q))
 
     def pullback(self, sel: Selection, f: Tensor, kappa: float | Tensor = 1.0) -> Tensor:
         """Generalized force ``kappa sum_i w_i J_i^T f [B,d]`` of world forces ``f [B,3]`` (paper Eq. 9)."""
