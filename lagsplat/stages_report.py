@@ -183,7 +183,8 @@ def stage_robot_figures(cfg: DictConfig) -> None:
 
 def stage_render(cfg: DictConfig) -> None:
     """A 3-D model's novel views (``render`` group) -> ``figures/novel_views.mp4`` and ``figures/novel_views.png``:
-    the encoded state of one frame (or a free Stage-2 rollout from it) seen from an orbit or from cameras in a JSON."""
+    the encoded state of one frame (or a free Stage-2 rollout from it) seen from an orbit (there and back across the
+    azimuths the cameras filmed from, at the main camera's distance and elevation) or from cameras in a JSON."""
     import numpy as np
     import torch
 
@@ -199,7 +200,8 @@ def stage_render(cfg: DictConfig) -> None:
     if str(r.camera) == "orbit":
         from lagsplat.views import scene_center
 
-        cams = orbit_through(ae.decoder.camera, scene_center(a.load_views().cameras), int(r.n_cameras), W, H)
+        views = a.load_views()
+        cams = orbit_through(ae.decoder.camera, scene_center(views.cameras), int(r.n_cameras), W, H, span=views.cameras[1:])
     else:
         cams = [c.resized(W, H) for c in load_cameras(str(r.camera))]
     frame = int(r.frame) if r.get("frame") is not None else int(clip.held_out_idx[0] if len(clip.held_out_idx) else 0)

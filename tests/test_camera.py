@@ -104,3 +104,22 @@ def test_the_nearer_gaussian_covers_the_farther_one_whatever_their_index() -> No
     centre = rasterize(m2, c2, opac, colors, 24, 24, backend="torch")[0, :, 12, 12]
     assert unsorted[2] > 2 * unsorted[0]  # in index order the far one would be drawn on top
     assert centre[0] > 0.85 and centre[2] < 0.1
+
+
+def test_an_orbit_through_a_camera_keeps_its_distance_and_an_arc_stays_on_the_filmed_side():
+    from lagsplat.render.camera import orbit_through
+
+    target = np.array([0.0, 0.0, 1.0])
+    main = look_at((0.0, -0.5, -2.0), target, (0.0, -1.0, 0.0), 32, 32)
+    side = [look_at((2.0 * np.sin(a), -0.5, 1.0 - 3.0 * np.cos(a)), target, (0.0, -1.0, 0.0), 32, 32) for a in (-0.6, 0.4)]
+    full = orbit_through(main, target, 8)
+    r = np.linalg.norm(main.center - target)
+    assert np.allclose([np.linalg.norm(c.center - target) for c in full], r) and np.allclose(full[0].center, main.center, atol=1e-6)
+    arc = orbit_through(main, target, 12, span=side)
+
+    def azimuth(p):  # about the vertical through the target, 0 on the main camera's side
+        return np.degrees(np.arctan2(p[0] - target[0], target[2] - p[2]))
+
+    az = np.array([azimuth(c.center) for c in arc])
+    assert np.allclose([np.linalg.norm(c.center - target) for c in arc], r)
+    assert az.min() == pytest.approx(azimuth(side[0].center), abs=0.5) and az.max() == pytest.approx(azimuth(side[1].center), abs=0.5)

@@ -128,15 +128,17 @@ def look_at(eye: Sequence[float], target: Sequence[float], up: Sequence[float], 
 
 
 def orbit(target: Sequence[float], radius: float, elevation_deg: float, n: int, width: int, height: int, up: Sequence[float] = (0.0, -1.0, 0.0),
-          fov_y_deg: float = 40.0, azimuth0_deg: float = 0.0) -> list[Camera]:  # fmt: skip
+          fov_y_deg: float = 40.0, azimuth0_deg: float = 0.0, azimuths_deg: Sequence[float] | None = None) -> list[Camera]:  # fmt: skip
     """``n`` cameras evenly spaced in azimuth on a circle of ``radius`` around ``target`` (about the ``up`` axis),
     raised by ``elevation_deg``, all looking at ``target``. The default ``up`` is world ``-y`` (a scene in the
-    main camera's frame, y down). Azimuth 0 puts the camera on the world ``-z`` side of the target."""
+    main camera's frame, y down). Azimuth 0 puts the camera on the world ``-z`` side of the target; with
+    ``azimuths_deg`` the cameras stand at those azimuths (added to ``azimuth0_deg``) instead (``n`` unused)."""
     up_v, ref, side = _orbit_basis(up)
     el = math.radians(elevation_deg)
     cams = []
-    for k in range(n):
-        az = math.radians(azimuth0_deg) + 2 * math.pi * k / n
+    offsets = [math.radians(a) for a in azimuths_deg] if azimuths_deg is not None else [2 * math.pi * k / n for k in range(n)]
+    for off in offsets:
+        az = math.radians(azimuth0_deg) + off
         d = math.cos(el) * (math.cos(az) * ref + math.sin(az) * side) + math.sin(el) * up_v
         cams.append(look_at(np.asarray(target, float) + radius * d, target, up_v, width, height, fov_y_deg))
     return cams
@@ -152,19 +154,30 @@ def _orbit_basis(up: Sequence[float]) -> tuple[np.ndarray, np.ndarray, np.ndarra
     return up_v, ref, np.cross(up_v, ref)
 
 
-def orbit_through(camera: Camera, target: Sequence[float], n: int, width: int | None = None, height: int | None = None) -> list[Camera]:
-    """``n`` cameras on the orbit around ``target`` that passes through ``camera`` (its distance, elevation and field
-    of view; up is the camera's image up), the first one at ``camera``'s own azimuth (:func:`orbit`)."""
-    R = np.asarray(camera.R, float)
-    up = -R[1]  # image y points down
-    up_v, ref, side = _orbit_basis(up)
-    offset = camera.center - np.asarray(target, float)
+def _azimuth(camera: Camera, target: Sequence[float], point: np.ndarray) -> tuple[float, float, float]:
+    """``(azimuth_deg, elevation_deg, radius)`` of ``point`` about ``target`` in the orbit basis of ``camera``'s image up."""
+    up_v, ref, side = _orbit_basis(-np.asarray(camera.R, float)[1])  # image y points down
+    offset = np.asarray(point, float) - np.asarray(target, float)
     radius = float(np.linalg.norm(offset))
     el = math.degrees(math.asin(float(np.clip(offset @ up_v / radius, -1.0, 1.0))))
-    az0 = math.degrees(math.atan2(float(offset @ side), float(offset @ ref)))
+    return math.degrees(math.atan2(float(offset @ side), float(offset @ ref))), el, radius
+
+
+def orbit_through(camera: Camera, target: Sequence[float], n: int, width: int | None = None, height: int | None = None,
+                  span: Sequence[Camera] | None = None) -> list[Camera]:  # fmt: skip
+    """``n`` cameras on the orbit around ``target`` that passes through ``camera`` (its distance, elevation and field
+    of view; up is the camera's image up, :func:`orbit`): the full circle from ``camera``'s own azimuth, or, with
+    ``span``, there and back over the azimuths those cameras stand at (the side of the scene that was filmed)."""
+    az0, el, radius = _azimuth(camera, target, camera.center)
     w, h = width or camera.width, height or camera.height
     fov = math.degrees(2 * math.atan(0.5 * camera.height / camera.fy))
-    return orbit(target, radius, el, n, w, h, up_v, fov, az0)
+    up = -np.asarray(camera.R, float)[1]
+    if not span:
+        return orbit(target, radius, el, n, w, h, up, fov, az0)
+    rel = [(_azimuth(camera, target, c.center)[0] - az0 + 180.0) % 360.0 - 180.0 for c in [camera, *span]]
+    lo, hi = min(rel), max(rel)
+    ping = 0.5 - 0.5 * np.cos(np.linspace(0.0, 2 * math.pi, n, endpoint=False))  # 0 -> 1 -> 0, eased at the ends
+    return orbit(target, radius, el, n, w, h, up, fov, az0, azimuths_deg=(lo + (hi - lo) * ping).tolist())
 
 
 def _camera_space(X: Tensor, cam: Camera) -> tuple[Tensor, Tensor, Tensor]:
