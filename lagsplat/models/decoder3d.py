@@ -20,7 +20,7 @@ from __future__ import annotations
 from typing import Mapping, Sequence
 
 import torch
-from torch import Tensor, nn
+from torch import Tensor
 
 from lagsplat.models.decoder import ConditionedGaussians, DecoderGeometry
 from lagsplat.render.camera import NEAR, Camera, depth_order, project_gaussians, project_points
@@ -60,9 +60,6 @@ class ConditionedGaussians3D(ConditionedGaussians):
         if not 0.0 < near <= far:
             raise ValueError(f"depth_range must satisfy 0 < near <= far, got {tuple(depth_range)}")
         self.depth_range = (near, far)
-        # view-dependent colour, first order in the viewing direction (degree-1 spherical harmonics of 3DGS):
-        # colour = sigmoid(logit_color + sh1^T v), v the unit direction from the camera to the primitive
-        self.sh1 = nn.Parameter(torch.zeros(self.K, 3, 3))
 
     def options(self) -> dict:
         """Constructor keywords beyond ``(K, d, backend, background)``, saved in ``stage1.pt``."""
@@ -101,12 +98,6 @@ class ConditionedGaussians3D(ConditionedGaussians):
             near, far = max(near + shift, 1e-3), max(far + shift, 2e-3)
         depth = near + (far - near) * torch.rand(len(idx), generator=generator)
         return cam.unproject(uv, depth)
-
-    @torch.no_grad()
-    def recycle(self, dead: Tensor, *args, **kwargs) -> None:
-        """:meth:`ConditionedGaussians.recycle`, the recycled primitives' view-dependent colour reset to none."""
-        super().recycle(dead, *args, **kwargs)
-        self.sh1[dead] = 0.0
 
     def pixel_geometry(self, height: int, width: int, geom: DecoderGeometry | None = None) -> tuple[Tensor, Tensor]:
         """Not defined in 3-D: a primitive's image-plane Jacobian depends on the camera and the state.
@@ -152,9 +143,7 @@ class ConditionedGaussians3D(ConditionedGaussians):
         """Render ``z [B,d]`` through ``camera`` (default the main camera), at ``height x width`` px.
 
         Args:
-            z, backend, geom, extra: as :meth:`ConditionedGaussians.render` (``extra [K,C]`` or ``[B,K,C]``); each
-                primitive's colour depends on the direction it is seen from, ``sigmoid(logit_color + sh1^T v)``
-                (first-order spherical harmonics, as 3-D Gaussian splatting's view-dependent colour).
+            z, backend, geom, extra: as :meth:`ConditionedGaussians.render` (``extra [K,C]`` or ``[B,K,C]``).
             height, width: output size; the camera's intrinsics are scaled to it (:meth:`Camera.resized`).
             camera: the camera to render from.
 
@@ -166,9 +155,7 @@ class ConditionedGaussians3D(ConditionedGaussians):
         uv, cov2, depth = project_gaussians(means, g.cov[None], cam)
         B = z.shape[0]
         opac = g.alpha[None] * gate * (depth > NEAR).to(gate.dtype)
-        ray = means - torch.as_tensor(cam.center, dtype=means.dtype)
-        ray = ray / ray.norm(dim=-1, keepdim=True).clamp_min(1e-9)
-        colors, bg = torch.sigmoid(self.logit_color[None] + torch.einsum("bkj,kjc->bkc", ray, self.sh1)), self.background
+        colors, bg = g.colors.expand(B, -1, -1), self.background
         if extra is not None:
             ex = extra.to(colors.dtype)
             colors = torch.cat([colors, ex if ex.dim() == 3 else ex.expand(B, -1, -1)], -1)

@@ -121,8 +121,6 @@ def split_overloaded(dec: ConditionedGaussians, dead: Tensor, z_std: Tensor, sig
         dec.mu_raw[rows] = dec.spatial_raw(mu_s + sign * half[:, d:])
         dec.L_raw[rows] = raw
     dec.logit_color[children] = dec.logit_color[parents]
-    if hasattr(dec, "sh1"):  # the 3-D decoder's view-dependent colour
-        dec.sh1[children] = dec.sh1[parents]
     dec.logit_alpha[children] = dec.logit_alpha[parents]
     used, split = torch.zeros_like(dead), torch.zeros_like(dead)
     used[children], split[parents] = True, True
