@@ -58,7 +58,7 @@ from torch import Tensor
 from lagsplat.models.decoder import latent_gate
 from lagsplat.models.lagrangian import Lagrangian
 
-__all__ = ["ChartKinematics", "ForceTransport", "Selection", "EditedDynamics", "calibrate_kappa", "compositing_weights", "BRUSHES"]
+__all__ = ["ChartKinematics", "ForceTransport", "Selection", "EditedDynamics", "calibrate_kappa", "compositing_weights", "brush_samples", "BRUSHES"]
 
 #: Brush weightings of :meth:`ForceTransport.select` (module docstring).
 BRUSHES = ("visible", "paper")
@@ -69,6 +69,20 @@ class Selection:
     """Frozen brush weights over primitives: ``weights [B,K]``, each row summing to 1 (or 0 when empty)."""
 
     weights: Tensor
+
+
+def brush_samples(x: Tensor, sigma: float, size: tuple[int, int] | None = None) -> tuple[Tensor, Tensor]:
+    """The visible brush's samples around the points ``x [P,2]`` (px): a 5 x 5 grid of spacing ``sigma``,
+    ``(points [P,25,2], weights [P,25])`` with weights ``exp(-|s|^2 / 2 sigma^2)``, zero for samples off a
+    ``size = (height, width)`` image (only what is on screen can be touched)."""
+    g = torch.arange(-2, 3, dtype=x.dtype) * sigma
+    offs = torch.stack(torch.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)  # [25,2]
+    pts = x[:, None, :] + offs[None]
+    k = torch.exp(-0.5 * (offs**2).sum(-1) / sigma**2)[None].expand(len(x), -1)
+    if size is not None:
+        H, W = size
+        k = k * ((pts[..., 0] >= 0) & (pts[..., 0] <= W) & (pts[..., 1] >= 0) & (pts[..., 1] <= H))
+    return pts, k
 
 
 def compositing_weights(mu: Tensor, cov: Tensor, opacity: Tensor, points: Tensor, min_transmittance: float = 0.0) -> Tensor:
@@ -208,16 +222,8 @@ class ForceTransport(ChartKinematics):
         """Unnormalised brush weights ``[P,K]`` at points ``x [P,2]`` for one state."""
         if self.brush == "paper":
             return opacity[None] * torch.exp(-0.5 * ((mu[None] - x[:, None]) ** 2).sum(-1) / sigma**2)
-        g = torch.arange(-2, 3, dtype=x.dtype) * sigma
-        offs = torch.stack(torch.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)  # [25,2]
-        k = torch.exp(-0.5 * (offs**2).sum(-1) / sigma**2)
-        pts = x[:, None, :] + offs[None]  # [P,25,2]
-        cw = self.compositing_weights(mu, opacity, pts.reshape(-1, 2), self.min_transmittance).reshape(len(x), len(offs), -1)
-        kk = k[None].expand(len(x), -1)
-        if self.size is not None:  # only what is on screen can be touched
-            H, W = self.size
-            inside = (pts[..., 0] >= 0) & (pts[..., 0] <= W) & (pts[..., 1] >= 0) & (pts[..., 1] <= H)
-            kk = kk * inside
+        pts, kk = brush_samples(x, sigma, self.size)
+        cw = self.compositing_weights(mu, opacity, pts.reshape(-1, 2), self.min_transmittance).reshape(len(x), pts.shape[1], -1)
         return torch.einsum("ps,psk->pk", kk, cw)
 
     @staticmethod

@@ -19,7 +19,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from lagsplat.force import ChartKinematics, Selection, compositing_weights
+from lagsplat.force import ChartKinematics, Selection, brush_samples, compositing_weights
 from lagsplat.render.camera import Camera, depth_order, project_gaussians
 
 __all__ = ["ForceTransport3D"]
@@ -51,7 +51,7 @@ class ForceTransport3D(ChartKinematics):
         Raises:
             ValueError: if the decoder is not a 3-D one.
         """
-        if getattr(ae.decoder, "n_space", 2) != 3:
+        if ae.decoder.n_space != 3:
             raise ValueError("ForceTransport3D needs the 3-D decoder (stage1.decoder=conditioned3d); use lagsplat.force.ForceTransport")
         g = ae.decoder.geometry()
         c, J = ae.decoder.chart_kinematics(chart.W_inv, chart.mean, ae.height, ae.width)
@@ -73,11 +73,8 @@ class ForceTransport3D(ChartKinematics):
         uv, cov2, depth = project_gaussians(self.means(q), self.cov[None], camera)
         op = self.opacity(q) * (depth > 0).to(q.dtype)
         uv_s, cov_s, op_s, order = depth_order(depth, uv, cov2, op)
-        g = torch.arange(-2, 3, dtype=q.dtype) * sigma
-        offs = torch.stack(torch.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
-        k = torch.exp(-0.5 * (offs**2).sum(-1) / sigma**2)
-        inside = ((x[None] + offs) >= 0).all(-1) & ((x[None, 0] + offs[:, 0]) <= camera.width) & ((x[None, 1] + offs[:, 1]) <= camera.height)
-        w_sorted = torch.einsum("s,sk->k", k * inside, compositing_weights(uv_s[0], cov_s[0], op_s[0], x[None] + offs, self.min_transmittance))
+        pts, k = brush_samples(x[None].to(q.dtype), sigma, (camera.height, camera.width))
+        w_sorted = torch.einsum("s,sk->k", k[0], compositing_weights(uv_s[0], cov_s[0], op_s[0], pts[0], self.min_transmittance))
         w = torch.zeros_like(w_sorted).scatter_(0, order[0], w_sorted)
         tot = w.sum()
         return Selection((w / tot if tot > 1e-12 else torch.zeros_like(w))[None])
@@ -88,7 +85,5 @@ class ForceTransport3D(ChartKinematics):
 
     def viewing_direction(self, camera: Camera, x: Tensor) -> Tensor:
         """Unit world direction ``[3]`` of the ray through pixel ``x [2]`` of ``camera`` (away from the camera)."""
-        R = torch.as_tensor(camera.R, dtype=self.c.dtype)
-        ray_c = torch.stack([(x[0] - camera.cx) / camera.fx, (x[1] - camera.cy) / camera.fy, torch.ones((), dtype=self.c.dtype)])
-        ray = ray_c @ R  # R^T ray_c
+        ray = camera.unproject(x[None].to(self.c.dtype), torch.ones(1, dtype=self.c.dtype))[0] - torch.as_tensor(camera.center, dtype=self.c.dtype)
         return ray / ray.norm()

@@ -164,7 +164,7 @@ def stage_evaluate(cfg: DictConfig) -> None:
     settings = cfg.get(SETTINGS_GROUP[protocol])
     ae = a.load_stage1()
     m = run_protocol(protocol, clip, ae, chart, model, plain(settings) if settings else {}, plain(cfg.system), str(a.clip))
-    if getattr(ae.decoder, "n_space", 2) == 3:  # a 3-D model: its novel viewpoints too (paper §3.2, App. C)
+    if ae.decoder.n_space == 3:  # a 3-D model: its novel viewpoints too (paper §3.2, App. C)
         from lagsplat.evaluate.views import view_metrics
 
         m.update(view_metrics(ae, clip, a.load_views()))

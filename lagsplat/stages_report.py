@@ -194,7 +194,7 @@ def stage_render(cfg: DictConfig) -> None:
 
     a, r = artifacts_of(cfg), cfg.render
     ae, chart, clip = a.load_stage1(), a.load_chart(), a.load_clip()
-    if getattr(ae.decoder, "n_space", 2) != 3:
+    if ae.decoder.n_space != 3:
         raise ValueError(f"{a.stage1}: a 2-D model has no novel views (render needs stage1.decoder=conditioned3d)")
     W, H = (int(v) for v in r.size) if r.get("size") else (2 * ae.width, 2 * ae.height)
     if str(r.camera) == "orbit":
@@ -229,23 +229,25 @@ def stage_view(cfg: DictConfig) -> None:
     along the line of sight (``view.force_3d`` world units, ``auto`` by default).
     """
     from lagsplat.viewer.server import Viewer
-    from lagsplat.viewer.session import load_session
+    from lagsplat.viewer.session import Session
 
     v = cfg.view
     a = artifacts_of(cfg)
-    ae = a.load_stage1()
-    if getattr(ae.decoder, "n_space", 2) == 3:
+    a.require("stage1", "chart", "stage2")
+    ae, chart, model = a.load_stage1(), a.load_chart(), a.load_stage2()[0]
+    if ae.decoder.n_space == 3:
         from lagsplat.viewer.viewer3d import Session3D, serve_viser
 
-        a.require("chart", "stage2")
-        s3 = Session3D(ae, a.load_chart(), a.load_stage2()[0], force=v.get("force_3d", "auto"), kappa=float(v.kappa))
+        s3 = Session3D(ae, chart, model, force=v.get("force_3d", "auto"), kappa=float(v.kappa))
         max_s = v.get("max_seconds")
         serve_viser(s3, int(v.port), None if max_s is None else float(max_s),
                     on_ready=lambda url: print(f"lagsplat view: {cfg.system.name} (3-D) at {url}  (push {s3.force:.3g} world units; Ctrl-C stops)", flush=True))  # fmt: skip
         return
     fs = v.get("force_scale", "auto")
-    session = load_session(
-        artifacts_of(cfg),
+    session = Session(
+        ae,
+        chart,
+        model,
         sigma=float(v.sigma),
         force_scale="auto" if fs in (None, "auto") else float(fs),
         kappa=float(v.kappa),

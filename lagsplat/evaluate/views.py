@@ -30,7 +30,7 @@ def view_psnr(ae: AutoEncoder, clip: Clip, views: ViewSet, frames: np.ndarray, b
     Raises:
         ValueError: if the decoder is not a 3-D one (it has no cameras to render through).
     """
-    if getattr(ae.decoder, "n_space", 2) != 3:
+    if ae.decoder.n_space != 3:
         raise ValueError("novel views need the 3-D decoder (stage1.decoder=conditioned3d)")
     out = np.empty((len(frames), views.n_views + 1))
     for s in range(0, len(frames), batch):

@@ -232,15 +232,20 @@ class ConditionedGaussians(nn.Module):
         w = g.alpha[None] * gate
         return w / w.sum(-1, keepdim=True).clamp_min(1e-12)
 
+    def unit_scale(self, height: int, width: int) -> Tensor:
+        """``[n_space]`` factors from the decoder's spatial units to the units of its kinematics: pixels of a
+        ``height x width`` image here (``[W, H]``); world units, unscaled, in 3-D."""
+        return torch.tensor([float(width), float(height)])
+
     def pixel_geometry(self, height: int, width: int, geom: DecoderGeometry | None = None) -> tuple[Tensor, Tensor]:
         """Jacobians and covariances in pixel units: ``(J_px [K,2,d], cov_px [K,2,2])``."""
         g = self.geometry() if geom is None else geom
-        scale = g.J.new_tensor([float(width), float(height)])
+        scale = self.unit_scale(height, width).to(g.J)
         return g.J * scale[None, :, None], g.cov * scale[None, :, None] * scale[None, None, :]
 
     @torch.no_grad()
     def chart_kinematics(self, W_inv, mean, height: int, width: int) -> tuple[Tensor, Tensor]:
-        """Affine primitive motion in a whitened chart, in pixels: ``mu_i(q) = c_i + J_i q``.
+        """Affine primitive motion in a whitened chart, in pixels (world units in 3-D, :meth:`unit_scale`): ``mu_i(q) = c_i + J_i q``.
 
         With ``z = q @ W_inv + mean`` (the chart's de-whitening) the Schur mean
         (paper Eq. 2) ``mu_s + J_z (z - mu_q)`` gives ``J_i = J_z W_inv^T`` and
@@ -252,34 +257,49 @@ class ConditionedGaussians(nn.Module):
             height, width: the resolution whose pixels are the units.
 
         Returns:
-            ``(c [K,2], J [K,2,d])``, float32.
+            ``(c [K,n], J [K,n,d])``, float32.
         """
         g = self.geometry()
-        J_px, _ = self.pixel_geometry(height, width, g)
+        scale = self.unit_scale(height, width).to(g.J)
+        J_px = g.J * scale[None, :, None]
         W_inv = torch.as_tensor(W_inv, dtype=torch.float32)
         mean = torch.as_tensor(mean, dtype=torch.float32)
-        scale = J_px.new_tensor([float(width), float(height)])
         c = g.mu_s * scale + torch.einsum("kij,kj->ki", J_px, mean[None] - g.mu_q)
         return c, torch.einsum("kij,lj->kil", J_px, W_inv)
 
     # --------------------------------------------------------------- rendering
     def forward(
-        self, z: Tensor, height: int, width: int, backend: Backend | None = None, geom: DecoderGeometry | None = None
+        self, z: Tensor, height: int, width: int, backend: Backend | None = None, geom: DecoderGeometry | None = None, camera=None
     ) -> Tensor:
         """Render the states ``z [B,d]`` to images ``[B,3,H,W]`` in [0, 1].
 
         ``geom``: a precomputed :meth:`geometry` (a frozen decoder rendered many
-        times, e.g. by the viewer, need not rebuild it per frame).
+        times, e.g. by the viewer, need not rebuild it per frame). ``camera``: the 3-D decoder's
+        (:meth:`screen`); ``None`` here.
         """
-        return self.render(z, height, width, backend, geom)[0]
+        return self.render(z, height, width, backend, geom, camera=camera)[0]
+
+    def screen(self, means: Tensor, gate: Tensor, g: DecoderGeometry, colors: Tensor, height: int, width: int, camera=None):
+        """The conditioned primitives as the 2-D rasteriser takes them, front to back: ``(means [B,K,2] px,
+        covs px^2, opacities [B,K], colors)``. Here the image plane itself: normalised units scaled to pixels,
+        index order (the 3-D decoder projects through a camera and sorts by depth).
+
+        Raises:
+            ValueError: if a camera is given (a 2-D decoder has one view).
+        """
+        if camera is not None:
+            raise ValueError("a 2-D decoder renders its one image plane (no camera)")
+        scale = means.new_tensor([float(width), float(height)])
+        return means * scale, g.cov * scale[None, :, None] * scale[None, None, :], g.alpha[None] * gate, colors
 
     def render(
-        self, z: Tensor, height: int, width: int, backend: Backend | None = None, geom: DecoderGeometry | None = None, extra: Tensor | None = None
-    ) -> tuple[Tensor, Tensor | None]:
+        self, z: Tensor, height: int, width: int, backend: Backend | None = None, geom: DecoderGeometry | None = None, extra: Tensor | None = None,
+        camera=None,
+    ) -> tuple[Tensor, Tensor | None]:  # fmt: skip
         """Render ``z [B,d]`` and, in the same compositing pass, per-primitive channels ``extra``.
 
         Args:
-            z, height, width, backend, geom: as :meth:`forward`.
+            z, height, width, backend, geom, camera: as :meth:`forward`.
             extra: ``[K,C]`` (or per state ``[B,K,C]``) values composited like colours over a zero
                 background, e.g. each primitive's Jacobian in pixels: the
                 result at pixel ``p`` is ``sum_i T_i(p) a_i(p) extra_i``, the
@@ -290,14 +310,13 @@ class ConditionedGaussians(nn.Module):
             ``(image [B,3,H,W] in [0, 1], extra image [B,C,H,W] or None)``.
         """
         means, gate, g = self.condition(z, geom)
-        scale = means.new_tensor([float(width), float(height)])
-        cov_px = g.cov * scale[None, :, None] * scale[None, None, :]
         colors, bg = g.colors, self.background
         if extra is not None:
             colors = colors if extra.dim() == 2 else colors.expand(extra.shape[0], -1, -1)
             colors = torch.cat([colors, extra.to(colors.dtype)], -1)
             bg = torch.cat([bg, bg.new_zeros(extra.shape[-1])])
-        img = rasterize(means * scale, cov_px, g.alpha[None] * gate, colors, height, width, background=bg, backend=backend or self.backend)
+        uv, covs, opacities, colors = self.screen(means, gate, g, colors, height, width, camera)
+        img = rasterize(uv, covs, opacities, colors, height, width, background=bg, backend=backend or self.backend)
         return img[:, :3].clamp(0.0, 1.0), (img[:, 3:] if extra is not None else None)
 
     def render_motion(self, z: Tensor, height: int, width: int, q_std: Tensor) -> tuple[Tensor, Tensor]:
@@ -332,13 +351,7 @@ class ConditionedGaussians(nn.Module):
         """
         if camera is not None or depth is not None:
             raise ValueError("a 2-D decoder places primitives in its one image plane (no camera, no depth)")
-        return self._raw_positions(idx, height, width)
-
-    @staticmethod
-    def _raw_positions(idx: Tensor, height: int, width: int) -> Tensor:
-        """Raw spatial parameters ``[n,2]`` placing primitives at the centres of flat pixel indices ``idx``."""
-        pos = torch.stack([((idx % width).float() + 0.5) / width, ((idx // width).float() + 0.5) / height], -1)
-        return torch.logit(((pos + 0.1) / 1.2).clamp(0.01, 0.99))
+        return self.spatial_raw(torch.stack([((idx % width).float() + 0.5) / width, ((idx // width).float() + 0.5) / height], -1))
 
     def _raw_diagonal(self, sigma_q: Tensor, sigma_xy: float, n: int) -> Tensor:
         """Raw Cholesky entries ``[n, m(m+1)/2]`` (``m = n_space + d``) of a diagonal factor (latent stds ``sigma_q [d]``,

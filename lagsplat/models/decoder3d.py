@@ -24,7 +24,7 @@ from torch import Tensor
 
 from lagsplat.models.decoder import ConditionedGaussians, DecoderGeometry
 from lagsplat.render.camera import NEAR, Camera, depth_order, project_gaussians, project_points
-from lagsplat.render.rasterize import Backend, rasterize
+from lagsplat.render.rasterize import Backend
 
 __all__ = ["ConditionedGaussians3D"]
 
@@ -99,6 +99,10 @@ class ConditionedGaussians3D(ConditionedGaussians):
         depth = near + (far - near) * torch.rand(len(idx), generator=generator)
         return cam.unproject(uv, depth)
 
+    def unit_scale(self, height: int, width: int) -> Tensor:
+        """World units stay world units (:meth:`ConditionedGaussians.unit_scale`)."""
+        return torch.ones(3)
+
     def pixel_geometry(self, height: int, width: int, geom: DecoderGeometry | None = None) -> tuple[Tensor, Tensor]:
         """Not defined in 3-D: a primitive's image-plane Jacobian depends on the camera and the state.
 
@@ -115,57 +119,15 @@ class ConditionedGaussians3D(ConditionedGaussians):
         """
         raise NotImplementedError("the 3-D decoder has no image-plane motion field; set stage1.w_static=0")
 
-    @torch.no_grad()
-    def chart_kinematics(self, W_inv, mean, height: int, width: int) -> tuple[Tensor, Tensor]:
-        """Affine primitive motion in a whitened chart, in world units: ``mu_i(q) = c_i + J_i q``.
-
-        As :meth:`ConditionedGaussians.chart_kinematics` (paper Eq. 9) with ``c [K,3]``, ``J [K,3,d]`` in world
-        units (``height``, ``width`` unused): the Jacobians that carry world-space forces and the
-        decoder-induced inertia.
-        """
-        g = self.geometry()
-        W_inv = torch.as_tensor(W_inv, dtype=torch.float32)
-        mean = torch.as_tensor(mean, dtype=torch.float32)
-        c = g.mu_s + torch.einsum("kij,kj->ki", g.J, mean[None] - g.mu_q)
-        return c, torch.einsum("kij,lj->kil", g.J, W_inv)
-
     # --------------------------------------------------------------- rendering
-    def render(
-        self,
-        z: Tensor,
-        height: int,
-        width: int,
-        backend: Backend | None = None,
-        geom: DecoderGeometry | None = None,
-        extra: Tensor | None = None,
-        camera: Camera | None = None,
-    ) -> tuple[Tensor, Tensor | None]:
-        """Render ``z [B,d]`` through ``camera`` (default the main camera), at ``height x width`` px.
-
-        Args:
-            z, backend, geom, extra: as :meth:`ConditionedGaussians.render` (``extra [K,C]`` or ``[B,K,C]``).
-            height, width: output size; the camera's intrinsics are scaled to it (:meth:`Camera.resized`).
-            camera: the camera to render from.
-
-        Returns:
-            ``(image [B,3,H,W] in [0, 1], extra image [B,C,H,W] or None)``.
-        """
-        means, gate, g = self.condition(z, geom)
+    def screen(self, means: Tensor, gate: Tensor, g: DecoderGeometry, colors: Tensor, height: int, width: int, camera: Camera | None = None):
+        """The conditioned primitives seen through ``camera`` (default the main camera, intrinsics scaled to
+        ``height x width``, :meth:`Camera.resized`): EWA-projected, those behind the near plane transparent,
+        sorted front to back per state (:meth:`ConditionedGaussians.screen`; :meth:`render` renders through it)."""
         cam = (camera or self.camera).resized(width, height)
         uv, cov2, depth = project_gaussians(means, g.cov[None], cam)
-        B = z.shape[0]
+        B = means.shape[0]
         opac = g.alpha[None] * gate * (depth > NEAR).to(gate.dtype)
-        colors, bg = g.colors.expand(B, -1, -1), self.background
-        if extra is not None:
-            ex = extra.to(colors.dtype)
-            colors = torch.cat([colors, ex if ex.dim() == 3 else ex.expand(B, -1, -1)], -1)
-            bg = torch.cat([bg, bg.new_zeros(extra.shape[-1])])
+        colors = colors if colors.dim() == 3 else colors.expand(B, -1, -1)
         uv, cov2, opac, colors, _ = depth_order(depth, uv, cov2.expand(B, -1, -1, -1), opac, colors)
-        img = rasterize(uv, cov2, opac, colors, height, width, background=bg, backend=backend or self.backend)
-        return img[:, :3].clamp(0.0, 1.0), (img[:, 3:] if extra is not None else None)
-
-    def forward(
-        self, z: Tensor, height: int, width: int, backend: Backend | None = None, geom: DecoderGeometry | None = None, camera: Camera | None = None
-    ) -> Tensor:
-        """Render the states ``z [B,d]`` to images ``[B,3,H,W]`` through ``camera`` (default the main camera)."""
-        return self.render(z, height, width, backend, geom, camera=camera)[0]
+        return uv, cov2, opac, colors

@@ -262,17 +262,15 @@ class DeformationGaussians(ConditionedGaussians):
 
             prob = placement_probability(frame)
         idx = torch.multinomial(prob, self.K, replacement=self.K > H * W, generator=generator)
-        self.mu_raw.copy_(self._raw_positions(idx, H, W))
+        self.mu_raw.copy_(self.placement_raw(idx, H, W))
         self.L_raw.copy_(self._raw_diagonal(torch.zeros(0), sigma_xy, self.K))
         self.logit_color.copy_(torch.logit(frame[:, idx // W, idx % W].T.clamp(0.01, 0.99)))
         self.logit_alpha.zero_()
 
     @torch.no_grad()
-    def recycle(self, dead, frame, rendered, z_frame, z_std, sigma_xy: float = 0.05, generator=None, camera=None) -> None:
+    def recycle(self, dead, frame, rendered, z_frame, z_std, sigma_xy: float = 0.05, generator=None, camera=None, depth=None) -> None:
         """Teleport the primitives flagged in ``dead`` to high-error pixels (:meth:`ConditionedGaussians.recycle`, spatial part;
-        ``camera`` must be ``None``, :meth:`ConditionedGaussians.placement_raw`)."""
-        if camera is not None:
-            raise ValueError("a 2-D decoder places primitives in its one image plane (no camera)")
+        ``camera`` and ``depth`` as :meth:`ConditionedGaussians.placement_raw`: ``None``)."""
         n_dead = int(dead.sum())
         if n_dead == 0:
             return
@@ -282,7 +280,7 @@ class DeformationGaussians(ConditionedGaussians):
         err = (rendered - frame).abs().mean(0).flatten()
         prob = err if float(err.sum()) > 1e-10 else torch.ones_like(err)
         idx = torch.multinomial(prob, n_dead, replacement=True, generator=generator)
-        self.mu_raw[dead] = self._raw_positions(idx, H, W).to(dev)
+        self.mu_raw[dead] = self.placement_raw(idx, H, W, generator, camera, depth).to(dev)
         self.L_raw[dead] = self._raw_diagonal(torch.zeros(0), sigma_xy, n_dead).to(dev)
         self.logit_color[dead] = torch.logit(frame[:, idx // W, idx % W].T.clamp(0.01, 0.99)).to(dev)
         self.logit_alpha[dead] = -3.0

@@ -176,12 +176,15 @@ def train_stage1(
         z0 = torch.cat([enc(X[i : i + 256]) for i in range(0, N, 256)])
     motion_std = X.std(0).mean(0) if cfg.w_motion_init > 0 else None  # [H,W] temporal std of the training frames
     sxy = dec.spatial_sigma(cfg.sigma_xy)  # the initial spatial extent in the decoder's units
-    # 3-D: new primitives go at the multi-view stereo depth of their pixel (the main camera and the training views, one instant)
-    depth_of = (lambda j, c: torch.from_numpy(plane_sweep_depth(np.concatenate([frames[j : j + 1], views.images[clip.train_idx[j], train_views]]),
-                                                                [views.cameras[0]] + [view_cams[m] for m in train_views], c, dec.depth_range)).flatten()
-                ) if V is not None else None  # fmt: skip
+
+    def stereo_depth(j: int, c: int) -> Tensor:
+        """3-D: the plane-sweep depth ``[h*w]`` of camera ``c`` of the training rig (main camera, then the training
+        views) at training frame ``j``, where new primitives on that camera's pixels go."""
+        rig = np.concatenate([frames[j : j + 1], views.images[clip.train_idx[j], train_views]])
+        return torch.from_numpy(plane_sweep_depth(rig, [views.cameras[0]] + [view_cams[m] for m in train_views], c, dec.depth_range)).flatten()
+
     dec.init_from_frame(X[0], z0, sxy, cfg.sigma_q_floor, generator=gen, prob=placement_probability(X[0], motion_std, cfg.w_motion_init),
-                        **({"depth": depth_of(0, 0)} if V is not None else {}))  # fmt: skip
+                        **({"depth": stereo_depth(0, 0)} if V is not None else {}))  # fmt: skip
     model = AutoEncoder(enc, dec, H, W).to(dev)
     X = X.to(dev)
     static = None if static is None else static.to(dev)
@@ -268,8 +271,8 @@ def train_stage1(
                         if m >= 0:
                             cam = view_cams[train_views[m]]
                             target = V[j, train_views[m]].to(dev).permute(2, 0, 1).float().div_(255.0)
-                        extra = {"camera": cam, "depth": depth_of(j, m + 1)}
-                    rendered = dec(zj, H, W)[0] if cam is None else dec.render(zj, target.shape[1], target.shape[2], camera=cam)[0][0]
+                        extra = {"camera": cam, "depth": stereo_depth(j, m + 1)}
+                    rendered = dec(zj, target.shape[1], target.shape[2], camera=cam)[0]
                     zs = torch.cat([enc(X[i : i + 256]) for i in range(0, N, 256)]).std(0)
                     n_split = int(round(cfg.split_share * n_dead))
                     to_split = dead & (torch.cumsum(dead.long(), 0) <= n_split)

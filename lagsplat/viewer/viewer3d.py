@@ -25,7 +25,7 @@ import torch
 from lagsplat.dynamics.integrators import initial_state, verlet_step
 from lagsplat.force import Selection
 from lagsplat.force3d import ForceTransport3D
-from lagsplat.models.decoder import latent_gate
+from lagsplat.io.clip import HELD_OUT
 from lagsplat.render.camera import look_at
 
 __all__ = ["Session3D", "serve_viser"]
@@ -65,7 +65,7 @@ class Session3D:
 
     def reset(self) -> None:
         """Back to the first held-out frame's encoded state and velocity (or the first frame's), no force."""
-        held = np.flatnonzero(self.chart.split == 1)
+        held = np.flatnonzero(self.chart.split == HELD_OUT)
         i = int(held[0]) if len(held) and held[0] + 2 < len(self.chart.q) else 0
         q0, v0 = initial_state(self.chart.q, np.array([i]), self.dt)
         with self._lock:
@@ -111,9 +111,8 @@ class Session3D:
         with self._lock:
             q = self.q.clone()
         g = self.geom
-        z = self.chart.to_raw(q)
-        means, gate, _ = self.ae.decoder.condition(z, g)
-        op = g.alpha[None] * latent_gate(z, g.mu_q, g.L_qq, g.L_qq_inv)
+        means, gate, _ = self.ae.decoder.condition(self.chart.to_raw(q), g)
+        op = g.alpha[None] * gate
         return {"centers": means[0].numpy(), "covariances": g.cov.numpy(), "rgbs": g.colors.numpy(), "opacities": op[0, :, None].numpy()}
 
 

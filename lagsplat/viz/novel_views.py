@@ -34,7 +34,7 @@ def novel_view_frames(decoder: ConditionedGaussians3D, z: torch.Tensor, cameras:
     Raises:
         ValueError: for a decoder that is not 3-D, or a number of states that is neither 1 nor one per camera.
     """
-    if getattr(decoder, "n_space", 2) != 3:
+    if decoder.n_space != 3:
         raise ValueError("novel views need the 3-D decoder (stage1.decoder=conditioned3d)")
     if z.shape[0] not in (1, len(cameras)):
         raise ValueError(f"{z.shape[0]} states for {len(cameras)} cameras: give one state or one per camera")
