@@ -23,7 +23,7 @@ from torchdiffeq import odeint
 from lagsplat import metrics
 from lagsplat.chart import Chart
 from lagsplat.dynamics.integrators import initial_state
-from lagsplat.train.stage2 import Stage2Config, training_windows
+from lagsplat.train.stage2 import Stage2Config, selection_replaces, training_windows
 
 __all__ = ["LatentNeuralODE", "train_neural_ode", "ode_rollout"]
 
@@ -95,8 +95,8 @@ def train_neural_ode(chart: Chart, cfg: Stage2Config, seed: int = 0) -> tuple[La
     Loss (paper Eq. 8): ``w_q |q1_hat - q1|_A^2 / d + w_v |h (v1_hat - v1)|_A^2 / d`` over the one-step
     windows of :func:`~lagsplat.train.stage2.one_step_windows` (stride ``k``, ``h = k dt``); Adam,
     ``cfg.epochs`` epochs of ``cfg.windows_per_epoch`` windows; every ``select_every`` epochs the
-    model is rolled out over ``select_periods`` natural periods of the training frames and the state
-    with the lowest latent NRMSE is kept.
+    model is rolled out over ``select_periods`` natural periods of the training frames and kept by
+    Stage 2's rule (:func:`~lagsplat.train.stage2.selection_replaces`: by default the last epoch's model).
 
     Args:
         chart: the frozen chart (training frames only).
@@ -141,7 +141,7 @@ def train_neural_ode(chart: Chart, cfg: Stage2Config, seed: int = 0) -> tuple[La
         if (ep + 1) % cfg.select_every == 0 or ep == cfg.epochs - 1:
             err = _selection_error(model, sel, dt, G, sel_h, starts, q_std, sel_u)
             hist["select_nrmse"].append((ep, err))
-            if err < best[0]:
+            if selection_replaces(err, best[0], best[2], cfg):
                 best = (err, copy.deepcopy(model.state_dict()), ep)
     model.load_state_dict(best[1])
     hist.update(selected_epoch=best[2], selected_nrmse=best[0], f_train_hz=f_train)

@@ -23,7 +23,7 @@ from lagsplat.train.progress import Progress
 from lagsplat.models.inertia import DecoderInertia
 from lagsplat.models.lagrangian import Lagrangian
 
-__all__ = ["Stage2Config", "Mass", "Potential", "one_step_windows", "TrainingWindows", "training_windows", "train_stage2", "save_stage2", "load_stage2"]
+__all__ = ["Stage2Config", "Mass", "Potential", "one_step_windows", "selection_replaces", "TrainingWindows", "training_windows", "train_stage2", "save_stage2", "load_stage2"]
 
 Mass = Literal["scalar", "constant", "learned", "decoder"]
 """Inertia models of Stage 2 (``stage2.mass``; :class:`~lagsplat.models.lagrangian.Lagrangian`)."""
@@ -50,7 +50,16 @@ class Stage2Config:
         sigma: Gaussian smoothing of the encoded trajectory, frames (reference: 1).
         w_q, w_v: weights of position and velocity terms of Eq. 8.
         lr, epochs, batch, windows_per_epoch, grad_clip: optimisation.
+        lr_potential_input: learning-rate factor of the potential ICNN's input layers (the affine maps of
+            ``q`` into each hidden layer, :class:`~lagsplat.models.icnn.ICNN`). A sharp feature of ``V``
+            (an end stop's kink) needs input weights many times the initial ones, which Adam reaches
+            at about ``lr`` per step; this factor lets them get there within the budget.
         select_every: epochs between model-selection rollouts.
+        select_from: fraction of the epochs after which a model can be selected: 0 selects over the whole
+            run on rollout error (paper §3.3), 1 (default) keeps the last epoch's model (the reference
+            implementation's checkpoint), the best earlier one only if the last rollout is not finite.
+            Selected on training rollouts, models from before the potential has grown its sharp
+            features (an end stop) won and then missed the held-out motion by up to 25 %.
         select_windows, select_periods: rollouts used for selection.
     """
 
@@ -67,11 +76,13 @@ class Stage2Config:
     w_q: float = 0.1
     w_v: float = 0.1
     lr: float = 1e-3
+    lr_potential_input: float = 10.0
     epochs: int = 300
     batch: int = 32
     windows_per_epoch: int = 1000
     grad_clip: float = 100.0
     select_every: int = 5
+    select_from: float = 1.0
     select_windows: int = 16
     select_periods: float = 4.0
 
@@ -118,6 +129,25 @@ def one_step_windows(q: np.ndarray, dt: float, k: int, u: np.ndarray | None = No
     s = np.arange(n)
     v = lambda a, b: (q[b] - q[a]) / (2 * k * dt)  # noqa: E731
     return q[s + k], v(s, s + 2 * k), q[s + 2 * k], v(s + k, s + 3 * k), u[s + k], u[s + 2 * k]
+
+
+def selection_replaces(err: float, best_err: float, best_epoch: int, cfg: Stage2Config) -> bool:
+    """Whether an epoch whose selection rollouts scored ``err`` replaces the kept model (scored ``best_err`` at
+    ``best_epoch``): a lower error, or any finite one while the kept model is from before ``select_from * epochs``."""
+    return err < best_err or (best_epoch < cfg.select_from * cfg.epochs and bool(np.isfinite(err)))
+
+
+def _param_groups(model: torch.nn.Module, cfg: Stage2Config) -> list[dict]:
+    """Adam's parameter groups: the potential ICNN's input layers at ``lr * lr_potential_input``, the rest at ``lr``
+    (``model`` may be an augmented module holding the Lagrangian as ``base``)."""
+    lag = model if isinstance(model, Lagrangian) else getattr(model, "base", None)
+    fast = [] if not isinstance(lag, Lagrangian) else list(lag.potential_hat.g.inp.parameters())
+    ids = {id(p) for p in fast}
+    rest = [p for p in model.parameters() if id(p) not in ids]
+    groups = [{"params": rest, "lr": cfg.lr}]
+    if fast:
+        groups.append({"params": fast, "lr": cfg.lr * cfg.lr_potential_input})
+    return groups
 
 
 def _rollout_error(
@@ -209,8 +239,10 @@ def train_stage2(
     The loss is ``w_q |q1_hat - q1|_A^2 / d + w_v |h (v1_hat - v1)|_A^2 / d`` with ``A``
     the chart's loss metric. Every ``select_every`` epochs the model is rolled
     out freely over ``select_periods`` natural periods from seeded starts on the
-    *training* frames; the state with the lowest latent NRMSE is returned
-    (model selection on multi-step rollout error, paper §3.3).
+    *training* frames; of the epochs from ``select_from * epochs`` on, the state with the
+    lowest latent NRMSE is returned (model selection on multi-step rollout error, paper §3.3;
+    the default ``select_from = 1`` keeps the last epoch, falling back to an earlier one only
+    when its rollouts are not finite).
 
     Args:
         chart: the frozen chart (only its training frames are used; several
@@ -267,7 +299,7 @@ def train_stage2(
     sel_seg, sel_u, q_std, sel_starts, sel_h = w.select_q, w.select_u, w.q_std, w.select_starts, w.select_horizon
 
     h = cfg.stride * dt
-    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
+    opt = torch.optim.Adam(_param_groups(model, cfg), lr=cfg.lr)
     n = len(Q0)
     hist: dict[str, list] = {"epoch": [], "loss": [], "select_nrmse": []}
     best = (float("inf"), copy.deepcopy(model.state_dict()), -1)
@@ -296,7 +328,7 @@ def train_stage2(
             on_cpu = model if dev.type == "cpu" else copy.deepcopy(model).cpu()
             err = _rollout_error(on_cpu, sel_seg, dt, G_eval, sel_h, sel_starts, q_std, sel_u)
             hist["select_nrmse"].append((ep, err))
-            if err < best[0]:
+            if selection_replaces(err, best[0], best[2], cfg):
                 best = (err, copy.deepcopy(model.state_dict()), ep)
             bar.update(loss=hist["loss"][-1], select_nrmse=err)
     model.load_state_dict(best[1])
