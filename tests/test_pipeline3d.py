@@ -84,3 +84,107 @@ def test_the_3d_chain_end_to_end(tmp_path):
     serve_viser(s, port, max_seconds=1.0, on_ready=urls.append)
     assert urls == [f"http://127.0.0.1:{port}/"]
     assert np.isfinite(s.q.numpy()).all()
+    _browser_orbits_and_pushes(s)
+
+
+def _browser_orbits_and_pushes(s) -> None:
+    """In headless Chromium (WebGL in software): the page opens at the main camera, a click on the most mobile
+    material pushes it along the click's line of sight, a mouse drag orbits the camera, a click from the orbited
+    view pushes along the new line of sight, and the release button stops the push."""
+    import math
+    import socket
+    import threading
+    import time
+
+    import numpy as np
+    import torch
+
+    from lagsplat.render.camera import look_at, project_points
+    from lagsplat.viewer.browser import CHROMIUM, CHROMIUM_WEBGL_ARGS
+    from lagsplat.viewer.viewer3d import main_camera_pose, serve_viser
+
+    try:
+        from playwright.sync_api import sync_playwright
+    except ImportError:
+        pytest.skip("playwright is not installed (pip install playwright)")
+    if not Path(CHROMIUM).exists():
+        pytest.skip(f"no Chromium at {CHROMIUM} (apt-get update && apt-get install -y chromium)")
+    W, H = 900, 700  # viser's panel sits top right; the model is clicked where the main camera sees it
+    mobility = torch.linalg.matrix_norm(s.ft.J, ord=2).detach().numpy()
+    urls, servers, stop = [], [], threading.Event()
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    th = threading.Thread(target=serve_viser, args=(s, port), kwargs={"on_ready": urls.append, "stop": stop, "on_frame": lambda srv: servers[:1] or servers.append(srv)}, daemon=True)
+    th.start()
+
+    def click_target(client) -> np.ndarray:
+        """Click, as the client's camera shows it, the most mobile opaque primitive that is on the canvas and clear
+        of viser's panel; returns its world position (a point on the click's line of sight)."""
+        c = client.camera
+        cam = look_at(tuple(c.position), tuple(c.look_at), tuple(c.up_direction), W, H, math.degrees(c.fov))
+        with torch.no_grad():
+            X = s.ft.means(s.q)[0]
+            uv, z = (t.numpy() for t in project_points(X, cam))
+        clear = (z > 0) & (uv[:, 0] > 20) & (uv[:, 0] < W - 20) & (uv[:, 1] > 20) & (uv[:, 1] < H - 20) & ~((uv[:, 0] > W - 350) & (uv[:, 1] < 230))
+        score = np.where(clear, mobility * s.geom.alpha.detach().numpy(), -1.0)
+        i = int(score.argmax())
+        assert score[i] > 0, "no mobile primitive on the canvas"
+        page.mouse.click(float(uv[i, 0]), float(uv[i, 1]))
+        return X[i].numpy()
+
+    try:
+        t0 = time.monotonic()
+        while not (urls and servers) and time.monotonic() - t0 < 30:
+            time.sleep(0.1)
+        with sync_playwright() as pw:
+            browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_WEBGL_ARGS, headless=True)
+            try:
+                page = browser.new_page(viewport={"width": W, "height": H})
+                page.goto(urls[0])
+                page.wait_for_function("document.querySelector('canvas') !== null", timeout=30_000)
+                t0 = time.monotonic()
+                while not servers[0].get_clients() and time.monotonic() - t0 < 30:
+                    time.sleep(0.1)
+                client = next(iter(servers[0].get_clients().values()))
+                page.wait_for_timeout(1500)
+                pose = main_camera_pose(s)
+                np.testing.assert_allclose(client.camera.position, pose["position"], atol=1e-4)  # opened at the main camera
+                s.reset()
+                X = click_target(client)
+                t0 = time.monotonic()
+                while not s.pushing and time.monotonic() - t0 < 10:
+                    time.sleep(0.05)
+                assert s.pushing, "the click on the model did not select it"
+                ray = X - np.asarray(client.camera.position)
+                cos = float(s._dir[0].numpy() @ ray / np.linalg.norm(ray))
+                assert cos > 0.98, f"the push is not along the line of sight (cos {cos:.3f})"
+                assert float(s.generalized_force().abs().max()) > 0
+                # orbit: drag on the canvas, away from the panel
+                p0 = np.asarray(client.camera.position).copy()
+                page.mouse.move(0.3 * W, 0.75 * H)
+                page.mouse.down()
+                page.mouse.move(0.3 * W - 150, 0.75 * H, steps=12)
+                page.mouse.up()
+                page.wait_for_timeout(1000)
+                moved = float(np.linalg.norm(np.asarray(client.camera.position) - p0))
+                assert moved > 0.05 * float(np.linalg.norm(p0 - np.asarray(client.camera.look_at))), "the drag did not orbit the camera"
+                page.locator("button", has_text="release").click()
+                t0 = time.monotonic()
+                while s.pushing and time.monotonic() - t0 < 10:
+                    time.sleep(0.05)
+                assert not s.pushing
+                # from the orbited view the push follows the new line of sight
+                X = click_target(client)
+                t0 = time.monotonic()
+                while not s.pushing and time.monotonic() - t0 < 10:
+                    time.sleep(0.05)
+                assert s.pushing, "the click from the orbited view did not select the model"
+                ray2 = X - np.asarray(client.camera.position)
+                assert float(s._dir[0].numpy() @ ray2 / np.linalg.norm(ray2)) > 0.98
+                assert float(ray @ ray2 / np.linalg.norm(ray) / np.linalg.norm(ray2)) < 0.9995  # a different direction
+            finally:
+                browser.close()
+    finally:
+        stop.set()
+        th.join(10)

@@ -9,10 +9,12 @@ from __future__ import annotations
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-__all__ = ["CHROMIUM", "CHROMIUM_ARGS", "served_page"]
+__all__ = ["CHROMIUM", "CHROMIUM_ARGS", "CHROMIUM_WEBGL_ARGS", "served_page"]
 
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update", "--disable-sync", "--no-first-run"]
+# WebGL in software (SwiftShader through ANGLE), for viser's 3-D canvas on a machine without a GPU
+CHROMIUM_WEBGL_ARGS = ["--no-sandbox", "--use-gl=angle", "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--disable-background-networking", "--no-first-run"]
 
 
 @contextmanager

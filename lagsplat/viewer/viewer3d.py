@@ -10,7 +10,8 @@ acts on it, pulled back as ``kappa sum_i w_i J_i^T f`` (paper Eq. 9, §4.5), unt
 
 :func:`serve_viser` shows the model's Gaussians at the current state as splats
 (``viser.SceneApi.add_gaussian_splats``: world means, covariances, colours, opacities times the latent gate)
-with viser's orbit camera, and a panel: force, push / pull, release, reset.
+with viser's orbit camera (each browser starts at the main camera's pose: :func:`main_camera_pose`), and a
+panel: force, push / pull, release, reset.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ from lagsplat.force3d import ForceTransport3D
 from lagsplat.io.clip import HELD_OUT
 from lagsplat.render.camera import look_at
 
-__all__ = ["Session3D", "serve_viser"]
+__all__ = ["Session3D", "main_camera_pose", "serve_viser"]
 
 
 class Session3D:
@@ -85,6 +86,11 @@ class Session3D:
             self._dir = torch.as_tensor(sign * d, dtype=torch.float32)[None]
         return hit
 
+    @property
+    def pushing(self) -> bool:
+        """Whether a push acts now (a ray met material and nothing released it)."""
+        return self._sel is not None
+
     def release(self) -> None:
         """Stop pushing."""
         with self._lock:
@@ -116,9 +122,26 @@ class Session3D:
         return {"centers": means[0].numpy(), "covariances": g.cov.numpy(), "rgbs": g.colors.numpy(), "opacities": op[0, :, None].numpy()}
 
 
-def serve_viser(session: Session3D, port: int = 8080, max_seconds: float | None = None, on_ready: Callable[[str], None] | None = None):
-    """Serve ``session`` with viser on ``http://127.0.0.1:<port>/`` until Ctrl-C or ``max_seconds``; returns the server
-    (stopped). Clicking the model pushes it along the click's ray (module docstring).
+def main_camera_pose(session: Session3D) -> dict[str, object]:
+    """The main (filmed) camera as viser's client camera: ``position`` (its centre, world units), ``look_at`` (the
+    point on its optical axis at the middle of the decoder's depth range), ``up_direction`` (image up, ``-R[1]``)
+    and ``fov`` (vertical field of view, radians, ``2 atan(H / 2 f_y)``)."""
+    cam = session.ae.decoder.camera
+    R = np.asarray(cam.R, float)
+    depth = float(np.mean(getattr(session.ae.decoder, "depth_range", (1.0, 1.0))))
+    c = np.asarray(cam.center, float)
+    return {"position": tuple(c), "look_at": tuple(c + depth * R[2]), "up_direction": tuple(-R[1]), "fov": float(2.0 * np.arctan(cam.height / (2.0 * cam.fy)))}
+
+
+def serve_viser(
+    session: Session3D, port: int = 8080, max_seconds: float | None = None, on_ready: Callable[[str], None] | None = None,
+    stop: threading.Event | None = None, on_frame: Callable[[object], None] | None = None,
+):  # fmt: skip
+    """Serve ``session`` with viser on ``http://127.0.0.1:<port>/`` until Ctrl-C, ``max_seconds`` or ``stop`` is set;
+    returns the server (stopped). Each browser that connects starts at the main camera's pose
+    (:func:`main_camera_pose`) and orbits with viser's mouse controls; clicking the model pushes it along the
+    click's ray (module docstring). ``on_ready(url)`` is called once serving, ``on_frame(server)`` after each
+    frame's splats were sent (e.g. to count frames).
 
     Raises:
         ModuleNotFoundError: with the install line, if viser is missing.
@@ -147,6 +170,16 @@ def serve_viser(session: Session3D, port: int = 8080, max_seconds: float | None 
     def _(_e) -> None:
         session.reset()
 
+    pose = main_camera_pose(session)
+
+    @server.on_client_connect
+    def _(client) -> None:
+        with client.atomic():
+            client.camera.fov = pose["fov"]
+            client.camera.position = pose["position"]
+            client.camera.up_direction = pose["up_direction"]
+            client.camera.look_at = pose["look_at"]
+
     @server.scene.on_click()
     def _(event) -> None:
         hit = session.press_ray(event.ray_origin, event.ray_direction, -1.0 if pull.value else 1.0)
@@ -156,10 +189,12 @@ def serve_viser(session: Session3D, port: int = 8080, max_seconds: float | None 
         on_ready(f"http://127.0.0.1:{server.get_port()}/")
     t_end = None if max_seconds is None else time.monotonic() + float(max_seconds)
     try:
-        while t_end is None or time.monotonic() < t_end:
+        while (t_end is None or time.monotonic() < t_end) and not (stop is not None and stop.is_set()):
             t0 = time.monotonic()
             session.step()
             server.scene.add_gaussian_splats("/model", **session.splats())
+            if on_frame is not None:
+                on_frame(server)
             time.sleep(max(0.0, session.dt - (time.monotonic() - t0)))
     except KeyboardInterrupt:
         pass
