@@ -31,6 +31,16 @@ Usage::
 Writes what it prints to ``results/benchmarks/interactive.md`` (``--report PATH``, ``--no-report``).
 
 The target is >= 30 Hz (goal 60) at 128x128 with about 2000 Gaussians.
+
+The 3-D viewer (``python -m lagsplat view`` on a 3-D system; viser draws the splats in the browser) is timed
+on the trained 3-D system at ``--model3d`` (default ``results/pendulum3d``, made by ``snakemake -c2
+results/pendulum3d/metrics.json``) and on the same decoder with every primitive duplicated (``x2``): one
+simulation step, the splats handed to viser, one render of an orbit view at 128x128 by the CPU rasteriser
+(the ``render`` stage's path; its rate is step + render, no PNG: viser is sent splats, not images), and the
+server's frames sent per second (step + splats + send, real time: capped at ``1 / dt``). With ``--page`` the
+viser page is loaded in headless Chromium at 128x128 (WebGL in software, SwiftShader, on these cores) while
+the server moves the client's camera along an orbit: frames drawn per second by the page
+(``requestAnimationFrame``), viser's own frame-rate reading, and the server's frames sent per second.
 """
 
 from __future__ import annotations
@@ -55,6 +65,7 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--repeats", type=int, default=5, help="timed calls per measurement (median reported)")
     ap.add_argument("--steps", type=int, default=10, help="steps (or frames) per timed call")
     ap.add_argument("--toy", type=Path, default=ROOT / "results" / "toy", help="trained toy system folder")
+    ap.add_argument("--model3d", type=Path, default=ROOT / "results" / "pendulum3d", help="trained 3-D system folder")
     ap.add_argument("--page", dest="page", action="store_true", default=None, help="also measure the served page in headless Chromium")
     ap.add_argument("--no-page", dest="page", action="store_false")
     ap.add_argument("--seconds", type=float, default=4.0, help="measurement window of each page run")
@@ -63,20 +74,142 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
 
 
 def _doubled(ae, jitter_px: float = 0.3, seed: int = 0):
-    """A copy of ``ae`` whose decoder holds every primitive twice (positions jittered)."""
+    """A copy of ``ae`` whose decoder (2-D or 3-D) holds every primitive twice (positions jittered by ~``jitter_px``)."""
     import torch
 
-    from lagsplat.models.decoder import ConditionedGaussians
     from lagsplat.models.autoencoder import AutoEncoder
 
     src = ae.decoder
-    dec = ConditionedGaussians(2 * src.K, src.d, backend=src.backend)
-    sd = {k: (torch.cat([v, v]) if k in ("mu_raw", "mu_q", "L_raw", "logit_alpha", "logit_color") else v) for k, v in src.state_dict().items()}
-    dec.load_state_dict(sd)
-    with torch.no_grad():  # mu_s = 1.2 sigmoid(mu_raw) - 0.1: d mu_s / d mu_raw <= 0.3 (normalised units)
+    dec = type(src)(2 * src.K, src.d, backend=src.backend, background=tuple(src.background.tolist()), **src.options())
+    per_primitive = {n for n, _ in src.named_parameters() if "." not in n}
+    dec.load_state_dict({k: (torch.cat([v, v]) if k in per_primitive else v) for k, v in src.state_dict().items()})
+    with torch.no_grad():
         g = torch.Generator().manual_seed(seed)
-        dec.mu_raw[src.K :] += torch.randn(src.K, 2, generator=g) * jitter_px / (0.3 * max(ae.height, ae.width))
+        if src.n_space == 3:  # world units: jitter_px at the middle of the depth range
+            step = jitter_px * float(sum(src.depth_range)) / 2.0 / src.camera.fx
+        else:  # mu_s = 1.2 sigmoid(mu_raw) - 0.1: d mu_s / d mu_raw <= 0.3 (normalised units)
+            step = jitter_px / (0.3 * max(ae.height, ae.width))
+        dec.mu_raw[src.K :] += torch.randn(src.K, src.n_space, generator=g) * step
     return AutoEncoder(ae.encoder, dec, ae.height, ae.width).eval()
+
+
+def _sessions3d(args, note=print):
+    """``[(name, Session3D)]`` of the trained 3-D system and its doubled decoder, or ``[]`` (``note`` says why)."""
+    from lagsplat.artifacts import Artifacts
+    from lagsplat.viewer.viewer3d import Session3D
+
+    a = Artifacts.at(args.model3d)
+    if not all(p.exists() for p in (a.stage1, a.chart, a.stage2)):
+        note(f"({args.model3d} has no trained 3-D system: the 3-D viewer is not timed; `snakemake -c2 results/pendulum3d/metrics.json` makes one)")
+        return []
+    ae, chart = a.load_stage1(), a.load_chart()
+    model, _ = a.load_stage2()
+    name = args.model3d.name
+    return [(name, Session3D(ae, chart, model)), (f"{name} x2", Session3D(_doubled(ae), chart, model))]
+
+
+def _orbit_camera(session, k: int, n: int = 72, size: int = 128):
+    """The ``k``-th of ``n`` cameras on a full orbit through the main camera, ``size`` pixels square."""
+    from lagsplat.render.camera import orbit_through
+    from lagsplat.viewer.viewer3d import main_camera_pose
+
+    pose = main_camera_pose(session)
+    return orbit_through(session.ae.decoder.camera, pose["look_at"], n, size, size)[k % n]
+
+
+def _rows3d(args, page: bool) -> list[dict]:
+    """The 3-D viewer's timings (module docstring)."""
+    import threading
+
+    import torch
+
+    from lagsplat.viewer.viewer3d import serve_viser
+
+    rows = []
+    for name, s in _sessions3d(args):
+        dec = s.ae.decoder
+        z = s.chart.to_raw(s.q)
+        cams = [_orbit_camera(s, k) for k in range(args.steps)]
+        with torch.no_grad():
+            dec.render(z, 128, 128, camera=cams[0])  # compilation / cache load outside the timings
+            t_step = time_call(lambda: s.step(args.steps), args.repeats) / args.steps
+            t_splats = time_call(lambda: [s.splats() for _ in range(args.steps)], args.repeats) / args.steps
+            t_render = time_call(lambda: [dec.render(s.chart.to_raw(s.q), 128, 128, camera=c) for c in cams], args.repeats) / args.steps
+        row = {"system": name, "gaussians": dec.K, "size": "128x128", "drag": "orbit", "sub-steps": 1, "step ms": f"{t_step * 1e3:.1f}",
+               "render ms": f"{t_render * 1e3:.1f}", "png ms": "-", "splats ms": f"{t_splats * 1e3:.1f}", "step+render+png Hz": f"{1 / (t_step + t_render):.0f}"}  # fmt: skip
+        frames, stop, urls, servers = [0], threading.Event(), [], []
+
+        def on_frame(server):
+            frames[0] += 1
+            if not servers:
+                servers.append(server)
+
+        import socket
+
+        with socket.socket() as sock:
+            sock.bind(("127.0.0.1", 0))
+            port = sock.getsockname()[1]
+        s.reset()
+        th = threading.Thread(target=serve_viser, args=(s, port), kwargs={"on_ready": urls.append, "stop": stop, "on_frame": on_frame}, daemon=True)
+        t0 = time.perf_counter()
+        th.start()
+        try:
+            while not servers and time.perf_counter() - t0 < 30:
+                time.sleep(0.05)
+            f0, t1 = frames[0], time.perf_counter()
+            time.sleep(2.0)
+            row["server frames/s"] = f"{(frames[0] - f0) / (time.perf_counter() - t1):.1f}"
+            if page:
+                row.update(_viser_page_rates(s, urls[0], servers[0], frames, args.seconds))
+        finally:
+            stop.set()
+            th.join(10)
+        rows.append(row)
+        print(f"  done: {row}", flush=True)
+    return rows
+
+
+def _viser_page_rates(session, url: str, server, frames: list, seconds: float) -> dict:
+    """Open the viser page at 128x128 in headless Chromium (software WebGL) and orbit its camera from the server."""
+    import math
+
+    import numpy as np
+    from playwright.sync_api import sync_playwright
+
+    from lagsplat.viewer.browser import CHROMIUM_WEBGL_ARGS
+    from lagsplat.viewer.viewer3d import main_camera_pose
+
+    pose = main_camera_pose(session)
+    centre, eye = np.asarray(pose["look_at"]), np.asarray(pose["position"])
+    up = np.asarray(pose["up_direction"]) / np.linalg.norm(pose["up_direction"])
+    r = eye - centre
+    fps_logged: list[float] = []
+    with sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_WEBGL_ARGS, headless=True)
+        try:
+            page = browser.new_page(viewport={"width": 128, "height": 128})
+            page.on("console", lambda m: fps_logged.extend(float(x.split("/")[0]) for x in m.text.split("FPS=")[1:2]) if "FPS=" in m.text else None)
+            page.goto(url)
+            page.wait_for_function("document.querySelector('canvas') !== null", timeout=60_000)
+            t0 = time.perf_counter()
+            while not server.get_clients() and time.perf_counter() - t0 < 30:
+                time.sleep(0.05)
+            client = next(iter(server.get_clients().values()))
+            page.wait_for_timeout(1500)
+            page.evaluate("() => { window.__rafs = 0; const f = () => { window.__rafs++; requestAnimationFrame(f); }; requestAnimationFrame(f); }")
+            n0, f0, t0 = page.evaluate("window.__rafs"), frames[0], time.perf_counter()
+            while (t := time.perf_counter() - t0) < seconds:  # orbit at 30 degrees per second about the image-up axis
+                a = math.radians(30.0 * t)
+                rot = r * math.cos(a) + np.cross(up, r) * math.sin(a) + up * float(up @ r) * (1 - math.cos(a))
+                with client.atomic():
+                    client.camera.position = tuple(centre + rot)
+                    client.camera.look_at = tuple(centre)
+                page.wait_for_timeout(33)
+            wall = time.perf_counter() - t0
+            n1, f1 = page.evaluate("window.__rafs"), frames[0]
+        finally:
+            browser.close()
+    return {"page: sim Hz": f"{(f1 - f0) / wall:.1f}", "page: render fps": f"{(n1 - n0) / wall:.1f}", "page: page fps": f"{fps_logged[-1]:.0f}" if fps_logged else "-"}
 
 
 def _sessions(args, note=print):
@@ -193,7 +326,11 @@ def main(argv: list[str] | None = None):
             rows.append(row)
             print(f"  done: {row}", flush=True)
         s.release()
+    rows += _rows3d(args, page)
     page_cols = [k for r in rows for k in r if k.startswith("page: ")]
+    for r in rows:
+        r.setdefault("splats ms", "-")
+        r.setdefault("server frames/s", "-")
     for r in rows:  # the page is measured at 128x128 only
         for k in dict.fromkeys(page_cols):
             r.setdefault(k, "-")
