@@ -11,6 +11,10 @@ reason when it did not finish. ``--gather`` turns rows into ``results/benchmarks
     python benchmarks/realistic.py --gather results/benchmarks/realistic/*.json --out results/benchmarks/realistic.md
     snakemake -c2 realistic_scores          # both, one job per clip
 
+``--from-stage2``: Stage 2 and the evaluation again on the Stage-1 autoencoder and chart already in
+``--results`` (a Stage-2 change re-scored without training Stage 1 again); the row's ``wall_s`` is then
+theirs only.
+
 Short clips (``--train-periods 3 --from-results results/realistic``): the diagnosis on a clip whose
 training part is only three periods of the motion. The full run's folder is copied and the split is
 moved (``system.split.train_fraction`` = three true periods over the clip's length), then ingest, chart,
@@ -263,6 +267,8 @@ def main(argv: list[str] | None = None) -> int:
                     "with an existing --row, only the diagnosis, on the cached artifacts")
     ap.add_argument("--train-periods", type=float, help="short clip: only this many true periods of training frames (needs --from-results)")
     ap.add_argument("--from-results", type=Path, help="the full runs whose Stage-1 autoencoders the short clips reuse")
+    ap.add_argument("--from-stage2", action="store_true", help="rerun Stage 2 and the evaluation only, on the clip's Stage-1 autoencoder "
+                    "and chart already in --results (a Stage-2 change re-scored without training Stage 1 again)")
     ap.add_argument("--gather", nargs="+", type=Path, help="rows to summarise")
     ap.add_argument("--out", type=Path, default=ROOT / "results" / "benchmarks" / "realistic.md")
     ap.add_argument("extra", nargs="*", help="Hydra overrides for every stage, e.g. stage1.steps=500")
@@ -280,7 +286,18 @@ def main(argv: list[str] | None = None) -> int:
         write_json(a.row, row)
         print(json.dumps(row))
         return 0
-    if a.row.exists() and a.diagnose:  # the pipeline's row is there: the diagnosis only, on its artifacts
+    if a.from_stage2:
+        if not Artifacts.for_run(a.results, a.clip).chart.exists():
+            ap.error(f"--from-stage2: {a.results / a.clip} has no chart (run the clip without --from-stage2 first)")
+        wall = 0.0
+        for stage in ("stage2", "evaluate"):
+            code, reason, w = run_clip(a.clip, a.clips, a.results, a.threads, a.extra, stage=stage)
+            wall += w
+            if code != 0:
+                break
+        row = row_of(a.clip, a.clips, a.results, code, reason, wall)
+        write_json(a.row, row)
+    elif a.row.exists() and a.diagnose:  # the pipeline's row is there: the diagnosis only, on its artifacts
         row = json.loads(a.row.read_text())
     else:
         code, reason, wall = run_clip(a.clip, a.clips, a.results, a.threads, a.extra)
