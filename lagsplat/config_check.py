@@ -85,7 +85,7 @@ CHECKS: dict[str, Bound] = {
     "stage1.deform_hidden[]": POSITIVE_INT, "stage1.deform_freqs": COUNT,
     "render.n_cameras": POSITIVE_INT, "render.size[]": POSITIVE_INT, "render.frame": COUNT, "render.rollout_s": NON_NEGATIVE,
     "render.fps": POSITIVE,
-    "stage1.w_views": NON_NEGATIVE, "stage1.views_per_step": POSITIVE_INT, "stage1.depth_range[]": POSITIVE,
+    "stage1.w_views": NON_NEGATIVE, "stage1.w_depth": NON_NEGATIVE, "stage1.views_per_step": POSITIVE_INT, "stage1.depth_range[]": POSITIVE,
     # chart
     "chart.n_metric_samples": POSITIVE_INT, "chart.rho": POSITIVE, "chart.refine_iters": COUNT,
     # stage2 (Stage2Config)

@@ -45,7 +45,7 @@ from lagsplat.io.clip import Clip, ClipError
 from lagsplat.io.common import jsonable
 from lagsplat.render.camera import Camera, load_cameras, save_cameras
 
-__all__ = ["VIEW_SOURCES", "ViewSet", "view_key", "build_views", "save_views", "load_views", "ensure_views", "main_camera_of", "scene_center", "scene_depth_range",
+__all__ = ["VIEW_SOURCES", "ViewSet", "view_key", "build_views", "save_views", "load_views", "ensure_views", "main_camera_of", "scene_center", "scene_depth_range", "static_stereo_depth",
            "plane_sweep_depth"]
 
 VIEW_SOURCES = ("synthetic", "cameras", "sharp")
@@ -352,3 +352,36 @@ def plane_sweep_depth(images: np.ndarray, cameras: list[Camera], ref: int, depth
         c_k = torch.where(seen > 0, total / seen.clamp_min(1), torch.full_like(total, 1.0)).reshape(1, 1, H, W)
         cost[k] = F.avg_pool2d(F.pad(c_k, (window // 2,) * 4, mode="replicate"), window, 1)[0, 0]
     return depths[cost.argmin(0)].numpy()
+
+
+def static_stereo_depth(frames: np.ndarray, views: ViewSet, train_idx: np.ndarray, depth_range: tuple[float, float], n_frames: int = 8) -> list[tuple]:
+    """Depth targets of the static scene for every camera of the training rig (the main camera, then
+    ``views.train_views``): the per-pixel median over ``n_frames`` training instants of the plane-sweep depth
+    (:func:`plane_sweep_depth`), and a mask of the pixels where it is trusted, those that stay still over the
+    training frames (temporal spread below three times the image's median spread, or 2 grey levels) and carry texture (the
+    gradient of the median image above its median: plane sweep cannot place a flat colour).
+
+    Args:
+        frames: uint8 ``[N,H,W,3]``, the main camera's training frames.
+        views: the clip's views; ``train_idx [N]`` the clip frames of ``frames``.
+        depth_range: ``(near, far)``, world units.
+
+    Returns:
+        per rig camera ``(depth [h,w] float32 tensor, world units; mask [h,w] bool tensor)``.
+    """
+    import torch
+
+    rig_views = list(views.train_views)
+    cams = [views.cameras[0]] + [views.cameras[1 + m] for m in rig_views]
+    pick = np.unique(np.linspace(0, len(frames) - 1, min(n_frames, len(frames))).round().astype(int))
+    out = []
+    for c in range(len(cams)):
+        seq = frames if c == 0 else views.images[train_idx, rig_views[c - 1]]  # [N,h,w,3] this camera's training frames
+        D = np.median([plane_sweep_depth(np.concatenate([frames[j : j + 1], views.images[train_idx[j], rig_views]]), cams, c, depth_range)
+                       for j in pick], axis=0)  # fmt: skip
+        spread = seq.astype(np.float32).std(0).mean(-1)
+        med = np.median(seq, axis=0).astype(np.float32).mean(-1)
+        grad = np.hypot(*np.gradient(med))
+        mask = (spread < max(3.0 * float(np.median(spread)), 2.0)) & (grad > np.median(grad))
+        out.append((torch.from_numpy(D.astype(np.float32)), torch.from_numpy(mask)))
+    return out

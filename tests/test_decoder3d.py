@@ -162,3 +162,27 @@ def test_new_primitives_go_on_the_rays_of_the_camera_that_saw_the_pixels():
         from lagsplat.models.decoder import ConditionedGaussians
 
         ConditionedGaussians(2, 1).placement_raw(idx, H, W, camera=side)
+
+
+def test_render_depth_composites_the_depth_along_the_camera_axis():
+    """Two primitives on the axis, at depths 1.8 and 2.3: each alone gives its own depth at the centre pixel; both
+    together, a depth close to the front one's (it hides most of the one behind)."""
+    dec = _decoder(K=2)
+    with torch.no_grad():
+        dec.mu_raw.copy_(torch.tensor([[0.0, 0.0, -0.2], [0.0, 0.0, 0.3]]))
+    z, c = torch.zeros(1, 1), (slice(None), 0, H // 2, W // 2)
+
+    def centre_depth(alpha_logits):
+        with torch.no_grad():
+            dec.logit_alpha.copy_(torch.tensor(alpha_logits))
+        img, dep, alpha = dec.render_depth(z, H, W)
+        assert img.shape == (1, 3, H, W) and dep.shape == alpha.shape == (1, 1, H, W)
+        return float(dep[c] / alpha[c]), float(alpha[c])
+
+    d_front, a_front = centre_depth([8.0, -30.0])
+    d_back, _ = centre_depth([-30.0, 8.0])
+    d_both, a_both = centre_depth([8.0, 8.0])
+    assert d_front == pytest.approx(1.8, abs=1e-3) and d_back == pytest.approx(2.3, abs=1e-3)
+    assert a_front > 0.8 and a_both > a_front
+    w_back = (a_both - a_front) / a_both  # the share the back one gets through the front one
+    assert d_both == pytest.approx((1 - w_back) * 1.8 + w_back * 2.3, abs=1e-3) and d_both < 2.0

@@ -171,3 +171,17 @@ def test_plane_sweep_finds_the_depth_of_a_textured_wall():
     assert abs(float(np.median(inner)) - 2.5) < 0.08 and np.mean(np.abs(inner - 2.5) < 0.2) > 0.8
     with pytest.raises(ValueError):
         plane_sweep_depth(images[:1], cams[:1], 0, (1.0, 2.0))
+    # the static scene's depth targets: every rig camera gets the wall's depth on its textured, still pixels
+    from lagsplat.views import ViewSet, static_stereo_depth
+
+    T = 4
+    frames = np.repeat(images[:1], T, 0)
+    rng = np.random.default_rng(0)
+    frames[:, :6, :6] = rng.integers(0, 255, (T, 6, 6, 3))  # a flickering corner: not still, never trusted
+    vs = ViewSet(np.repeat(images[None, 1:], T, 0), cams, holdout=[])
+    targets = static_stereo_depth(frames, vs, np.arange(T), (1.2, 5.0), n_frames=2)
+    assert len(targets) == 3
+    D, mask = targets[0]
+    assert D.shape == mask.shape == (size, size) and not bool(mask[:6, :6].any()) and 0.2 < float(mask.float().mean()) < 0.8
+    inner = D[8:-8, 8:-8][mask[8:-8, 8:-8]].numpy()
+    assert abs(float(np.median(inner)) - 2.5) < 0.08

@@ -120,6 +120,19 @@ class ConditionedGaussians3D(ConditionedGaussians):
         raise NotImplementedError("the 3-D decoder has no image-plane motion field; set stage1.w_static=0")
 
     # --------------------------------------------------------------- rendering
+    def render_depth(self, z: Tensor, height: int, width: int, camera: Camera | None = None) -> tuple[Tensor, Tensor, Tensor]:
+        """Render ``z [B,d]`` through ``camera`` with, in the same compositing pass, the depth along the camera's
+        axis (world units) and the accumulated opacity.
+
+        Returns:
+            ``(image [B,3,H,W], depth [B,1,H,W], alpha [B,1,H,W])``: ``depth = sum_i T_i a_i z_i`` and
+            ``alpha = sum_i T_i a_i``, so ``depth / alpha`` is the expected depth where ``alpha > 0``.
+        """
+        means, _, _ = self.condition(z)
+        _, dep = project_points(means, (camera or self.camera).resized(width, height))
+        img, extra = self.render(z, height, width, extra=torch.stack([dep, torch.ones_like(dep)], -1), camera=camera)
+        return img, extra[:, :1], extra[:, 1:]
+
     def screen(self, means: Tensor, gate: Tensor, g: DecoderGeometry, colors: Tensor, height: int, width: int, camera: Camera | None = None):
         """The conditioned primitives seen through ``camera`` (default the main camera, intrinsics scaled to
         ``height x width``, :meth:`Camera.resized`): EWA-projected, those behind the near plane transparent,

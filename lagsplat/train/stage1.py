@@ -22,7 +22,7 @@ from lagsplat.train.device import resolve_device
 from lagsplat.train.plateau import Plateau
 from lagsplat.train.losses import reconstruction_loss, static_motion_penalty, temporal_curvature_penalty
 from lagsplat.train.progress import Progress
-from lagsplat.views import ViewSet, plane_sweep_depth, scene_depth_range
+from lagsplat.views import ViewSet, plane_sweep_depth, scene_depth_range, static_stereo_depth
 
 __all__ = ["Stage1Config", "train_stage1", "static_pixels"]
 
@@ -49,7 +49,9 @@ class Stage1Config:
     primitives (initial and recycled, on the main camera or a training view) go on their pixels' rays at the
     plane-sweep stereo depth of that instant (:func:`~lagsplat.views.plane_sweep_depth`), searched in
     ``depth_range`` (world units; ``None``: around where the cameras' axes meet,
-    :func:`~lagsplat.views.scene_depth_range`).
+    :func:`~lagsplat.views.scene_depth_range`). ``w_depth > 0`` adds, for those views, the relative
+    difference between their composited depth and the scene's static stereo depth
+    (:func:`static_stereo_depth`), on the pixels whose stereo match is reliable.
     """
 
     n_gaussians: int = 1024
@@ -89,6 +91,7 @@ class Stage1Config:
     w_views: float = 1.0
     views_per_step: int = 1
     depth_range: tuple[float, float] | None = None
+    w_depth: float = 0.0
 
     @classmethod
     def from_mapping(cls, m: Mapping[str, Any]) -> "Stage1Config":
@@ -183,6 +186,8 @@ def train_stage1(
         rig = np.concatenate([frames[j : j + 1], views.images[clip.train_idx[j], train_views]])
         return torch.from_numpy(plane_sweep_depth(rig, [views.cameras[0]] + [view_cams[m] for m in train_views], c, dec.depth_range)).flatten()
 
+    depth_target = static_stereo_depth(frames, views, clip.train_idx, dec.depth_range) if V is not None and cfg.w_depth > 0 else None
+
     dec.init_from_frame(X[0], z0, sxy, cfg.sigma_q_floor, generator=gen, prob=placement_probability(X[0], motion_std, cfg.w_motion_init),
                         **({"depth": stereo_depth(0, 0)} if V is not None else {}))  # fmt: skip
     model = AutoEncoder(enc, dec, H, W).to(dev)
@@ -221,10 +226,18 @@ def train_stage1(
                 pred, motion = dec.render_motion(z, H, W, zs)
             else:
                 pred = dec(z, H, W)
-            view_preds = []
+            view_preds, depth_loss = [], torch.zeros((), device=dev)
             for m in rng.choice(train_views, size=min(cfg.views_per_step, len(train_views)), replace=False) if V is not None else []:
                 target = V[torch.as_tensor(idx), int(m)].to(dev).permute(0, 3, 1, 2).float().div_(255.0)
-                view_preds.append((dec.render(z, target.shape[2], target.shape[3], camera=view_cams[int(m)])[0], target))
+                if depth_target is None:
+                    view_preds.append((dec.render(z, target.shape[2], target.shape[3], camera=view_cams[int(m)])[0], target))
+                else:
+                    img, dep, alpha = dec.render_depth(z, target.shape[2], target.shape[3], camera=view_cams[int(m)])
+                    view_preds.append((img, target))
+                    D, mask = (t.to(dev) for t in depth_target[1 + list(train_views).index(int(m))])
+                    valid = mask[None, None] & (alpha > 0.5)
+                    rel = (dep / alpha.clamp_min(1e-6) - D) / D
+                    depth_loss = depth_loss + cfg.w_depth * rel.abs()[valid].mean() if valid.any() else depth_loss
         with record_function("stage1.loss"):
             loss, parts = reconstruction_loss(
                 pred, x, dec, cfg.w_l1, cfg.w_ssim, cfg.w_aniso, cfg.ssim_window, cfg.aniso_max_ratio
@@ -232,6 +245,8 @@ def train_stage1(
             for pv, target in view_preds:
                 lv, _ = reconstruction_loss(pv, target, dec, cfg.w_l1, cfg.w_ssim, 0.0, cfg.ssim_window, cfg.aniso_max_ratio)
                 loss = loss + cfg.w_views / len(view_preds) * lv
+            if view_preds:
+                loss = loss + depth_loss / len(view_preds)
             if cfg.w_nonlocal > 0:
                 loss = loss + cfg.w_nonlocal * nonlocal_filter_penalty(enc.large_kernels())
             if static is not None:
