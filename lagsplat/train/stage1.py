@@ -51,7 +51,9 @@ class Stage1Config:
     ``depth_range`` (world units; ``None``: around where the cameras' axes meet,
     :func:`~lagsplat.views.scene_depth_range`). ``w_depth > 0`` adds, for those views, the relative
     difference between their composited depth and the scene's static stereo depth
-    (:func:`static_stereo_depth`), on the pixels whose stereo match is reliable.
+    (:func:`static_stereo_depth`), on the pixels whose stereo match is reliable. On the 3-D pendulum
+    (64 px, 1500 steps) 0.1 lowered every camera's PSNR by 3-5 dB and widened the novel-view gap (4.8 to 5.7 dB),
+    so it stays off by default.
     """
 
     n_gaussians: int = 1024
