@@ -133,6 +133,22 @@ def _browser_orbits_and_pushes(s) -> None:
         page.mouse.click(float(uv[i, 0]), float(uv[i, 1]))
         return X[i].numpy()
 
+    def wait_until(cond, seconds: float = 10.0) -> bool:
+        t0 = time.monotonic()
+        while not cond() and time.monotonic() - t0 < seconds:
+            time.sleep(0.05)
+        return bool(cond())
+
+    def click_and_push(client) -> np.ndarray:
+        """Click the model; the push must act along the click's line of sight. Returns that unit ray."""
+        X = click_target(client)
+        assert wait_until(lambda: s.pushing), "the click on the model did not select it"
+        ray = X - np.asarray(client.camera.position)
+        ray = ray / np.linalg.norm(ray)
+        cos = float(s.push_direction @ ray)
+        assert cos > 0.98, f"the push is not along the line of sight (cos {cos:.3f})"
+        return ray
+
     try:
         t0 = time.monotonic()
         while not (urls and servers) and time.monotonic() - t0 < 30:
@@ -151,14 +167,7 @@ def _browser_orbits_and_pushes(s) -> None:
                 pose = main_camera_pose(s)
                 np.testing.assert_allclose(client.camera.position, pose["position"], atol=1e-4)  # opened at the main camera
                 s.reset()
-                X = click_target(client)
-                t0 = time.monotonic()
-                while not s.pushing and time.monotonic() - t0 < 10:
-                    time.sleep(0.05)
-                assert s.pushing, "the click on the model did not select it"
-                ray = X - np.asarray(client.camera.position)
-                cos = float(s._dir[0].numpy() @ ray / np.linalg.norm(ray))
-                assert cos > 0.98, f"the push is not along the line of sight (cos {cos:.3f})"
+                ray = click_and_push(client)
                 assert float(s.generalized_force().abs().max()) > 0
                 # orbit: drag on the canvas, away from the panel
                 p0 = np.asarray(client.camera.position).copy()
@@ -170,19 +179,9 @@ def _browser_orbits_and_pushes(s) -> None:
                 moved = float(np.linalg.norm(np.asarray(client.camera.position) - p0))
                 assert moved > 0.05 * float(np.linalg.norm(p0 - np.asarray(client.camera.look_at))), "the drag did not orbit the camera"
                 page.locator("button", has_text="release").click()
-                t0 = time.monotonic()
-                while s.pushing and time.monotonic() - t0 < 10:
-                    time.sleep(0.05)
-                assert not s.pushing
-                # from the orbited view the push follows the new line of sight
-                X = click_target(client)
-                t0 = time.monotonic()
-                while not s.pushing and time.monotonic() - t0 < 10:
-                    time.sleep(0.05)
-                assert s.pushing, "the click from the orbited view did not select the model"
-                ray2 = X - np.asarray(client.camera.position)
-                assert float(s._dir[0].numpy() @ ray2 / np.linalg.norm(ray2)) > 0.98
-                assert float(ray @ ray2 / np.linalg.norm(ray) / np.linalg.norm(ray2)) < 0.9995  # a different direction
+                assert wait_until(lambda: not s.pushing), "the release button did not stop the push"
+                ray2 = click_and_push(client)  # from the orbited view: along the new line of sight
+                assert float(ray @ ray2) < 0.9995  # a different direction
             finally:
                 browser.close()
     finally:

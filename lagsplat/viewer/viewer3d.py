@@ -91,6 +91,11 @@ class Session3D:
         """Whether a push acts now (a ray met material and nothing released it)."""
         return self._sel is not None
 
+    @property
+    def push_direction(self) -> np.ndarray:
+        """Unit world direction ``[3]`` of the last push (the click's ray, reversed for a pull)."""
+        return self._dir[0].numpy().astype(float)
+
     def release(self) -> None:
         """Stop pushing."""
         with self._lock:
