@@ -179,6 +179,12 @@ def _load() -> float:
     return os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
 
 
+def shown_path(path: str | Path) -> Path:
+    """``path`` relative to the repository when it lies inside it (what a report shows), else as given."""
+    p = Path(path)
+    return p.resolve().relative_to(ROOT) if p.resolve().is_relative_to(ROOT) else p
+
+
 def command_line(script: str | Path, argv: list[str] | None = None) -> str:
     """``python <script relative to the repository> <argv>`` as a shell would take it (``argv`` default: ``sys.argv[1:]``)."""
     script = Path(script).resolve()

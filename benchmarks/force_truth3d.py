@@ -36,7 +36,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout without installing
-from _common import Report, add_report_options, env_header
+from _common import Report, add_report_options, env_header, shown_path
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -54,9 +54,9 @@ def true_displacement(F, L: float):
     """The bob's static displacement (m, ``[3]``) and angle (rad) under the world force ``F [3]`` (units of ``m g``)."""
     import numpy as np
 
-    from lagsplat.synth.pendulum3d import _swing_axes
+    from lagsplat.synth.pendulum3d import swing_axes
 
-    d, _ = _swing_axes()
+    d, _ = swing_axes()
     z = np.array([0.0, 0.0, 1.0])
     theta = math.atan2(float(F @ d), 1.0 - float(F @ z))
     return L * (math.sin(theta) * d + (1.0 - math.cos(theta)) * z), theta
@@ -75,7 +75,7 @@ def main(argv: list[str] | None = None):
 
     a = Artifacts.at(args.results)
     if not all(p.exists() for p in (a.stage1, a.chart, a.stage2)):
-        raise SystemExit(f"{args.results}: no trained 3-D pendulum (snakemake -c2 results/pendulum3d/metrics.json makes one)")
+        raise SystemExit(f"{shown_path(args.results)}: no trained 3-D pendulum (snakemake -c2 results/pendulum3d/metrics.json makes one)")
     ae, chart = a.load_stage1(), a.load_chart()
     model, _ = a.load_stage2()
     ft = ForceTransport3D.from_autoencoder(ae, chart, min_transmittance=args.min_transmittance)
@@ -90,7 +90,7 @@ def main(argv: list[str] | None = None):
     uv = uv.detach()
     sel = ft.select(q_rest, cam, uv, sigma=args.sigma)
     if float(sel.weights.sum()) == 0:
-        raise SystemExit(f"{args.results}: the main camera's ray through the bob's pixel {uv.tolist()} meets no material")
+        raise SystemExit(f"{shown_path(args.results)}: the main camera's ray through the bob's pixel {uv.tolist()} meets no material")
     ray = ft.viewing_direction(cam, uv).numpy().astype(float)
     forces = [("image x (calibration)", 0.15 * right), ("optical axis, push", 0.15 * axis), ("optical axis, pull", -0.15 * axis),
               ("optical axis, push x2", 0.30 * axis), ("line of sight, push", 0.15 * ray), ("image x, opposite", -0.15 * right),
@@ -102,7 +102,7 @@ def main(argv: list[str] | None = None):
     rep = Report("Forces in 3-D against a known truth (3-D pendulum)", args.report, __file__, argv)
     print(env_header("numba not used"))
     rep.text(
-        f"model: {args.results} ({ae.width}x{ae.height} px, {ae.decoder.K} Gaussians, d = {model.d}); bob pixel at rest "
+        f"model: {shown_path(args.results)} ({ae.width}x{ae.height} px, {ae.decoder.K} Gaussians, d = {model.d}); bob pixel at rest "
         f"({uv[0]:.1f}, {uv[1]:.1f}); brush sigma {args.sigma} px, min transmittance {args.min_transmittance}; kappa {kappa:.4g} "
         f"(calibrated on force 0); forces in units of the bob's weight; optical axis ({axis[0]:+.3f}, {axis[1]:+.3f}, {axis[2]:+.3f})"
     )

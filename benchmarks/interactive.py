@@ -52,7 +52,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout without installing
-from _common import Report, add_report_options, env_header, time_call
+from _common import Report, add_report_options, env_header, shown_path, time_call
 
 from lagsplat.viewer.browser import CHROMIUM
 
@@ -100,7 +100,7 @@ def _sessions3d(args, note=print):
 
     a = Artifacts.at(args.model3d)
     if not all(p.exists() for p in (a.stage1, a.chart, a.stage2)):
-        note(f"({args.model3d} has no trained 3-D system: the 3-D viewer is not timed; `snakemake -c2 results/pendulum3d/metrics.json` makes one)")
+        note(f"({shown_path(args.model3d)} has no trained 3-D system: the 3-D viewer is not timed; `snakemake -c2 results/pendulum3d/metrics.json` makes one)")
         return []
     ae, chart = a.load_stage1(), a.load_chart()
     model, _ = a.load_stage2()
@@ -108,81 +108,53 @@ def _sessions3d(args, note=print):
     return [(name, Session3D(ae, chart, model)), (f"{name} x2", Session3D(_doubled(ae), chart, model))]
 
 
-def _orbit_camera(session, k: int, n: int = 72, size: int = 128):
-    """The ``k``-th of ``n`` cameras on a full orbit through the main camera, ``size`` pixels square."""
+def _orbit(session, n: int, size: int = 128):
+    """``n`` cameras evenly around a full orbit through the main camera, about where it looks, ``size`` pixels square."""
     from lagsplat.render.camera import orbit_through
     from lagsplat.viewer.viewer3d import main_camera_pose
 
-    pose = main_camera_pose(session)
-    return orbit_through(session.ae.decoder.camera, pose["look_at"], n, size, size)[k % n]
+    return orbit_through(session.ae.decoder.camera, main_camera_pose(session)["look_at"], n, size, size)
 
 
 def _rows3d(args, page: bool) -> list[dict]:
     """The 3-D viewer's timings (module docstring)."""
-    import threading
-
     import torch
 
-    from lagsplat.viewer.viewer3d import serve_viser
+    from lagsplat.viewer.viewer3d import served_viser
 
     rows = []
     for name, s in _sessions3d(args):
         dec = s.ae.decoder
-        z = s.chart.to_raw(s.q)
-        cams = [_orbit_camera(s, k) for k in range(args.steps)]
+        cams = _orbit(s, 72)[: args.steps]
         with torch.no_grad():
-            dec.render(z, 128, 128, camera=cams[0])  # compilation / cache load outside the timings
+            dec.render(s.chart.to_raw(s.q), 128, 128, camera=cams[0])  # compilation / cache load outside the timings
             t_step = time_call(lambda: s.step(args.steps), args.repeats) / args.steps
             t_splats = time_call(lambda: [s.splats() for _ in range(args.steps)], args.repeats) / args.steps
             t_render = time_call(lambda: [dec.render(s.chart.to_raw(s.q), 128, 128, camera=c) for c in cams], args.repeats) / args.steps
         row = {"system": name, "gaussians": dec.K, "size": "128x128", "drag": "orbit", "sub-steps": 1, "step ms": f"{t_step * 1e3:.1f}",
                "render ms": f"{t_render * 1e3:.1f}", "png ms": "-", "splats ms": f"{t_splats * 1e3:.1f}", "step+render+png Hz": f"{1 / (t_step + t_render):.0f}"}  # fmt: skip
-        frames, stop, urls, servers = [0], threading.Event(), [], []
-
-        def on_frame(server):
-            frames[0] += 1
-            if not servers:
-                servers.append(server)
-
-        import socket
-
-        with socket.socket() as sock:
-            sock.bind(("127.0.0.1", 0))
-            port = sock.getsockname()[1]
+        frames = [0]
         s.reset()
-        th = threading.Thread(target=serve_viser, args=(s, port), kwargs={"on_ready": urls.append, "stop": stop, "on_frame": on_frame}, daemon=True)
-        t0 = time.perf_counter()
-        th.start()
-        try:
-            while not servers and time.perf_counter() - t0 < 30:
-                time.sleep(0.05)
+        with served_viser(s, on_frame=lambda _srv: frames.__setitem__(0, frames[0] + 1)) as (url, server):
             f0, t1 = frames[0], time.perf_counter()
             time.sleep(2.0)
             row["server frames/s"] = f"{(frames[0] - f0) / (time.perf_counter() - t1):.1f}"
             if page:
-                row.update(_viser_page_rates(s, urls[0], servers[0], frames, args.seconds))
-        finally:
-            stop.set()
-            th.join(10)
+                row.update(_viser_page_rates(s, url, server, frames, args.seconds))
         rows.append(row)
         print(f"  done: {row}", flush=True)
     return rows
 
 
 def _viser_page_rates(session, url: str, server, frames: list, seconds: float) -> dict:
-    """Open the viser page at 128x128 in headless Chromium (software WebGL) and orbit its camera from the server."""
-    import math
-
-    import numpy as np
+    """Open the viser page at 128x128 in headless Chromium (software WebGL) while the server moves its camera around
+    the orbit through the main camera at 30 degrees per second."""
     from playwright.sync_api import sync_playwright
 
     from lagsplat.viewer.browser import CHROMIUM_WEBGL_ARGS
-    from lagsplat.viewer.viewer3d import main_camera_pose
+    from lagsplat.viewer.viewer3d import main_camera_pose, wait_for_client
 
-    pose = main_camera_pose(session)
-    centre, eye = np.asarray(pose["look_at"]), np.asarray(pose["position"])
-    up = np.asarray(pose["up_direction"]) / np.linalg.norm(pose["up_direction"])
-    r = eye - centre
+    orbit, target = _orbit(session, 120), tuple(main_camera_pose(session)["look_at"])  # cameras 3 degrees apart
     fps_logged: list[float] = []
     with sync_playwright() as pw:
         browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_WEBGL_ARGS, headless=True)
@@ -191,19 +163,15 @@ def _viser_page_rates(session, url: str, server, frames: list, seconds: float) -
             page.on("console", lambda m: fps_logged.extend(float(x.split("/")[0]) for x in m.text.split("FPS=")[1:2]) if "FPS=" in m.text else None)
             page.goto(url)
             page.wait_for_function("document.querySelector('canvas') !== null", timeout=60_000)
-            t0 = time.perf_counter()
-            while not server.get_clients() and time.perf_counter() - t0 < 30:
-                time.sleep(0.05)
-            client = next(iter(server.get_clients().values()))
+            client = wait_for_client(server)
             page.wait_for_timeout(1500)
             page.evaluate("() => { window.__rafs = 0; const f = () => { window.__rafs++; requestAnimationFrame(f); }; requestAnimationFrame(f); }")
             n0, f0, t0 = page.evaluate("window.__rafs"), frames[0], time.perf_counter()
-            while (t := time.perf_counter() - t0) < seconds:  # orbit at 30 degrees per second about the image-up axis
-                a = math.radians(30.0 * t)
-                rot = r * math.cos(a) + np.cross(up, r) * math.sin(a) + up * float(up @ r) * (1 - math.cos(a))
+            while (t := time.perf_counter() - t0) < seconds:
+                cam = orbit[int(10.0 * t) % len(orbit)]
                 with client.atomic():
-                    client.camera.position = tuple(centre + rot)
-                    client.camera.look_at = tuple(centre)
+                    client.camera.position = tuple(cam.center)
+                    client.camera.look_at = target
                 page.wait_for_timeout(33)
             wall = time.perf_counter() - t0
             n1, f1 = page.evaluate("window.__rafs"), frames[0]
@@ -228,8 +196,7 @@ def _sessions(args, note=print):
         out.append(("toy", Session(ae, chart, model, render_scale=2.0)))
         out.append(("toy x2", Session(_doubled(ae), chart, model, render_scale=2.0)))
     else:
-        shown = args.toy.resolve().relative_to(ROOT) if args.toy.resolve().is_relative_to(ROOT) else args.toy
-        note(f"({shown} has no trained toy system: synthetic pendulum only)")
+        note(f"({shown_path(args.toy)} has no trained toy system: synthetic pendulum only)")
     out.append(("synthetic", Session(*synthetic_pendulum(size=128, n_background=44))))
     return out
 

@@ -45,7 +45,7 @@ from lagsplat.io.clip import Clip, ClipError
 from lagsplat.io.common import jsonable
 from lagsplat.render.camera import Camera, load_cameras, save_cameras
 
-__all__ = ["VIEW_SOURCES", "ViewSet", "view_key", "build_views", "save_views", "load_views", "ensure_views", "main_camera_of", "scene_center", "scene_depth_range", "static_stereo_depth",
+__all__ = ["VIEW_SOURCES", "ViewSet", "view_key", "build_views", "save_views", "load_views", "ensure_views", "main_camera_of", "scene_center", "scene_depth_range", "rig_depth", "static_stereo_depth",
            "plane_sweep_depth"]
 
 VIEW_SOURCES = ("synthetic", "cameras", "sharp")
@@ -354,6 +354,15 @@ def plane_sweep_depth(images: np.ndarray, cameras: list[Camera], ref: int, depth
     return depths[cost.argmin(0)].numpy()
 
 
+def rig_depth(frames: np.ndarray, views: ViewSet, train_idx: np.ndarray, j: int, c: int, depth_range: tuple[float, float]) -> np.ndarray:
+    """The plane-sweep depth ``[h,w]`` (:func:`plane_sweep_depth`) of camera ``c`` of the training rig (0: the main
+    camera, then ``views.train_views``) at training frame ``j`` (``frames [N,H,W,3]`` the main camera's training
+    frames, ``train_idx [N]`` their clip frames)."""
+    rig = list(views.train_views)
+    images = np.concatenate([frames[j : j + 1], views.images[train_idx[j], rig]])
+    return plane_sweep_depth(images, [views.cameras[0]] + [views.cameras[1 + m] for m in rig], c, depth_range)
+
+
 def static_stereo_depth(frames: np.ndarray, views: ViewSet, train_idx: np.ndarray, depth_range: tuple[float, float], n_frames: int = 8) -> list[tuple]:
     """Depth targets of the static scene for every camera of the training rig (the main camera, then
     ``views.train_views``): the per-pixel median over ``n_frames`` training instants of the plane-sweep depth
@@ -372,13 +381,11 @@ def static_stereo_depth(frames: np.ndarray, views: ViewSet, train_idx: np.ndarra
     import torch
 
     rig_views = list(views.train_views)
-    cams = [views.cameras[0]] + [views.cameras[1 + m] for m in rig_views]
     pick = np.unique(np.linspace(0, len(frames) - 1, min(n_frames, len(frames))).round().astype(int))
     out = []
-    for c in range(len(cams)):
+    for c in range(1 + len(rig_views)):
         seq = frames if c == 0 else views.images[train_idx, rig_views[c - 1]]  # [N,h,w,3] this camera's training frames
-        D = np.median([plane_sweep_depth(np.concatenate([frames[j : j + 1], views.images[train_idx[j], rig_views]]), cams, c, depth_range)
-                       for j in pick], axis=0)  # fmt: skip
+        D = np.median([rig_depth(frames, views, train_idx, j, c, depth_range) for j in pick], axis=0)
         spread = seq.astype(np.float32).std(0).mean(-1)
         med = np.median(seq, axis=0).astype(np.float32).mean(-1)
         grad = np.hypot(*np.gradient(med))

@@ -92,8 +92,6 @@ def _browser_orbits_and_pushes(s) -> None:
     material pushes it along the click's line of sight, a mouse drag orbits the camera, a click from the orbited
     view pushes along the new line of sight, and the release button stops the push."""
     import math
-    import socket
-    import threading
     import time
 
     import numpy as np
@@ -101,7 +99,7 @@ def _browser_orbits_and_pushes(s) -> None:
 
     from lagsplat.render.camera import look_at, project_points
     from lagsplat.viewer.browser import CHROMIUM, CHROMIUM_WEBGL_ARGS
-    from lagsplat.viewer.viewer3d import main_camera_pose, serve_viser
+    from lagsplat.viewer.viewer3d import main_camera_pose, served_viser, wait_for_client
 
     try:
         from playwright.sync_api import sync_playwright
@@ -111,12 +109,6 @@ def _browser_orbits_and_pushes(s) -> None:
         pytest.skip(f"no Chromium at {CHROMIUM} (apt-get update && apt-get install -y chromium)")
     W, H = 900, 700  # viser's panel sits top right; the model is clicked where the main camera sees it
     mobility = torch.linalg.matrix_norm(s.ft.J, ord=2).detach().numpy()
-    urls, servers, stop = [], [], threading.Event()
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        port = sock.getsockname()[1]
-    th = threading.Thread(target=serve_viser, args=(s, port), kwargs={"on_ready": urls.append, "stop": stop, "on_frame": lambda srv: servers[:1] or servers.append(srv)}, daemon=True)
-    th.start()
 
     def click_target(client) -> np.ndarray:
         """Click, as the client's camera shows it, the most mobile opaque primitive that is on the canvas and clear
@@ -149,41 +141,31 @@ def _browser_orbits_and_pushes(s) -> None:
         assert cos > 0.98, f"the push is not along the line of sight (cos {cos:.3f})"
         return ray
 
-    try:
-        t0 = time.monotonic()
-        while not (urls and servers) and time.monotonic() - t0 < 30:
-            time.sleep(0.1)
-        with sync_playwright() as pw:
-            browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_WEBGL_ARGS, headless=True)
-            try:
-                page = browser.new_page(viewport={"width": W, "height": H})
-                page.goto(urls[0])
-                page.wait_for_function("document.querySelector('canvas') !== null", timeout=30_000)
-                t0 = time.monotonic()
-                while not servers[0].get_clients() and time.monotonic() - t0 < 30:
-                    time.sleep(0.1)
-                client = next(iter(servers[0].get_clients().values()))
-                page.wait_for_timeout(1500)
-                pose = main_camera_pose(s)
-                np.testing.assert_allclose(client.camera.position, pose["position"], atol=1e-4)  # opened at the main camera
-                s.reset()
-                ray = click_and_push(client)
-                assert float(s.generalized_force().abs().max()) > 0
-                # orbit: drag on the canvas, away from the panel
-                p0 = np.asarray(client.camera.position).copy()
-                page.mouse.move(0.3 * W, 0.75 * H)
-                page.mouse.down()
-                page.mouse.move(0.3 * W - 150, 0.75 * H, steps=12)
-                page.mouse.up()
-                page.wait_for_timeout(1000)
-                moved = float(np.linalg.norm(np.asarray(client.camera.position) - p0))
-                assert moved > 0.05 * float(np.linalg.norm(p0 - np.asarray(client.camera.look_at))), "the drag did not orbit the camera"
-                page.locator("button", has_text="release").click()
-                assert wait_until(lambda: not s.pushing), "the release button did not stop the push"
-                ray2 = click_and_push(client)  # from the orbited view: along the new line of sight
-                assert float(ray @ ray2) < 0.9995  # a different direction
-            finally:
-                browser.close()
-    finally:
-        stop.set()
-        th.join(10)
+    with served_viser(s) as (url, server), sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_WEBGL_ARGS, headless=True)
+        try:
+            page = browser.new_page(viewport={"width": W, "height": H})
+            page.goto(url)
+            page.wait_for_function("document.querySelector('canvas') !== null", timeout=30_000)
+            client = wait_for_client(server)
+            page.wait_for_timeout(1500)
+            pose = main_camera_pose(s)
+            np.testing.assert_allclose(client.camera.position, pose["position"], atol=1e-4)  # opened at the main camera
+            s.reset()
+            ray = click_and_push(client)
+            assert float(s.generalized_force().abs().max()) > 0
+            # orbit: drag on the canvas, away from the panel
+            p0 = np.asarray(client.camera.position).copy()
+            page.mouse.move(0.3 * W, 0.75 * H)
+            page.mouse.down()
+            page.mouse.move(0.3 * W - 150, 0.75 * H, steps=12)
+            page.mouse.up()
+            page.wait_for_timeout(1000)
+            moved = float(np.linalg.norm(np.asarray(client.camera.position) - p0))
+            assert moved > 0.05 * float(np.linalg.norm(p0 - np.asarray(client.camera.look_at))), "the drag did not orbit the camera"
+            page.locator("button", has_text="release").click()
+            assert wait_until(lambda: not s.pushing), "the release button did not stop the push"
+            ray2 = click_and_push(client)  # from the orbited view: along the new line of sight
+            assert float(ray @ ray2) < 0.9995  # a different direction
+        finally:
+            browser.close()

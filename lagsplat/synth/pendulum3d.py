@@ -26,7 +26,7 @@ import numpy as np
 
 from lagsplat.render.camera import Camera, save_cameras
 
-__all__ = ["OBLIQUE_DEG", "ROD_M", "PIVOT", "scene3d_xml", "pendulum3d_motion", "render_views", "make_pendulum3d", "main"]
+__all__ = ["OBLIQUE_DEG", "ROD_M", "PIVOT", "swing_axes", "scene3d_xml", "pendulum3d_motion", "render_views", "make_pendulum3d", "main"]
 
 OBLIQUE_DEG = 45.0
 """Angle between the swing plane and the main camera's image plane, degrees."""
@@ -40,7 +40,7 @@ PIVOT = (0.0, 0.0, 1.3)
 _G = 9.81
 
 
-def _swing_axes() -> tuple[np.ndarray, np.ndarray]:
+def swing_axes() -> tuple[np.ndarray, np.ndarray]:
     """Unit horizontal direction of the swing ``d`` and the hinge axis ``n`` (world)."""
     a = math.radians(OBLIQUE_DEG)
     d = np.array([math.cos(a), math.sin(a), 0.0])
@@ -52,7 +52,7 @@ def scene3d_xml(extra: list[Camera], fovy_deg: float) -> str:
     convention of :mod:`lagsplat.render.camera`)."""
     from lagsplat.synth.realistic.scene import ROOM_XML
 
-    _, n = _swing_axes()
+    _, n = swing_axes()
     body = f"""
     <geom type="box" pos="{PIVOT[0]} {PIVOT[1] + 0.03} {PIVOT[2] + 0.02}" size="0.06 0.03 0.02" rgba="0.2 0.2 0.22 1"/>
     <body name="arm" pos="{PIVOT[0]} {PIVOT[1]} {PIVOT[2]}"><joint name="theta" type="hinge" axis="{n[0]:.6f} {n[1]:.6f} {n[2]:.6f}"/>
@@ -83,7 +83,7 @@ def pendulum3d_motion(fps: float, duration_s: float, amplitude_deg: float = 40.0
     sol = solve_ivp(lambda _, y: [y[1], -(w0**2) * math.sin(y[0]) - 2 * zeta * w0 * y[1]], (0.0, float(t[-1])), [th0, 0.0],
                     t_eval=t, rtol=1e-10, atol=1e-12, method="DOP853")  # fmt: skip
     th, thd = sol.y
-    d, _ = _swing_axes()
+    d, _ = swing_axes()
     bob = np.asarray(PIVOT)[None] + ROD_M * (np.sin(th)[:, None] * d[None] - np.cos(th)[:, None] * np.array([0.0, 0.0, 1.0])[None])
     return {"t": t, "q": th[:, None], "qdot": thd[:, None], "bob": bob, "f0_hz": w0 / (2 * math.pi), "zeta": zeta, "L": ROD_M}
 

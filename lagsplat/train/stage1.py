@@ -22,7 +22,7 @@ from lagsplat.train.device import resolve_device
 from lagsplat.train.plateau import Plateau
 from lagsplat.train.losses import reconstruction_loss, static_motion_penalty, temporal_curvature_penalty
 from lagsplat.train.progress import Progress
-from lagsplat.views import ViewSet, plane_sweep_depth, scene_depth_range, static_stereo_depth
+from lagsplat.views import ViewSet, rig_depth, scene_depth_range, static_stereo_depth
 
 __all__ = ["Stage1Config", "train_stage1", "static_pixels"]
 
@@ -185,8 +185,7 @@ def train_stage1(
     def stereo_depth(j: int, c: int) -> Tensor:
         """3-D: the plane-sweep depth ``[h*w]`` of camera ``c`` of the training rig (main camera, then the training
         views) at training frame ``j``, where new primitives on that camera's pixels go."""
-        rig = np.concatenate([frames[j : j + 1], views.images[clip.train_idx[j], train_views]])
-        return torch.from_numpy(plane_sweep_depth(rig, [views.cameras[0]] + [view_cams[m] for m in train_views], c, dec.depth_range)).flatten()
+        return torch.from_numpy(rig_depth(frames, views, clip.train_idx, j, c, dec.depth_range)).flatten()
 
     depth_target = static_stereo_depth(frames, views, clip.train_idx, dec.depth_range) if V is not None and cfg.w_depth > 0 else None
 

@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Callable
 
 import numpy as np
@@ -29,7 +31,7 @@ from lagsplat.force3d import ForceTransport3D
 from lagsplat.io.clip import HELD_OUT
 from lagsplat.render.camera import look_at
 
-__all__ = ["Session3D", "main_camera_pose", "serve_viser"]
+__all__ = ["Session3D", "main_camera_pose", "serve_viser", "served_viser", "wait_for_client"]
 
 
 class Session3D:
@@ -133,7 +135,7 @@ def main_camera_pose(session: Session3D) -> dict[str, object]:
     and ``fov`` (vertical field of view, radians, ``2 atan(H / 2 f_y)``)."""
     cam = session.ae.decoder.camera
     R = np.asarray(cam.R, float)
-    depth = float(np.mean(getattr(session.ae.decoder, "depth_range", (1.0, 1.0))))
+    depth = float(np.mean(session.ae.decoder.depth_range))
     c = np.asarray(cam.center, float)
     return {"position": tuple(c), "look_at": tuple(c + depth * R[2]), "up_direction": tuple(-R[1]), "fov": float(2.0 * np.arctan(cam.height / (2.0 * cam.fy)))}
 
@@ -206,3 +208,49 @@ def serve_viser(
     finally:
         server.stop()
     return server
+
+
+@contextmanager
+def served_viser(session: Session3D, timeout_s: float = 30.0, on_frame: Callable[[object], None] | None = None) -> Iterator[tuple[str, object]]:
+    """:func:`serve_viser` on a free localhost port in a background thread; yields ``(url, server)`` once the first
+    frame was sent and stops the server on exit (tests, benchmarks). ``on_frame`` as in :func:`serve_viser`.
+
+    Raises:
+        RuntimeError: if no frame was sent within ``timeout_s``.
+    """
+    urls: list[str] = []
+    servers: list[object] = []
+    stop = threading.Event()
+
+    def frame(server) -> None:
+        if not servers:
+            servers.append(server)
+        if on_frame is not None:
+            on_frame(server)
+
+    th = threading.Thread(target=serve_viser, args=(session, 0), kwargs={"on_ready": urls.append, "stop": stop, "on_frame": frame}, daemon=True)
+    th.start()
+    try:
+        t0 = time.monotonic()
+        while not (urls and servers) and th.is_alive() and time.monotonic() - t0 < timeout_s:
+            time.sleep(0.05)
+        if not (urls and servers):
+            raise RuntimeError(f"viser sent no frame within {timeout_s:g} s")
+        yield urls[0], servers[0]
+    finally:
+        stop.set()
+        th.join(10)
+
+
+def wait_for_client(server, timeout_s: float = 30.0):
+    """The first browser connected to the viser ``server`` (its client handle: camera, GUI).
+
+    Raises:
+        TimeoutError: if none connects within ``timeout_s``.
+    """
+    t0 = time.monotonic()
+    while not server.get_clients():
+        if time.monotonic() - t0 > timeout_s:
+            raise TimeoutError(f"no browser connected to the viewer within {timeout_s:g} s")
+        time.sleep(0.05)
+    return next(iter(server.get_clients().values()))
