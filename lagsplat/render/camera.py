@@ -73,9 +73,9 @@ class Camera:
         """Camera centre in world coordinates ``[3]``: ``-R^T t``."""
         return -np.asarray(self.R, float).T @ np.asarray(self.t, float)
 
-    def tensors(self, dtype: torch.dtype = torch.float32) -> tuple[Tensor, Tensor]:
-        """``(R [3,3], t [3])`` as tensors."""
-        return torch.as_tensor(self.R, dtype=dtype), torch.as_tensor(self.t, dtype=dtype)
+    def tensors(self, dtype: torch.dtype = torch.float32, device: torch.device | str | None = None) -> tuple[Tensor, Tensor]:
+        """``(R [3,3], t [3])`` as tensors of ``dtype`` on ``device`` (default the CPU)."""
+        return torch.as_tensor(self.R, dtype=dtype, device=device), torch.as_tensor(self.t, dtype=dtype, device=device)
 
     def resized(self, width: int, height: int) -> "Camera":
         """The same camera imaging ``width x height`` px (intrinsics scaled per axis; the identity at its own size)."""
@@ -86,7 +86,7 @@ class Camera:
 
     def unproject(self, uv: Tensor, depth: Tensor) -> Tensor:
         """World points ``[...,3]`` seen at pixels ``uv [...,2]`` at camera depths ``depth [...]`` (world units along z)."""
-        R, t = self.tensors(uv.dtype)
+        R, t = self.tensors(uv.dtype, uv.device)
         xc = torch.stack([(uv[..., 0] - self.cx) / self.fx * depth, (uv[..., 1] - self.cy) / self.fy * depth, depth], -1)
         return (xc - t) @ R
 
@@ -182,7 +182,7 @@ def orbit_through(camera: Camera, target: Sequence[float], n: int, width: int | 
 
 def _camera_space(X: Tensor, cam: Camera) -> tuple[Tensor, Tensor, Tensor]:
     """Camera coordinates ``x_c [...,3]``, pixels ``[...,2]`` (depth clamped at :data:`NEAR`) and depths ``z_c [...]``."""
-    R, t = cam.tensors(X.dtype)
+    R, t = cam.tensors(X.dtype, X.device)
     xc = X @ R.T + t
     zs = xc[..., 2].clamp_min(NEAR)
     uv = torch.stack([cam.fx * xc[..., 0] / zs + cam.cx, cam.fy * xc[..., 1] / zs + cam.cy], -1)
@@ -212,7 +212,7 @@ def project_gaussians(mu: Tensor, cov: Tensor, cam: Camera) -> tuple[Tensor, Ten
     zero = torch.zeros_like(zs)
     J = torch.stack([torch.stack([cam.fx / zs, zero, -cam.fx * xc[..., 0] / zs**2], -1),
                      torch.stack([zero, cam.fy / zs, -cam.fy * xc[..., 1] / zs**2], -1)], -2)  # fmt: skip
-    T = J @ cam.tensors(mu.dtype)[0]
+    T = J @ cam.tensors(mu.dtype, mu.device)[0]
     cov2 = T @ cov @ T.transpose(-1, -2)
     return uv, 0.5 * (cov2 + cov2.transpose(-1, -2)), z
 
