@@ -106,6 +106,7 @@ class ViewsConfig:
         path, cameras: ``synthetic``: the views NPZ (``images [T,M,H,W,3]``, ``t``) and the JSON of its ``M + 1`` cameras.
         videos, calibration, fps: ``cameras``: one video per extra camera, the JSON of ``M + 1`` cameras (main first), their rate.
         command, checkpoint: ``sharp``: the command (default ``sharp``) and the weights file.
+        n_views, angle_deg: ``sharp``: view cameras on a cone of this half-angle around the main camera (:mod:`lagsplat.views_sharp`).
         holdout: views never used for training, scored as novel views (indices into the ``M`` views).
     """
 
@@ -117,6 +118,8 @@ class ViewsConfig:
     fps: Optional[float] = None
     command: Optional[str] = None
     checkpoint: Optional[str] = None
+    n_views: int = 8
+    angle_deg: float = 10.0
     holdout: list[int] = field(default_factory=list)
 
 

@@ -22,8 +22,9 @@ View sources (``system.views.source``):
   ``M + 1`` cameras, main first; ``fps``: their capture rate if the containers' is wrong), read with the
   same timing rules as the main clip (:func:`lagsplat.io.video.read_video`);
 * ``sharp``: Apple's single-image view synthesis (a local installation: the ``sharp`` command and
-  ``checkpoint``, the weights; it needs a GPU). It is never needed by the tests; when absent the stage stops
-  with one line naming what is missing.
+  ``checkpoint``, the weights; it needs a GPU): each frame's regressed 3-D Gaussians rendered from ``n_views``
+  cameras on a cone of half-angle ``angle_deg`` around the main camera (:mod:`lagsplat.views_sharp`). It is
+  never needed by the tests; when absent the stage stops with one line naming what is missing.
 
 Every view frame is matched to the clip frame of the same time (timestamps zeroed at the clip's first frame,
 ``system.frames``); a view without a frame within a quarter of a frame period stops with the file named.
@@ -182,7 +183,9 @@ def _sharp(clip: Clip, s: Mapping[str, Any]) -> tuple[np.ndarray, list[Camera]]:
     ckpt = s.get("checkpoint")
     if not ckpt or not Path(str(ckpt)).is_file():
         raise ClipError(f"views.source=sharp needs its weights: system.views.checkpoint={ckpt!r} is not a file")
-    raise ClipError(f"views.source=sharp: found {exe} and {ckpt}, but rendering SHARP's Gaussians into views is not built yet")
+    from lagsplat.views_sharp import sharp_views
+
+    return sharp_views(clip, exe, s)
 
 
 _SOURCES = {"synthetic": _synthetic, "cameras": _real_cameras, "sharp": _sharp}
@@ -200,7 +203,8 @@ def build_views(clip: Clip, settings: Mapping[str, Any]) -> ViewSet:
     if source not in _SOURCES:
         raise ClipError(f"system.views.source must be one of {list(VIEW_SOURCES)}, got {source!r}")
     images, cams = _SOURCES[source](clip, s)
-    cams = [main_camera_of(cams[0], clip), *cams[1:]]
+    if source != "sharp":  # SHARP regresses its scenes from the stored frames: its main camera is already the clip's
+        cams = [main_camera_of(cams[0], clip), *cams[1:]]
     holdout = [int(m) for m in (s.get("holdout") or [])]
     if any(not 0 <= m < images.shape[1] for m in holdout) or len(set(holdout)) == images.shape[1]:
         raise ClipError(f"system.views.holdout {holdout}: indices must lie in [0, {images.shape[1]}) and leave a view to train on")

@@ -185,3 +185,102 @@ def test_plane_sweep_finds_the_depth_of_a_textured_wall():
     assert D.shape == mask.shape == (size, size) and not bool(mask[:6, :6].any()) and 0.2 < float(mask.float().mean()) < 0.8
     inner = D[8:-8, 8:-8][mask[8:-8, 8:-8]].numpy()
     assert abs(float(np.median(inner)) - 2.5) < 0.08
+
+
+_STAND_IN = '''#!{python}
+"""Stand-in for Apple's "sharp predict -i IN -o OUT -c CKPT": one PLY of SHARP's layout per image, each pixel
+unprojected as a small Gaussian of its colour, at depth 3 m except the bright pixels, at 1.5 m."""
+import sys
+from pathlib import Path
+import cv2, numpy as np
+from lagsplat.views_sharp import write_sharp_ply
+a = sys.argv
+assert a[1] == "predict" and Path(a[a.index("-c") + 1]).is_file()
+out = Path(a[a.index("-o") + 1]); out.mkdir(parents=True, exist_ok=True)
+for p in sorted(Path(a[a.index("-i") + 1]).glob("*.png")):
+    rgb = cv2.imread(str(p))[:, :, ::-1] / 255.0
+    h, w = rgb.shape[:2]; f = 1.2 * w
+    v, u = np.mgrid[0:h, 0:w] + 0.5
+    z = np.where(rgb.mean(2) > 0.8, 1.5, 3.0)
+    xyz = np.stack([(u - w / 2) / f * z, (v - h / 2) / f * z, z], -1).reshape(-1, 3)
+    s = np.repeat((0.45 * z / f).reshape(-1, 1), 3, 1)
+    q = np.tile([1.0, 0.0, 0.0, 0.0], (h * w, 1))
+    write_sharp_ply(out / (p.stem + ".ply"), xyz, s, q, np.clip(rgb.reshape(-1, 3), 0.01, 0.99), np.full(h * w, 0.995), f, w, h)
+'''
+
+
+def test_sharp_scenes_are_rendered_into_views_around_the_main_camera(tmp_path, monkeypatch):
+    """With a command that answers like ``sharp predict`` (PLY files of SHARP's layout), the views stage reads each
+    frame's Gaussians, the main camera sees the frame again, and the view cameras see parallax: the near bright
+    square moves across the far backdrop, which stays put at the pivot (the backdrop's depth)."""
+    import sys
+
+    import torch
+
+    from lagsplat.render.camera import project_points
+    from lagsplat.views_sharp import read_sharp_ply, render_scene, sharp_scene_in
+
+    exe = tmp_path / "bin" / "sharp"
+    exe.parent.mkdir()
+    exe.write_text(_STAND_IN.format(python=sys.executable))
+    exe.chmod(0o755)
+    monkeypatch.setenv("PATH", f"{exe.parent}:{__import__('os').environ['PATH']}")
+    (tmp_path / "w.pt").write_bytes(b"weights")
+    n, S2 = 3, 32
+    rng = np.random.default_rng(1)
+    yy, xx = np.mgrid[0:S2, 0:S2]
+    backdrop = np.stack([60 + 2 * xx, 40 + 2 * yy, 100 - xx - yy], -1)  # a smooth, textured backdrop
+    frames = np.clip(backdrop[None] + rng.integers(-8, 9, (n, S2, S2, 3)), 0, 255).astype(np.uint8)
+    for i in range(n):
+        frames[i, 12:18, 10 + 2 * i : 16 + 2 * i] = 240  # a bright square, moving right
+    clip = Clip(images=frames, t=np.arange(n) / 30.0, meta={"frames": [0, n], "original_size": [S2, S2], "crop": None, "resize": None})
+    vs = build_views(clip, {"source": "sharp", "checkpoint": str(tmp_path / "w.pt"), "n_views": 4, "angle_deg": 8.0, "holdout": [2]})
+    assert vs.images.shape == (n, 4, S2, S2, 3) and len(vs.cameras) == 5
+    main = vs.cameras[0]
+    assert main.fx == pytest.approx(1.2 * S2, rel=1e-5) and np.allclose(main.R, np.eye(3)) and np.allclose(main.t, 0.0)
+    # the main camera sees the frame again (colours, scales and positions read back right)
+    scene = read_sharp_ply(_ply_of(exe, tmp_path, frames[0]))
+    means, covs = sharp_scene_in(scene, main)
+    again = render_scene(means, covs, scene.colors, scene.opacities, main, "torch").astype(float)
+    assert np.abs(again - frames[0]).mean() < 12.0
+    # parallax in the first view (turned to the right): the backdrop's centre stays at the pivot, the square moves
+    cam = vs.cameras[1]
+    uv_far, _ = project_points(torch.tensor([0.0, 0.0, 3.0]), cam)
+    uv_near, _ = project_points(torch.tensor([0.0, 0.0, 1.5]), cam)
+    assert np.allclose(uv_far.numpy(), [S2 / 2, S2 / 2], atol=0.05) and abs(float(uv_near[0] - uv_far[0])) > 2.0
+    bright = vs.images[1, 0].mean(2) > 200
+    assert bright.sum() > 10
+    xs = np.nonzero(bright)[1].mean() + 0.5
+    x_main = 13.0 + 2.0  # the square's centre in frame 1
+    shift_expected = float(uv_near[0] - S2 / 2)
+    assert abs((xs - x_main) - shift_expected) < 1.5 and abs(xs - x_main) > 1.5
+
+
+def _ply_of(exe, tmp_path, frame):
+    """Run the stand-in on one frame and return its PLY path."""
+    import subprocess
+
+    d = tmp_path / "one"
+    (d / "in").mkdir(parents=True)
+    cv2.imwrite(str(d / "in" / "f.png"), frame[:, :, ::-1])
+    subprocess.run([str(exe), "predict", "-i", str(d / "in"), "-o", str(d / "out"), "-c", str(tmp_path / "w.pt")], check=True)
+    return d / "out" / "f.ply"
+
+
+def test_sharp_ply_reads_sharps_conventions(tmp_path):
+    """Quaternions are real part first, scales are log standard deviations, colours degree-0 harmonics of sRGB,
+    opacities logits; a file without SHARP's layout is refused with its name."""
+    from lagsplat.views_sharp import read_sharp_ply, write_sharp_ply
+
+    th = np.radians(30.0)
+    p = write_sharp_ply(tmp_path / "s.ply", np.array([[0.1, -0.2, 2.0]]), np.array([[0.3, 0.1, 0.05]]),
+                        np.array([[np.cos(th / 2), 0.0, 0.0, np.sin(th / 2)]]), np.array([[0.2, 0.5, 0.9]]), np.array([0.7]), 50.0, 64, 48)  # fmt: skip
+    sc = read_sharp_ply(p)
+    Rz = np.array([[np.cos(th), -np.sin(th), 0], [np.sin(th), np.cos(th), 0], [0, 0, 1]])
+    assert np.allclose(sc.covs[0].numpy(), Rz @ np.diag([0.09, 0.01, 0.0025]) @ Rz.T, atol=1e-6)
+    assert np.allclose(sc.means[0].numpy(), [0.1, -0.2, 2.0]) and np.allclose(sc.colors[0].numpy(), [0.2, 0.5, 0.9], atol=1e-5)
+    assert float(sc.opacities[0]) == pytest.approx(0.7, abs=1e-5) and (sc.focal_px, sc.width, sc.height) == (50.0, 64, 48)
+    bad = tmp_path / "bad.ply"
+    bad.write_text("not a ply")
+    with pytest.raises(ClipError, match="bad.ply"):
+        read_sharp_ply(bad)
