@@ -52,8 +52,9 @@ class Stage1Config:
     :func:`~lagsplat.views.scene_depth_range`). ``w_depth > 0`` adds, for those views, the relative
     difference between their composited depth and the scene's static stereo depth
     (:func:`static_stereo_depth`), on the pixels whose stereo match is reliable. On the 3-D pendulum
-    (64 px, 1500 steps) 0.1 lowered every camera's PSNR by 3-5 dB and widened the novel-view gap (4.8 to 5.7 dB),
-    so it stays off by default.
+    (64 px, 1500 steps, four training views 40 degrees apart) 0.1 lowered every camera's PSNR by 3-5 dB and
+    widened the novel-view gap (4.8 to 5.7 dB), so it stays off by default; nine training views 10 degrees
+    apart, without it, bring the gap to 0.4 dB.
     """
 
     n_gaussians: int = 1024
