@@ -71,7 +71,8 @@ CHECKS: dict[str, Bound] = {
     "system.frames[]": COUNT, "system.crop[]": COUNT, "system.resize[]": POSITIVE_INT,
     "system.source.fps": POSITIVE, "system.source.dt": POSITIVE, "system.source.max_fps": POSITIVE,
     "system.source.jitter_tol": NON_NEGATIVE, "system.source.frames[]": COUNT,
-    "system.views.fps": POSITIVE, "system.views.holdout[]": COUNT,
+    "system.views.fps": POSITIVE, "system.views.holdout[]": COUNT, "system.views.n_views": POSITIVE_INT,
+    "system.views.angle_deg": Bound(0, 90, lo_open=True, hi_open=True, words="in (0, 90) degrees"),
     # stage1 (Stage1Config)
     "stage1.n_gaussians": POSITIVE_INT, "stage1.steps": POSITIVE_INT, "stage1.batch": POSITIVE_INT,
     "stage1.lr_encoder": POSITIVE, "stage1.lr_decoder": POSITIVE, "stage1.w_l1": NON_NEGATIVE, "stage1.w_ssim": NON_NEGATIVE,

@@ -20,7 +20,7 @@ LAYERS: list[tuple[str, list[str]]] = [
     ("io", ["lagsplat", "lagsplat.io"]),
     ("signals", ["lagsplat.timeseries", "lagsplat.motion", "lagsplat.metrics"]),
     ("render and synthetic clips", ["lagsplat.render", "lagsplat.synth"]),
-    ("ingest and models", ["lagsplat.ingest", "lagsplat.prepare", "lagsplat.views", "lagsplat.models"]),
+    ("ingest and models", ["lagsplat.ingest", "lagsplat.prepare", "lagsplat.views", "lagsplat.views_sharp", "lagsplat.models"]),
     ("dynamics", ["lagsplat.dynamics"]),
     ("chart", ["lagsplat.chart", "lagsplat.chart_refine", "lagsplat.chart_gate"]),
     ("train", ["lagsplat.train"]),
