@@ -40,7 +40,9 @@ simulation step, the splats handed to viser, one render of an orbit view at 128x
 server's frames sent per second (step + splats + send, real time: capped at ``1 / dt``). With ``--page`` the
 viser page is loaded in headless Chromium at 128x128 (WebGL in software, SwiftShader, on these cores) while
 the server moves the client's camera along an orbit: frames drawn per second by the page
-(``requestAnimationFrame``), viser's own frame-rate reading, and the server's frames sent per second.
+(``requestAnimationFrame``), viser's own frame-rate reading, and the server's frames sent per second; then
+again with ``view.render_3d=server`` (a ", server render" row: the server renders the browser's camera at
+128 px with the decoder's rasteriser and sends the image; its frames/s is the rate of new renders shown).
 """
 
 from __future__ import annotations
@@ -133,16 +135,19 @@ def _rows3d(args, page: bool) -> list[dict]:
             t_render = time_call(lambda: [dec.render(s.chart.to_raw(s.q), 128, 128, camera=c) for c in cams], args.repeats) / args.steps
         row = {"system": name, "gaussians": dec.K, "size": "128x128", "drag": "orbit", "sub-steps": 1, "step ms": f"{t_step * 1e3:.1f}",
                "render ms": f"{t_render * 1e3:.1f}", "png ms": "-", "splats ms": f"{t_splats * 1e3:.1f}", "step+render+png Hz": f"{1 / (t_step + t_render):.0f}"}  # fmt: skip
-        frames = [0]
-        s.reset()
-        with served_viser(s, on_frame=lambda _srv: frames.__setitem__(0, frames[0] + 1)) as (url, server):
-            f0, t1 = frames[0], time.perf_counter()
-            time.sleep(2.0)
-            row["server frames/s"] = f"{(frames[0] - f0) / (time.perf_counter() - t1):.1f}"
-            if page:
-                row.update(_viser_page_rates(s, url, server, frames, args.seconds))
-        rows.append(row)
-        print(f"  done: {row}", flush=True)
+        for render in ("browser", "server") if page else ("browser",):
+            frames = [0]
+            s.reset()
+            r = dict(row) if render == "browser" else {**{k: "-" for k in row}, "system": f"{name}, server render", "gaussians": dec.K,
+                                                         "size": "128x128", "drag": "orbit", "render ms": row["render ms"]}  # fmt: skip
+            with served_viser(s, on_frame=lambda _srv: frames.__setitem__(0, frames[0] + 1), render=render) as (url, server):
+                f0, t1 = frames[0], time.perf_counter()
+                time.sleep(2.0)
+                r["server frames/s"] = f"{(frames[0] - f0) / (time.perf_counter() - t1):.1f}"
+                if page:
+                    r.update(_viser_page_rates(s, url, server, frames, args.seconds))
+            rows.append(r)
+            print(f"  done: {r}", flush=True)
     return rows
 
 

@@ -200,6 +200,8 @@ class ViewConfig:
         max_seconds: stop after this many seconds (> 0); ``None``: until Ctrl-C.
         force_3d: a 3-D model (viser viewer): the push, world units (> 0), or ``"auto"``
             (:class:`lagsplat.viewer.viewer3d.Session3D`).
+        render_3d: a 3-D model: ``browser`` (viser draws splats) or ``server`` (the decoder's rasteriser renders each
+            browser's camera at ``render_scale`` times the training height; :func:`lagsplat.viewer.viewer3d.serve_viser`).
     """
 
     port: int = 8765
@@ -213,6 +215,7 @@ class ViewConfig:
     open_browser: bool = False
     max_seconds: Optional[float] = None
     force_3d: Union[Literal["auto"], float] = "auto"
+    render_3d: Literal["browser", "server"] = "browser"
 
 
 @dataclass

@@ -240,7 +240,8 @@ def stage_view(cfg: DictConfig) -> None:
 
         s3 = Session3D(ae, chart, model, force=v.get("force_3d", "auto"), kappa=float(v.kappa))
         max_s = v.get("max_seconds")
-        serve_viser(s3, int(v.port), None if max_s is None else float(max_s),
+        serve_viser(s3, int(v.port), None if max_s is None else float(max_s), render=str(v.get("render_3d", "browser")),
+                    size=max(1, round(ae.decoder.camera.height * float(v.render_scale))),
                     on_ready=lambda url: print(f"lagsplat view: {cfg.system.name} (3-D) at {url}  (push {s3.force:.3g} world units; Ctrl-C stops)", flush=True))  # fmt: skip
         return
     fs = v.get("force_scale", "auto")

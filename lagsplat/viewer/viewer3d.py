@@ -8,10 +8,13 @@ selected (:meth:`lagsplat.force3d.ForceTransport3D.select`, through a virtual ca
 world-space force of ``force`` world units along the ray (a push into depth) or opposite to it (a pull)
 acts on it, pulled back as ``kappa sum_i w_i J_i^T f`` (paper Eq. 9, §4.5), until released.
 
-:func:`serve_viser` shows the model's Gaussians at the current state as splats
+:func:`serve_viser` shows the model at the current state with viser's orbit camera (each browser starts at
+the main camera's pose: :func:`main_camera_pose`) and a panel: force, push / pull, release, reset. Two ways
+to draw it: ``render="browser"`` sends the Gaussians as splats
 (``viser.SceneApi.add_gaussian_splats``: world means, covariances, colours, opacities times the latent gate)
-with viser's orbit camera (each browser starts at the main camera's pose: :func:`main_camera_pose`), and a
-panel: force, push / pull, release, reset.
+and the browser draws them (fast with a GPU); ``render="server"`` renders each browser's camera with the
+decoder's own rasteriser (:meth:`Session3D.render`, the image Stage 1 trained) and sends it as the page's
+background image, so the browser only shows a picture (a CPU-only machine, software WebGL, a remote server).
 """
 
 from __future__ import annotations
@@ -29,9 +32,9 @@ from lagsplat.dynamics.integrators import initial_state, verlet_step
 from lagsplat.force import Selection
 from lagsplat.force3d import ForceTransport3D
 from lagsplat.io.clip import HELD_OUT
-from lagsplat.render.camera import look_at
+from lagsplat.render.camera import Camera, look_at
 
-__all__ = ["Session3D", "main_camera_pose", "serve_viser", "served_viser", "wait_for_client"]
+__all__ = ["Session3D", "main_camera_pose", "client_camera", "serve_viser", "served_viser", "wait_for_client"]
 
 
 class Session3D:
@@ -128,6 +131,14 @@ class Session3D:
         op = g.alpha[None] * gate
         return {"centers": means[0].numpy(), "covariances": g.cov.numpy(), "rgbs": g.colors.numpy(), "opacities": op[0, :, None].numpy()}
 
+    @torch.no_grad()
+    def render(self, camera: Camera) -> np.ndarray:
+        """uint8 ``[H,W,3]`` image of the model at the current state through ``camera`` (the decoder's rasteriser)."""
+        with self._lock:
+            q = self.q.clone()
+        img = self.ae.decoder.render(self.chart.to_raw(q), camera.height, camera.width, camera=camera)[0][0]
+        return (img.clamp(0.0, 1.0).permute(1, 2, 0).numpy() * 255.0 + 0.5).astype(np.uint8)
+
 
 def main_camera_pose(session: Session3D) -> dict[str, object]:
     """The main (filmed) camera as viser's client camera: ``position`` (its centre, world units), ``look_at`` (the
@@ -140,19 +151,41 @@ def main_camera_pose(session: Session3D) -> dict[str, object]:
     return {"position": tuple(c), "look_at": tuple(c + depth * R[2]), "up_direction": tuple(-R[1]), "fov": float(2.0 * np.arctan(cam.height / (2.0 * cam.fy)))}
 
 
+def client_camera(handle, height: int = 128) -> Camera:
+    """The :class:`Camera` of a viser client's camera ``handle`` (OpenCV axes: ``P_world = R_wc p_cam + position``,
+    vertical field of view ``fov``), imaging ``height`` pixels high at the browser's aspect ratio, square pixels.
+
+    Raises:
+        ValueError: if ``height < 1``.
+    """
+    import viser.transforms as vtf
+
+    if height < 1:
+        raise ValueError(f"height must be >= 1, got {height}")
+    R = vtf.SO3(np.asarray(handle.wxyz, float)).as_matrix().T  # world -> camera
+    width = max(1, int(round(height * float(handle.aspect))))
+    f = 0.5 * height / np.tan(0.5 * float(handle.fov))
+    return Camera(width, int(height), f, f, width / 2.0, height / 2.0, tuple(map(tuple, R)), tuple(-R @ np.asarray(handle.position, float)))
+
+
 def serve_viser(
     session: Session3D, port: int = 8080, max_seconds: float | None = None, on_ready: Callable[[str], None] | None = None,
-    stop: threading.Event | None = None, on_frame: Callable[[object], None] | None = None,
+    stop: threading.Event | None = None, on_frame: Callable[[object], None] | None = None, render: str = "browser",
+    size: int = 128,
 ):  # fmt: skip
     """Serve ``session`` with viser on ``http://127.0.0.1:<port>/`` until Ctrl-C, ``max_seconds`` or ``stop`` is set;
     returns the server (stopped). Each browser that connects starts at the main camera's pose
     (:func:`main_camera_pose`) and orbits with viser's mouse controls; clicking the model pushes it along the
-    click's ray (module docstring). ``on_ready(url)`` is called once serving, ``on_frame(server)`` after each
-    frame's splats were sent (e.g. to count frames).
+    click's ray (module docstring). ``render``: ``"browser"`` (splats) or ``"server"`` (this process renders each
+    browser's camera, ``size`` pixels high; module docstring). ``on_ready(url)`` is called once serving,
+    ``on_frame(server)`` after each frame was sent (e.g. to count frames).
 
     Raises:
         ModuleNotFoundError: with the install line, if viser is missing.
+        ValueError: for another ``render``.
     """
+    if render not in ("browser", "server"):
+        raise ValueError(f"render must be 'browser' or 'server', got {render!r}")
     try:
         import viser
     except ModuleNotFoundError as e:
@@ -199,7 +232,15 @@ def serve_viser(
         while (t_end is None or time.monotonic() < t_end) and not (stop is not None and stop.is_set()):
             t0 = time.monotonic()
             session.step()
-            server.scene.add_gaussian_splats("/model", **session.splats())
+            if render == "browser":
+                server.scene.add_gaussian_splats("/model", **session.splats())
+            else:
+                for client in list(server.get_clients().values()):
+                    try:
+                        cam = client_camera(client.camera, size)
+                    except AssertionError:  # the browser has not reported its camera yet
+                        continue
+                    client.scene.set_background_image(session.render(cam), format="jpeg")
             if on_frame is not None:
                 on_frame(server)
             time.sleep(max(0.0, session.dt - (time.monotonic() - t0)))
@@ -211,9 +252,10 @@ def serve_viser(
 
 
 @contextmanager
-def served_viser(session: Session3D, timeout_s: float = 30.0, on_frame: Callable[[object], None] | None = None) -> Iterator[tuple[str, object]]:
+def served_viser(session: Session3D, timeout_s: float = 30.0, on_frame: Callable[[object], None] | None = None,
+                 render: str = "browser") -> Iterator[tuple[str, object]]:  # fmt: skip
     """:func:`serve_viser` on a free localhost port in a background thread; yields ``(url, server)`` once the first
-    frame was sent and stops the server on exit (tests, benchmarks). ``on_frame`` as in :func:`serve_viser`.
+    frame was sent and stops the server on exit (tests, benchmarks). ``on_frame`` and ``render`` as in :func:`serve_viser`.
 
     Raises:
         RuntimeError: if no frame was sent within ``timeout_s``.
@@ -228,7 +270,8 @@ def served_viser(session: Session3D, timeout_s: float = 30.0, on_frame: Callable
         if on_frame is not None:
             on_frame(server)
 
-    th = threading.Thread(target=serve_viser, args=(session, 0), kwargs={"on_ready": urls.append, "stop": stop, "on_frame": frame}, daemon=True)
+    th = threading.Thread(target=serve_viser, args=(session, 0), kwargs={"on_ready": urls.append, "stop": stop, "on_frame": frame, "render": render},
+                          daemon=True)  # fmt: skip
     th.start()
     try:
         t0 = time.monotonic()
