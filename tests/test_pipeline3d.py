@@ -93,13 +93,14 @@ def _browser_orbits_and_pushes(s) -> None:
     view pushes along the new line of sight, and the release button stops the push."""
     import math
     import time
+    from contextlib import contextmanager
 
     import numpy as np
     import torch
 
     from lagsplat.render.camera import look_at, project_points
     from lagsplat.viewer.browser import CHROMIUM, CHROMIUM_WEBGL_ARGS
-    from lagsplat.viewer.viewer3d import main_camera_pose, served_viser, wait_for_client
+    from lagsplat.viewer.viewer3d import client_camera, main_camera_pose, served_viser, wait_for_client
 
     try:
         from playwright.sync_api import sync_playwright
@@ -141,63 +142,58 @@ def _browser_orbits_and_pushes(s) -> None:
         assert cos > 0.98, f"the push is not along the line of sight (cos {cos:.3f})"
         return ray
 
-    with served_viser(s) as (url, server), sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_WEBGL_ARGS, headless=True)
-        try:
-            page = browser.new_page(viewport={"width": W, "height": H})
-            page.goto(url)
-            page.wait_for_function("document.querySelector('canvas') !== null", timeout=30_000)
-            client = wait_for_client(server)
-            page.wait_for_timeout(1500)
-            pose = main_camera_pose(s)
-            np.testing.assert_allclose(client.camera.position, pose["position"], atol=1e-4)  # opened at the main camera
-            s.reset()
-            ray = click_and_push(client)
-            assert float(s.generalized_force().abs().max()) > 0
-            # orbit: drag on the canvas, away from the panel
-            p0 = np.asarray(client.camera.position).copy()
-            page.mouse.move(0.3 * W, 0.75 * H)
-            page.mouse.down()
-            page.mouse.move(0.3 * W - 150, 0.75 * H, steps=12)
-            page.mouse.up()
-            page.wait_for_timeout(1000)
-            moved = float(np.linalg.norm(np.asarray(client.camera.position) - p0))
-            assert moved > 0.05 * float(np.linalg.norm(p0 - np.asarray(client.camera.look_at))), "the drag did not orbit the camera"
-            page.locator("button", has_text="release").click()
-            assert wait_until(lambda: not s.pushing), "the release button did not stop the push"
-            ray2 = click_and_push(client)  # from the orbited view: along the new line of sight
-            assert float(ray @ ray2) < 0.9995  # a different direction
-        finally:
-            browser.close()
+    @contextmanager
+    def opened(render: str):
+        """The viewer served (``render`` mode) and loaded in headless Chromium: yields ``(page, client)``."""
+        with served_viser(s, render=render) as (url, server), sync_playwright() as pw:
+            browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_WEBGL_ARGS, headless=True)
+            try:
+                pg = browser.new_page(viewport={"width": W, "height": H})
+                pg.goto(url)
+                pg.wait_for_function("document.querySelector('canvas') !== null", timeout=30_000)
+                yield pg, wait_for_client(server)
+            finally:
+                browser.close()
+
+    with opened("browser") as (page, client):
+        page.wait_for_timeout(1500)
+        pose = main_camera_pose(s)
+        np.testing.assert_allclose(client.camera.position, pose["position"], atol=1e-4)  # opened at the main camera
+        s.reset()
+        ray = click_and_push(client)
+        assert float(s.generalized_force().abs().max()) > 0
+        # orbit: drag on the canvas, away from the panel
+        p0 = np.asarray(client.camera.position).copy()
+        page.mouse.move(0.3 * W, 0.75 * H)
+        page.mouse.down()
+        page.mouse.move(0.3 * W - 150, 0.75 * H, steps=12)
+        page.mouse.up()
+        page.wait_for_timeout(1000)
+        moved = float(np.linalg.norm(np.asarray(client.camera.position) - p0))
+        assert moved > 0.05 * float(np.linalg.norm(p0 - np.asarray(client.camera.look_at))), "the drag did not orbit the camera"
+        page.locator("button", has_text="release").click()
+        assert wait_until(lambda: not s.pushing), "the release button did not stop the push"
+        ray2 = click_and_push(client)  # from the orbited view: along the new line of sight
+        assert float(ray @ ray2) < 0.9995  # a different direction
 
     # the same page drawn by the server: each frame is the decoder's own render of the browser's camera
-    from lagsplat.viewer.viewer3d import client_camera
-
-    with served_viser(s, render="server") as (url, server), sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_WEBGL_ARGS, headless=True)
-        try:
-            page = browser.new_page(viewport={"width": W, "height": H})
-            page.goto(url)
-            page.wait_for_function("document.querySelector('canvas') !== null", timeout=30_000)
-            client = wait_for_client(server)
-            page.wait_for_timeout(2000)
-            cam = client_camera(client.camera, 96)
-            assert cam.width == round(96 * W / H)
-            c = client.camera  # the camera the page shows: the point it looks at projects to the image centre
-            uv, _ = project_points(torch.tensor(np.asarray(c.look_at, float), dtype=torch.float32), cam)
-            np.testing.assert_allclose(uv.numpy(), [cam.width / 2, cam.height / 2], atol=0.05)
-            s.release()
-            with torch.no_grad():  # at rest, so that the page and the reference show one state
-                s.q, s.qdot = s.model.q_rest.detach()[None].clone(), torch.zeros_like(s.qdot)
-            page.wait_for_timeout(1000)
-            shot = cv2.imdecode(np.frombuffer(page.screenshot(), np.uint8), cv2.IMREAD_GRAYSCALE).astype(float)
-            ref = cv2.cvtColor(cv2.resize(s.render(cam), (W, H), interpolation=cv2.INTER_LINEAR), cv2.COLOR_RGB2GRAY).astype(float)
-            keep = np.ones((H, W), bool)
-            keep[:260, W - 380 :] = False  # viser's panel
-            keep[:170, :340] = False  # the browser's notice of software WebGL
-            corr = float(np.corrcoef(shot[keep], ref[keep])[0, 1])
-            assert corr > 0.8, f"the page does not show the server's render (correlation {corr:.2f})"
-            ray = click_and_push(client)  # pushing works the same on the server-drawn page
-            assert float(np.linalg.norm(ray)) == pytest.approx(1.0)
-        finally:
-            browser.close()
+    with opened("server") as (page, client):
+        page.wait_for_timeout(2000)
+        cam = client_camera(client.camera, 96)
+        assert cam.width == round(96 * W / H)
+        c = client.camera  # the camera the page shows: the point it looks at projects to the image centre
+        uv, _ = project_points(torch.tensor(np.asarray(c.look_at, float), dtype=torch.float32), cam)
+        np.testing.assert_allclose(uv.numpy(), [cam.width / 2, cam.height / 2], atol=0.05)
+        s.release()
+        with torch.no_grad():  # at rest, so that the page and the reference show one state
+            s.q, s.qdot = s.model.q_rest.detach()[None].clone(), torch.zeros_like(s.qdot)
+        page.wait_for_timeout(1000)
+        shot = cv2.imdecode(np.frombuffer(page.screenshot(), np.uint8), cv2.IMREAD_GRAYSCALE).astype(float)
+        ref = cv2.cvtColor(cv2.resize(s.render(cam), (W, H), interpolation=cv2.INTER_LINEAR), cv2.COLOR_RGB2GRAY).astype(float)
+        keep = np.ones((H, W), bool)
+        keep[:260, W - 380 :] = False  # viser's panel
+        keep[:170, :340] = False  # the browser's notice of software WebGL
+        corr = float(np.corrcoef(shot[keep], ref[keep])[0, 1])
+        assert corr > 0.8, f"the page does not show the server's render (correlation {corr:.2f})"
+        ray = click_and_push(client)  # pushing works the same on the server-drawn page
+        assert float(np.linalg.norm(ray)) == pytest.approx(1.0)
