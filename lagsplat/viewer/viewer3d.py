@@ -229,8 +229,8 @@ def serve_viser(
         on_ready(f"http://127.0.0.1:{server.get_port()}/")
     t_end = None if max_seconds is None else time.monotonic() + float(max_seconds)
     try:
+        deadline = time.monotonic()
         while (t_end is None or time.monotonic() < t_end) and not (stop is not None and stop.is_set()):
-            t0 = time.monotonic()
             session.step()
             if render == "browser":
                 server.scene.add_gaussian_splats("/model", **session.splats())
@@ -243,7 +243,12 @@ def serve_viser(
                     client.scene.set_background_image(session.render(cam), format="jpeg")
             if on_frame is not None:
                 on_frame(server)
-            time.sleep(max(0.0, session.dt - (time.monotonic() - t0)))
+            deadline += session.dt  # real time, paced by deadlines (sleep overshoots would otherwise add up)
+            wait = deadline - time.monotonic()
+            if wait > 0:
+                time.sleep(wait)
+            else:  # behind: start afresh rather than rush to catch up
+                deadline = time.monotonic()
     except KeyboardInterrupt:
         pass
     finally:
