@@ -2,6 +2,7 @@
 
 import math
 
+import numpy as np
 import pytest
 import torch
 
@@ -214,3 +215,34 @@ def test_gsplat_draws_the_3d_decoder_as_the_cpu_rasteriser_does():
         assert float((a - b).abs().mean()) < 0.01 and float((a - b).abs().max()) < 0.1
     g_cpu, g_cuda = results["cpu"][2].flatten(), results["cuda"][2].flatten()
     assert float(torch.nn.functional.cosine_similarity(g_cpu, g_cuda, dim=0)) > 0.95
+
+
+def test_the_diagnosis_sees_3d_primitives_through_the_main_camera():
+    """Pixel positions are the projected means, pixel Jacobians their derivative in q, and the compositing weights
+    put the nearer of two overlapping primitives in front whichever its index."""
+    from lagsplat.diagnose.screen import ScreenKinematics
+    from lagsplat.force3d import ForceTransport3D
+
+    dec = _decoder(K=2)
+    with torch.no_grad():
+        dec.mu_raw.copy_(torch.tensor([[0.0, 0.0, 0.5], [0.0, 0.0, -0.5]]))  # the second nearer the camera (at z = -2)
+        L = torch.eye(4) * 0.05
+        L[0, 0] = 1.0
+        L[1, 0] = 0.3
+        raw = L[dec.tril_i, dec.tril_j].clone()
+        diag = dec.tril_i == dec.tril_j
+        raw[diag] = torch.log(torch.expm1(raw[diag] - 1e-4))
+        dec.L_raw.copy_(raw[None].expand(2, -1))
+
+    class _Chart:
+        W_inv, mean = np.eye(1), np.zeros(1)
+
+    sk = ScreenKinematics(ForceTransport3D.from_autoencoder(type("AE", (), {"decoder": dec, "height": H, "width": W})(), _Chart()), dec.camera)
+    q = torch.zeros(1, 1)
+    uv, _ = project_points(sk.tr.means(q)[0], dec.camera)
+    assert torch.allclose(sk.positions(q), uv)
+    J = sk.pixel_jacobians(q)
+    du = (sk.positions(q + 0.01) - sk.positions(q - 0.01)) / 0.02
+    assert J.shape == (2, 2, 1) and torch.allclose(J[..., 0], du, atol=1e-3) and float(J[1, 0, 0]) > float(J[0, 0, 0]) > 0
+    w = sk.weights(q, uv[1:2])  # at the nearer primitive's centre
+    assert float(w[0, 1]) > 0.9 and float(w[0, 0]) < 0.1

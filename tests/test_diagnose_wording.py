@@ -161,13 +161,14 @@ def test_an_effect_size_in_pixels_of_the_video() -> None:
     import torch
 
     from lagsplat.diagnose.pixels import add_pixel_sizes, object_position_px, px_per_unit, to_source_px
+    from lagsplat.diagnose.screen import ScreenKinematics
     from lagsplat.force import ForceTransport
 
     c = torch.tensor([[10.0, 20.0], [12.0, 20.0], [14.0, 20.0], [30.0, 30.0], [31.0, 30.0], [32.0, 30.0]])
     J = torch.zeros(6, 2, 1)
     J[:3, 0, 0] = 2.0  # the object moves 2 px in x per chart unit; the background does not move
     K = len(c)
-    tr = ForceTransport(c, J, torch.ones(K), torch.zeros(K, 1), 1e3 * torch.ones(K, 1, 1), torch.eye(1), torch.zeros(1))
+    tr = ScreenKinematics(ForceTransport(c, J, torch.ones(K), torch.zeros(K, 1), 1e3 * torch.ones(K, 1, 1), torch.eye(1), torch.zeros(1)))
     assert object_position_px(tr, np.array([1.5])) == pytest.approx([15.0, 20.0], abs=1e-4)
     assert px_per_unit(tr, np.array([1.0])) == pytest.approx(2.0)
     meta = {"crop": [40, 8, 110, 101], "resize": [48, 64]}

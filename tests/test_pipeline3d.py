@@ -45,6 +45,10 @@ def test_the_3d_chain_end_to_end(tmp_path):
     assert len(per_cam) == 12 and all(p > 8.0 for p in per_cam)  # main camera + 11 views, each decoded to something
     assert m["psnr_novel_views_held_out"]["value"] > 8.0 and "novel_view_gap_db_held_out" in m
     assert "eps_freq_truth" in m and m["f_truth_hz"]["value"] == pytest.approx(0.70, abs=0.2)
+    # the gap diagnosis reads the 3-D model as it reads a 2-D one (its image localisation through the main camera)
+    _run("diagnose", raw, res, "diagnose.refit.epochs=2", "diagnose.where.n_image_frames=4")
+    rep = json.loads((res / "pendulum3d" / "diagnosis" / "report.json").read_text())
+    assert rep["verdict"] and (res / "pendulum3d" / "diagnosis" / "figures" / "where_image.png").stat().st_size > 1000
     _run("render", raw, res, "render.n_cameras=4", "render.rollout_s=1.0")
     video = res / "pendulum3d" / "figures" / "novel_views.mp4"
     cap = cv2.VideoCapture(str(video))

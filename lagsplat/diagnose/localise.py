@@ -110,7 +110,7 @@ def image_localisation(
     Raises:
         ValueError: if no state is given or the frames do not match the decoder's resolution.
     """
-    from lagsplat.force import ForceTransport
+    from lagsplat.diagnose.screen import ScreenKinematics
     from lagsplat.models.autoencoder import frames_to_tensor
 
     cfg = cfg or WhereConfig()
@@ -122,9 +122,10 @@ def image_localisation(
         raise ValueError(f"image_localisation: frames are {images.shape[1:3]} but the decoder renders {(H, W)}")
     sel = _pick(len(frames), max(1, int(cfg.n_image_frames)))
     fr, qs = frames[sel], np.asarray(q_sim, np.float64)[sel]
-    tr = ForceTransport.from_autoencoder(ae, chart)
-    K = int(tr.c.shape[0])
-    motion = torch.linalg.matrix_norm(tr.J).numpy()
+    tr = ScreenKinematics.from_autoencoder(ae, chart)  # the primitives as the main camera sees them (2-D or 3-D decoder)
+    K = tr.K
+    q_mean = torch.as_tensor(chart.q[fr].mean(0, keepdims=True), dtype=torch.float32)
+    motion = tr.motion_px(q_mean)
     moving = motion >= cfg.moving_fraction * float(np.quantile(motion, 0.99)) if float(motion.max()) > 0 else np.zeros(K, bool)
     cover = 0.0
     jj, ii = np.meshgrid(np.arange(W), np.arange(H))
@@ -155,17 +156,15 @@ def image_localisation(
             pos = np.maximum(exc[b], 0.0).ravel()
             tot_pos += float(pos.sum())
             for qq in (q_enc[b : b + 1], q_si[b : b + 1]):
-                mu, op = tr.means(qq)[0], tr.opacity(qq)[0]
                 for c0 in range(0, len(pts), int(cfg.pixel_chunk)):
-                    w = tr.compositing_weights(mu, op, pts[c0 : c0 + int(cfg.pixel_chunk)]).double().numpy()  # [P,K]
+                    w = tr.weights(qq, pts[c0 : c0 + int(cfg.pixel_chunk)]).double().numpy()  # [P,K]
                     pc = pos[c0 : c0 + int(cfg.pixel_chunk)]
                     attr += 0.5 * (w.T @ pc)
                     bg += 0.5 * float(((1.0 - w.sum(1)).clip(0.0, 1.0) * pc).sum())
                     cover += 0.5 * float(w[:, moving].sum())
     n = float(len(fr))
     share = attr / tot_pos if tot_pos > 0 else attr
-    q_mean = torch.as_tensor(chart.q[fr].mean(0, keepdims=True), dtype=torch.float32)
-    positions = tr.means(q_mean)[0].numpy()
+    positions = tr.positions(q_mean).numpy()
     return ImageLocalisation(
         mean_frame=mean_frame / n, err_ae=acc_ae / n, err_roll=acc_sim / n, excess=acc_exc / n, frames=fr, share=share,
         background_share=bg / tot_pos if tot_pos > 0 else 0.0, positions=positions, motion_px=motion,

@@ -2,7 +2,8 @@
 
 The diagnosis fits its candidates in the whitened chart, whose unit is one standard deviation of the
 encoded motion. Where the report has the Stage-1 autoencoder, the decoder's kinematics turn a chart
-position or length into pixels: the object is the set of primitives that move (``|J_i|`` at least
+position or length into pixels (through the main camera for a 3-D decoder,
+:class:`~lagsplat.diagnose.screen.ScreenKinematics`): the object is the set of primitives that move (``|J_i|`` at least
 ``moving_fraction`` of the 99th percentile, as in :mod:`lagsplat.diagnose.localise`), its position at
 ``q`` their opacity-weighted mean ``mu_i(q)``, and one chart unit along a direction ``e`` the weighted
 mean of ``|J_i e|``. Positions are given in the working frame and, through the clip's crop and resize
@@ -21,12 +22,12 @@ __all__ = ["object_position_px", "px_per_unit", "to_source_px", "add_pixel_sizes
 
 
 def _moving_weights(tr: Any, q: np.ndarray, moving_fraction: float) -> torch.Tensor:
-    """``[K]`` weights of the moving primitives at ``q``: opacity times ``|J_i|``, zero for the still ones."""
-    motion = torch.linalg.matrix_norm(tr.J)
+    """``[K]`` weights of the moving primitives at ``q``: opacity times ``|J_i|`` (pixel Jacobians), zero for the still ones."""
+    qt = torch.as_tensor(np.asarray(q, np.float32).reshape(1, -1))
+    motion = torch.linalg.matrix_norm(tr.pixel_jacobians(qt))
     if float(motion.max()) <= 0:
         raise ValueError("the decoder moves no primitive: no pixel scale")
     moving = motion >= moving_fraction * torch.quantile(motion, 0.99)
-    qt = torch.as_tensor(np.asarray(q, np.float32).reshape(1, -1))
     return tr.opacity(qt)[0] * motion * moving
 
 
@@ -34,7 +35,7 @@ def object_position_px(tr: Any, q: np.ndarray, moving_fraction: float = 0.1) -> 
     """The moving object's position ``[2]`` (x, y; px of the working frame) at the whitened state ``q [d]``.
 
     Args:
-        tr: :class:`lagsplat.force.ForceTransport` of the autoencoder and chart.
+        tr: :class:`lagsplat.diagnose.screen.ScreenKinematics` of the autoencoder and chart.
         q: ``[d]`` whitened chart position.
         moving_fraction: share of the 99th percentile of ``|J_i|`` from which a primitive moves.
 
@@ -42,7 +43,7 @@ def object_position_px(tr: Any, q: np.ndarray, moving_fraction: float = 0.1) -> 
         ValueError: if no primitive moves.
     """
     w = _moving_weights(tr, q, moving_fraction)
-    mu = tr.means(torch.as_tensor(np.asarray(q, np.float32).reshape(1, -1)))[0]
+    mu = tr.positions(torch.as_tensor(np.asarray(q, np.float32).reshape(1, -1)))
     return (w[:, None] * mu).sum(0).numpy() / max(float(w.sum()), 1e-30)
 
 
@@ -53,8 +54,10 @@ def px_per_unit(tr: Any, e: np.ndarray, q: np.ndarray | None = None, moving_frac
         ValueError: if no primitive moves.
     """
     e = np.asarray(e, np.float32)
-    w = _moving_weights(tr, np.zeros_like(e) if q is None else q, moving_fraction)
-    step = torch.linalg.vector_norm(torch.einsum("kij,j->ki", tr.J, torch.as_tensor(e)), dim=1)
+    q = np.zeros_like(e) if q is None else q
+    w = _moving_weights(tr, q, moving_fraction)
+    J = tr.pixel_jacobians(torch.as_tensor(np.asarray(q, np.float32).reshape(1, -1)))
+    step = torch.linalg.vector_norm(torch.einsum("kij,j->ki", J, torch.as_tensor(e)), dim=1)
     return float((w * step).sum() / max(float(w.sum()), 1e-30))
 
 
@@ -77,7 +80,7 @@ def add_pixel_sizes(diagnosis: Any, tr: Any, meta: Mapping[str, Any] | None = No
 
     Args:
         diagnosis: the :class:`~lagsplat.diagnose.diagnosis.Diagnosis` (its ``effects`` are updated in place).
-        tr: :class:`lagsplat.force.ForceTransport` of the autoencoder and chart.
+        tr: :class:`lagsplat.diagnose.screen.ScreenKinematics` of the autoencoder and chart.
         meta: the clip's ``meta`` (crop and resize, for source pixels).
     """
     for fit in diagnosis.effects:

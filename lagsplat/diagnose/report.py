@@ -330,9 +330,9 @@ def diagnose_artifacts(
         _gap_figure(run, runs, figures, refit_rec["done"], title or system)
     timings["gap_and_refit_s"] = time.perf_counter() - t0
     if ae is not None:  # the effect's size in pixels of the video, through the decoder
-        from lagsplat.force import ForceTransport
+        from lagsplat.diagnose.screen import ScreenKinematics
 
-        add_pixel_sizes(diag, ForceTransport.from_autoencoder(ae, chart), getattr(clip, "meta", None))
+        add_pixel_sizes(diag, ScreenKinematics.from_autoencoder(ae, chart), getattr(clip, "meta", None))
 
     report = _report_record(run, diag, where, gap, refit_rec, figures, which, timings, title, system)
     write_report(report, run.out)
