@@ -70,14 +70,20 @@ class ForceTransport3D(ChartKinematics):
         """
         if q.shape[0] != 1 or not sigma > 0:
             raise ValueError(f"select needs one state q [1,d] and sigma > 0, got {tuple(q.shape)} and {sigma}")
+        pts, k = brush_samples(x[None].to(q.dtype), sigma, (camera.height, camera.width))
+        w = torch.einsum("s,sk->k", k[0], self.weights(q, camera, pts[0]))
+        tot = w.sum()
+        return Selection((w / tot if tot > 1e-12 else torch.zeros_like(w))[None])
+
+    def weights(self, q: Tensor, camera: Camera, points: Tensor) -> Tensor:
+        """Share of each primitive in the colour ``camera`` renders at the pixel positions ``points [P,2]``, ``[P,K]``
+        (in the primitives' own order), at the state ``q [1,d]``: projected (EWA), those behind the camera dropped,
+        composited front to back (:func:`lagsplat.force.compositing_weights`, this transport's ``min_transmittance``)."""
         uv, cov2, depth = project_gaussians(self.means(q), self.cov[None], camera)
         op = self.opacity(q) * (depth > 0).to(q.dtype)
         uv_s, cov_s, op_s, order = depth_order(depth, uv, cov2, op)
-        pts, k = brush_samples(x[None].to(q.dtype), sigma, (camera.height, camera.width))
-        w_sorted = torch.einsum("s,sk->k", k[0], compositing_weights(uv_s[0], cov_s[0], op_s[0], pts[0], self.min_transmittance))
-        w = torch.zeros_like(w_sorted).scatter_(0, order[0], w_sorted)
-        tot = w.sum()
-        return Selection((w / tot if tot > 1e-12 else torch.zeros_like(w))[None])
+        w_sorted = compositing_weights(uv_s[0], cov_s[0], op_s[0], points, self.min_transmittance)
+        return torch.zeros_like(w_sorted).scatter_(1, order[0][None].expand_as(w_sorted), w_sorted)
 
     def pullback(self, sel: Selection, f: Tensor, kappa: float | Tensor = 1.0) -> Tensor:
         """Generalized force ``kappa sum_i w_i J_i^T f [B,d]`` of world forces ``f [B,3]`` (paper Eq. 9)."""

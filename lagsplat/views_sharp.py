@@ -66,11 +66,10 @@ class SharpScene:
 
 
 def _quat_to_rot(q: np.ndarray) -> np.ndarray:
-    """Rotation matrices ``[N,3,3]`` of quaternions ``[N,4]`` (real part first, normalised here)."""
-    w, x, y, z = (q / np.linalg.norm(q, axis=1, keepdims=True)).T
-    return np.stack([np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-                     np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-                     np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)], -2)  # fmt: skip
+    """Rotation matrices ``[N,3,3]`` of quaternions ``[N,4]`` (real part first, normalised by scipy)."""
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_quat(np.asarray(q, np.float64)[:, [1, 2, 3, 0]]).as_matrix()  # scipy wants the real part last
 
 
 def read_sharp_ply(path: str | Path) -> SharpScene:

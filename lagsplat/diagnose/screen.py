@@ -14,9 +14,9 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from lagsplat.force import ForceTransport, compositing_weights
+from lagsplat.force import ForceTransport
 from lagsplat.force3d import ForceTransport3D
-from lagsplat.render.camera import NEAR, depth_order, project_gaussians, project_points
+from lagsplat.render.camera import project_points
 
 __all__ = ["ScreenKinematics"]
 
@@ -77,10 +77,4 @@ class ScreenKinematics:
         """Share of each primitive in the rendered colour at the pixel positions ``points [P,2]``, ``[P,K]``, at ``q [1,d]``."""
         if not self.three_d:
             return self.tr.compositing_weights(self.tr.means(q)[0], self.tr.opacity(q)[0], points)
-        uv, cov2, depth = project_gaussians(self.tr.means(q), self.tr.cov[None], self.camera)
-        op = self.tr.opacity(q) * (depth > NEAR).to(q.dtype)
-        uv_s, cov_s, op_s, order = depth_order(depth, uv, cov2, op)
-        w_sorted = compositing_weights(uv_s[0], cov_s[0], op_s[0], points)
-        w = torch.zeros_like(w_sorted)
-        w[:, order[0]] = w_sorted
-        return w
+        return self.tr.weights(q, self.camera, points)

@@ -134,10 +134,11 @@ class Session3D:
     @torch.no_grad()
     def render(self, camera: Camera) -> np.ndarray:
         """uint8 ``[H,W,3]`` image of the model at the current state through ``camera`` (the decoder's rasteriser)."""
+        from lagsplat.viz.novel_views import novel_view_frames
+
         with self._lock:
             q = self.q.clone()
-        img = self.ae.decoder.render(self.chart.to_raw(q), camera.height, camera.width, camera=camera)[0][0]
-        return (img.clamp(0.0, 1.0).permute(1, 2, 0).numpy() * 255.0 + 0.5).astype(np.uint8)
+        return novel_view_frames(self.ae.decoder, self.chart.to_raw(q), [camera], camera.height, camera.width)[0]
 
 
 def main_camera_pose(session: Session3D) -> dict[str, object]:
