@@ -7,6 +7,7 @@ Used by :mod:`lagsplat.cli` (the entry point) and the stage modules
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -55,8 +56,28 @@ def artifacts_of(cfg: DictConfig) -> "Artifacts":
     return Artifacts.for_run(cfg.results_dir, cfg.system.name, cfg.get("variant"), plain(cfg.get("artifacts") or {}))
 
 
+#: ``<variant>@seed<k>``: a variant's run with training seed ``k`` (:func:`split_variant`).
+SEEDED_VARIANT = re.compile(r"^(?P<name>[^@]+)@seed(?P<seed>\d+)$")
+
+
+def split_variant(v: str) -> tuple[str, int | None]:
+    """``"mass_decoder@seed3"`` -> ``("mass_decoder", 3)``; a name without the suffix -> ``(name, None)``."""
+    m = SEEDED_VARIANT.match(str(v))
+    return (m["name"], int(m["seed"])) if m else (str(v), None)
+
+
+def seeded_variants(name: str, seeds: list[int] | None) -> list[str]:
+    """The run names of variant ``name`` over ``seeds`` (``name@seed<k>`` each; ``None``: ``[name]``, the run's own seed)."""
+    return [name] if seeds is None else [f"{name}@seed{int(k)}" for k in seeds]
+
+
 def apply_variant(cfg: DictConfig) -> DictConfig:
     """Merge ``variants[cfg.variant]`` into ``cfg`` (no-op without a variant).
+
+    ``variant=<name>@seed<k>`` merges ``variants[<name>]`` and sets ``seed=k``: the
+    variant's Stage 2 on the same frozen chart with another training seed (its
+    artifacts under ``variants/<name>@seed<k>/``), for ablations reported as the
+    median over seeds (paper §4.1).
 
     Raises:
         KeyError: naming the unknown variant and the known ones.
@@ -64,10 +85,14 @@ def apply_variant(cfg: DictConfig) -> DictConfig:
     v = cfg.get("variant")
     if not v:
         return cfg
+    name, seed = split_variant(v)
     known = cfg.get("variants") or {}
-    if v not in known:
-        raise KeyError(f"unknown variant {v!r}; known: {sorted(known)} (conf/config.yaml, key variants)")
-    return OmegaConf.merge(cfg, known[v])
+    if name not in known:
+        raise KeyError(f"unknown variant {name!r}; known: {sorted(known)} (conf/config.yaml, key variants)")
+    out = OmegaConf.merge(cfg, known[name])
+    if seed is not None:
+        out.seed = seed
+    return out
 
 
 def save_stage_config(cfg: DictConfig, stage: str, a: "Artifacts | None" = None) -> None:

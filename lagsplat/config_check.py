@@ -24,6 +24,7 @@ from typing import Any, Literal, Mapping, Optional, Union
 
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
+from lagsplat.cli_common import split_variant
 from lagsplat.config_schema import SCHEMAS, RunConfig
 
 __all__ = ["ConfigError", "Bound", "CHECKS", "validate_config", "explain_compose_error"]
@@ -337,13 +338,17 @@ def validate_config(cfg: DictConfig | Mapping[str, Any]) -> None:
             raise _bad(f"variants.{name}", delta, "must be a mapping of settings (e.g. {stage2: {mass: learned}})")
         _check_tree(delta, f"variants.{name}.")
     known = ", ".join(sorted(variants)) or "none"
-    if tree.get("variant") is not None and tree["variant"] not in variants:
+    base = lambda v: split_variant(v)[0]  # noqa: E731  the variant of a seeded run name
+    if tree.get("variant") is not None and base(tree["variant"]) not in variants:
         raise _bad("variant", tree["variant"], f"must be one of {known} (conf/config.yaml, key variants)")
     ablations = tree.get("ablations") or {}
     for key, names in ablations.items():
         for i, v in enumerate(names or []):
-            if v not in variants:
+            if base(v) not in variants:
                 raise _bad(f"ablations.{key}[{i}]", v, f"must be one of {known} (conf/config.yaml, key variants)")
+    seeds = tree.get("ablation_seeds")
+    if seeds is not None and (not isinstance(seeds, (list, tuple)) or not seeds or any(not isinstance(k, int) or isinstance(k, bool) or k < 0 for k in seeds)):
+        raise _bad("ablation_seeds", seeds, "must be null or a non-empty list of seeds >= 0 (e.g. [0, 1, 2, 3, 4])")
     if ablations and tree.get("ablation") not in ablations:
         raise _bad("ablation", tree.get("ablation"), f"must be one of {', '.join(sorted(ablations))} (conf/config.yaml, key ablations)")
 

@@ -316,6 +316,8 @@ class RunConfig:
         log: also write the stage's output to this file.
         variant: a name of ``variants``, merged in; ``variants``: ``{name: settings delta}``.
         ablation: a key of ``ablations``; ``ablations``: ``{key: [variant names]}``.
+        ablation_seeds: ``None``: one run per variant (the run's seed); a list: each
+            variant's Stage 2 once per seed (``<variant>@seed<k>``), its row the median.
     """
 
     results_dir: str = "results"
@@ -329,6 +331,7 @@ class RunConfig:
     variants: dict = field(default_factory=dict)
     ablation: str = "inertia"
     ablations: dict[str, list[str]] = field(default_factory=dict)
+    ablation_seeds: Optional[list[int]] = None
 
 
 SCHEMAS: dict[str, type] = {
