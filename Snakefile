@@ -23,12 +23,15 @@
 # processed_data.zip), see workflow/rules/krauss.smk; blind diagnosis suite:
 # suite_budget, suite_n_per_effect, suite_args (workflow/rules/suite.smk); seeds:
 # seeds, seed_systems (workflow/rules/seeds.smk).
+import json
+
 import yaml
 from pathlib import Path
 
 from snakemake.utils import validate
 
 from lagsplat.artifacts import Artifacts
+from lagsplat.cli_common import seeded_variants
 
 # a bad --config key or value stops here, before any job, naming it (workflow/schemas/config.schema.yaml)
 validate(config, "workflow/schemas/config.schema.yaml")
@@ -42,6 +45,10 @@ TABLES = {
 }
 # ablation name -> variants compared on one frozen chart (conf/config.yaml `ablations`)
 ABLATIONS = yaml.safe_load(Path("conf/config.yaml").read_text())["ablations"]
+# --config ablation_seeds=[0,1,2,3,4]: each variant's Stage 2 once per seed (<variant>@seed<k>), rows the medians
+_ablation_seeds = config.get("ablation_seeds", yaml.safe_load(Path("conf/config.yaml").read_text())["ablation_seeds"])
+ABLATION_SEEDS = None if _ablation_seeds is None else [int(k) for k in (_ablation_seeds.split(",") if isinstance(_ablation_seeds, str) else
+                                                                         [_ablation_seeds] if isinstance(_ablation_seeds, int) else _ablation_seeds)]
 
 
 def system_conf(name):

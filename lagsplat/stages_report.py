@@ -115,14 +115,18 @@ def stage_table(cfg: DictConfig) -> None:
 
 
 def stage_ablation(cfg: DictConfig) -> None:
-    """Variant ``metrics.json`` of one system -> ``results/tables/<system>_<ablation>.tex`` and ``.csv``."""
+    """Variant ``metrics.json`` of one system -> ``results/tables/<system>_<ablation>.tex`` and ``.csv``
+    (with ``ablation_seeds``: each variant's runs ``<variant>@seed<k>``, its row the median over them)."""
     from lagsplat.artifacts import table_path, variant_metrics_path
+    from lagsplat.cli_common import seeded_variants
     from lagsplat.report.tables import ablation_table
 
     key = str(cfg.ablation)
     if key not in cfg.ablations:
         raise KeyError(f"unknown ablation {key!r}; known: {sorted(cfg.ablations)} (conf/config.yaml, key ablations)")
-    inputs = [variant_metrics_path(cfg.results_dir, cfg.system.name, v) for v in cfg.ablations[key]]
+    seeds = cfg.get("ablation_seeds")
+    seeds = None if seeds is None else [int(k) for k in seeds]
+    inputs = [[variant_metrics_path(cfg.results_dir, cfg.system.name, r) for r in seeded_variants(v, seeds)] for v in cfg.ablations[key]]
     ablation_table(inputs, table_path(cfg.results_dir, f"{cfg.system.name}_{key}"))
 
 

@@ -287,6 +287,11 @@ def test_variant_merges_settings_and_unknown_variant_is_named():
     assert cfg.stage2.mass == "decoder"
     with pytest.raises(KeyError, match="unknown variant 'nope'"):
         apply_variant(compose(["system=toy", "variant=nope"]))
+    # a seeded run of a variant: its settings and that training seed, on the same chart
+    cfg = apply_variant(compose(["system=toy", "variant=mass_decoder@seed3"]))
+    assert (cfg.stage2.mass, cfg.seed, cfg.variant) == ("decoder", 3, "mass_decoder@seed3")
+    with pytest.raises(KeyError, match="unknown variant 'nope'"):
+        apply_variant(compose(["system=toy", "variant=nope@seed1"]))
 
 
 def test_ablation_table_lists_every_variant(tmp_path):
@@ -309,3 +314,29 @@ def test_ablation_table_lists_every_variant(tmp_path):
     assert df["max_eps_mode_freq_pct"].iloc[0] == pytest.approx(2.0)
     with pytest.raises(FileNotFoundError, match="metrics not found"):
         ablation_table([tmp_path / "missing.json"], tmp_path / "u.tex")
+
+
+def test_ablation_table_gives_each_variant_the_median_over_its_seeds(tmp_path):
+    import pandas as pd
+
+    from lagsplat.report.tables import ablation_table
+
+    groups = []
+    for mass, freqs in (("learned", [0.01, 0.05, 0.03]), ("constant", [0.4, 0.2, 0.3])):
+        runs = []
+        for k, e in enumerate(freqs):
+            p = tmp_path / f"mass_{mass}@seed{k}" / "metrics.json"
+            p.parent.mkdir()
+            m = {k_: {"value": v} for k_, v in dict(eps_q=0.1 * (k + 1), eps_freq=e, eps_I_over_AE=2.0, f_modes_hz=[0.5 + k, 1.0], zeta_modes=[0.02, 0.01]).items()}
+            p.write_text(json.dumps({"variant": f"mass_{mass}@seed{k}", "stage2": {"mass": mass, "potential": "convex"}, "metrics": m}))
+            runs.append(p)
+        groups.append(runs)
+    tex, csv = ablation_table(groups, tmp_path / "t.tex")
+    df = pd.read_csv(csv)
+    assert list(df.variant) == ["mass_learned", "mass_constant"] and list(df.seeds) == [3, 3]
+    assert df.eps_freq_pct.tolist() == pytest.approx([3.0, 30.0])
+    assert (df.eps_freq_pct_min.tolist(), df.eps_freq_pct_max.tolist()) == (pytest.approx([1.0, 20.0]), pytest.approx([5.0, 40.0]))
+    assert df.eps_q.tolist() == pytest.approx([0.2, 0.2])
+    assert df.f_modes_hz.iloc[0] == "1.5, 1"  # mode by mode: median of 0.5, 1.5, 2.5 and of 1, 1, 1
+    text = tex.read_text()
+    assert "median over 3 Stage-2 seeds" in text and "$3.0$ [1.0, 5.0]" in text

@@ -110,6 +110,18 @@ def test_snakemake_dry_run_of_the_inertia_ablation():
         assert f"results/two_carts/variants/{v}/metrics.json" in r.stdout
 
 
+def test_snakemake_dry_run_of_the_inertia_ablation_over_seeds():
+    # each variant's Stage 2 once per seed on the same frozen chart; the table job is told the seeds
+    r = run(["snakemake", "-n", "-p", "-F", "results/tables/two_carts_inertia.tex", "--config", "ablation_seeds=0,2"])
+    assert r.returncode == 0, r.stdout + r.stderr
+    for v in ("mass_learned", "mass_decoder", "mass_constant"):
+        for k in (0, 2):
+            assert f"results/two_carts/variants/{v}@seed{k}/metrics.json" in r.stdout
+            assert f"variant={v}@seed{k}" in r.stdout
+    assert "'ablation_seeds=[0, 2]'" in r.stdout
+    assert "variants/mass_decoder/metrics.json" not in r.stdout
+
+
 def test_snakemake_dry_run_of_the_deformation_table(tmp_path):
     # paper App. B on the oscillating cart: the run's Stage 1 and chart, then the comparison stage
     res = tmp_path / "res"

@@ -100,52 +100,83 @@ def _fmt_list(v, scale: float = 1.0, digits: int = 3) -> str:
     return f"{scale * v:.{digits}g}"
 
 
-def ablation_rows(inputs: list[Path]) -> pd.DataFrame:
-    """One row per variant ``metrics.json`` (same system, same frozen chart).
+def _finite(x: float) -> float | None:
+    """``x`` as a float, ``None`` where it is NaN (a metric no run had)."""
+    return None if pd.isna(x) else float(x)
 
-    Columns: variant, mass, potential, eps_q, eps_freq (%), eps_I/eps_AE, the
-    model's modal frequencies and damping ratios and, on synthetic clips with
-    modal truth, the largest relative modal errors (%).
+
+def _ablation_row(p: Path) -> dict:
+    """One variant run's row of :func:`ablation_rows`."""
+    m, v = _read_metrics(p, "variant")
+    s2 = m.get("stage2", {})
+    row = {
+        "variant": m.get("variant") or "main",
+        "mass": s2.get("mass", ""),
+        "potential": s2.get("potential", ""),
+        "eps_q": v["eps_q"],
+        "eps_freq_pct": _pct(v["eps_freq"]),
+        "eps_I_over_AE": v["eps_I_over_AE"],
+        "f_modes_hz": v.get("f_modes_hz", []),
+        "zeta_modes": v.get("zeta_modes", []),
+    }
+    if "eps_modes_freq" in v:
+        row["max_eps_mode_freq_pct"] = 100 * max(v["eps_modes_freq"])
+        row["max_eps_mode_zeta_pct"] = 100 * max(v["eps_modes_zeta"])
+    return row
+
+
+def ablation_rows(inputs: list[Path | list[Path]]) -> pd.DataFrame:
+    """One row per variant (same system, same frozen chart).
+
+    An entry of ``inputs`` is one variant run's ``metrics.json``, or a list of
+    them (the variant trained with several seeds, ``<variant>@seed<k>``): its row
+    holds the median over the runs of each number (the modal frequencies and
+    damping ratios mode by mode; paper §4.1 reports medians over seeds), the
+    number of seeds and the spread of ``eps_freq`` (min, max).
+
+    Columns: variant, mass, potential, seeds, eps_q, eps_freq (%), its min and
+    max over the seeds, eps_I/eps_AE, the model's modal frequencies and damping
+    ratios and, on synthetic clips with modal truth, the largest relative modal
+    errors (%).
 
     Raises:
         FileNotFoundError: naming the first missing input.
     """
     rows = []
-    for p in inputs:
-        m, v = _read_metrics(p, "variant")
-        s2 = m.get("stage2", {})
-        row = {
-            "variant": m.get("variant") or "main",
-            "mass": s2.get("mass", ""),
-            "potential": s2.get("potential", ""),
-            "eps_q": v["eps_q"],
-            "eps_freq_pct": _pct(v["eps_freq"]),
-            "eps_I_over_AE": v["eps_I_over_AE"],
-            "f_modes_hz": _fmt_list(v.get("f_modes_hz", [])),
-            "zeta_modes": _fmt_list(v.get("zeta_modes", [])),
-        }
-        if "eps_modes_freq" in v:
-            row["max_eps_mode_freq_pct"] = 100 * max(v["eps_modes_freq"])
-            row["max_eps_mode_zeta_pct"] = 100 * max(v["eps_modes_zeta"])
+    for entry in inputs:
+        group = [Path(p) for p in entry] if isinstance(entry, (list, tuple)) else [Path(entry)]
+        runs = pd.DataFrame([_ablation_row(p) for p in group])
+        first = runs.iloc[0]
+        row = {"variant": first.variant.split("@seed")[0], "mass": first.mass, "potential": first.potential, "seeds": len(runs)}
+        for col in runs.columns.drop(["variant", "mass", "potential", "f_modes_hz", "zeta_modes"]):
+            row[col] = _finite(runs[col].astype(float).median())
+        row["eps_freq_pct_min"], row["eps_freq_pct_max"] = _finite(runs.eps_freq_pct.astype(float).min()), _finite(runs.eps_freq_pct.astype(float).max())
+        for col in ("f_modes_hz", "zeta_modes"):
+            modes = [list(x) for x in runs[col]]
+            n = min(len(x) for x in modes)
+            row[col] = _fmt_list([float(pd.Series([x[i] for x in modes]).median()) for i in range(n)])
         rows.append(row)
     return pd.DataFrame(rows)
 
 
-def ablation_table(inputs: list[Path], out_tex: Path) -> tuple[Path, Path]:
-    """Write an ablation table (``.tex`` and ``.csv``) from variant ``metrics.json`` files."""
+def ablation_table(inputs: list[Path | list[Path]], out_tex: Path) -> tuple[Path, Path]:
+    """Write an ablation table (``.tex`` and ``.csv``) from variant ``metrics.json`` files
+    (an entry a list of them: the variant's median over seeds, :func:`ablation_rows`)."""
     df = ablation_rows(inputs)
     out_tex = Path(out_tex)
     truth = "max_eps_mode_freq_pct" in df.columns
-    head = "Variant & $M$ & $V$ & $\\varepsilon_q$ & $\\varepsilon_{\\mathrm{freq}}$ (\\%) & $\\varepsilon_I/\\varepsilon_{\\mathrm{AE}}$ & $f$ (Hz) & $\\zeta$"
+    seeded = bool((df.seeds > 1).any()) if len(df) else False
+    head = "Variant & $M$ & $V$ & $\\varepsilon_q$ & $\\varepsilon_{\\mathrm{freq}}$ (\\%)" + (" [min, max]" if seeded else "") + " & $\\varepsilon_I/\\varepsilon_{\\mathrm{AE}}$ & $f$ (Hz) & $\\zeta$"
     head += " & $\\max\\varepsilon_f$ (\\%) & $\\max\\varepsilon_\\zeta$ (\\%)" if truth else ""
     lines = []
     for _, r in df.iterrows():
-        cells = [r.variant.replace("_", "\\_"), r.mass, r.potential, _tex(r.eps_q, ".3f"), _tex(r.eps_freq_pct, ".1f"), f"${r.eps_I_over_AE:.2f}$", r.f_modes_hz, r.zeta_modes]
+        cells = [r.variant.replace("_", "\\_"), r.mass, r.potential, _tex(r.eps_q, ".3f"), _tex(r.eps_freq_pct, ".1f") + (f" [{r.eps_freq_pct_min:.1f}, {r.eps_freq_pct_max:.1f}]" if seeded and r.eps_freq_pct_min is not None else ""), f"${r.eps_I_over_AE:.2f}$", r.f_modes_hz, r.zeta_modes]
         if truth:
             cells += [f"${r.max_eps_mode_freq_pct:.1f}$", f"${r.max_eps_mode_zeta_pct:.0f}$"]
         lines.append(" & ".join(str(c) for c in cells) + " \\\\")
     cols = "lll" + "c" * (len(head.split("&")) - 3)
-    tex = f"% Generated by lagsplat from metrics.json; do not edit.\n\\begin{{tabular}}{{{cols}}}\n\\toprule\n{head} \\\\\n\\midrule\n" + "\n".join(lines) + "\n\\bottomrule\n\\end{tabular}\n"
+    note = f"% Each row: the median over {int(df.seeds.max())} Stage-2 seeds on the frozen chart.\n" if seeded else ""
+    tex = f"% Generated by lagsplat from metrics.json; do not edit.\n{note}\\begin{{tabular}}{{{cols}}}\n\\toprule\n{head} \\\\\n\\midrule\n" + "\n".join(lines) + "\n\\bottomrule\n\\end{tabular}\n"
     return write_tex_csv(tex, df, out_tex)
 
 

@@ -54,7 +54,7 @@ rule ablation_table:
     """Variants of one system side by side, e.g. results/tables/two_carts_inertia.tex
     (learned, decoder-induced and constant inertia on the same frozen chart)."""
     input:
-        lambda w: [f"{RESULTS}/{w.system}/variants/{v}/metrics.json" for v in ABLATIONS[w.ablation]],
+        lambda w: [f"{RESULTS}/{w.system}/variants/{r}/metrics.json" for v in ABLATIONS[w.ablation] for r in seeded_variants(v, ABLATION_SEEDS)],
     output:
         f"{RESULTS}/tables/{{system}}_{{ablation}}.tex",
         f"{RESULTS}/tables/{{system}}_{{ablation}}.csv",
@@ -64,7 +64,8 @@ rule ablation_table:
     log:
         f"{RESULTS}/logs/tables/{{system}}_{{ablation}}.log",
     shell:
-        f"python -m lagsplat ablation system={{wildcards.system}} ablation={{wildcards.ablation}} results_dir={RESULTS} {OVR} > {{log}} 2>&1"
+        f"python -m lagsplat ablation system={{wildcards.system}} ablation={{wildcards.ablation}} 'ablation_seeds={json.dumps(ABLATION_SEEDS)}' "
+        f"results_dir={RESULTS} {OVR} > {{log}} 2>&1"
 
 
 rule extrapolation:
