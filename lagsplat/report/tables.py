@@ -115,13 +115,17 @@ def _ablation_row(p: Path) -> dict:
         "potential": s2.get("potential", ""),
         "eps_q": v["eps_q"],
         "eps_freq_pct": _pct(v["eps_freq"]),
-        "eps_I_over_AE": v["eps_I_over_AE"],
+        "eps_I_over_AE": v.get("eps_I_over_AE"),
         "f_modes_hz": v.get("f_modes_hz", []),
         "zeta_modes": v.get("zeta_modes", []),
     }
     if "eps_modes_freq" in v:
         row["max_eps_mode_freq_pct"] = 100 * max(v["eps_modes_freq"])
         row["max_eps_mode_zeta_pct"] = 100 * max(v["eps_modes_zeta"])
+    if "eps_freq_truth" in v:  # a synthetic clip: the frequency against the simulator's
+        row["eps_freq_truth_pct"] = _pct(v["eps_freq_truth"])
+    if "mse_0p5s" in v:  # the soft-robot protocol: image MSE 0.5 s ahead against the autoencoder's floor
+        row["mse_0p5s_over_ae"] = v["mse_0p5s"] / v["ae_floor"]
     return row
 
 
@@ -137,7 +141,9 @@ def ablation_rows(inputs: list[Path | list[Path]]) -> pd.DataFrame:
     Columns: variant, mass, potential, seeds, eps_q, eps_freq (%), its min and
     max over the seeds, eps_I/eps_AE, the model's modal frequencies and damping
     ratios and, on synthetic clips with modal truth, the largest relative modal
-    errors (%).
+    errors (%); where the metrics have them, eps_freq against the simulator's
+    frequency (%) and the soft-robot protocol's image MSE 0.5 s ahead over the
+    autoencoder's floor.
 
     Raises:
         FileNotFoundError: naming the first missing input.
@@ -165,14 +171,22 @@ def ablation_table(inputs: list[Path | list[Path]], out_tex: Path) -> tuple[Path
     df = ablation_rows(inputs)
     out_tex = Path(out_tex)
     truth = "max_eps_mode_freq_pct" in df.columns
+    robot = "mse_0p5s_over_ae" in df.columns
     seeded = bool((df.seeds > 1).any()) if len(df) else False
     head = "Variant & $M$ & $V$ & $\\varepsilon_q$ & $\\varepsilon_{\\mathrm{freq}}$ (\\%)" + (" [min, max]" if seeded else "") + " & $\\varepsilon_I/\\varepsilon_{\\mathrm{AE}}$ & $f$ (Hz) & $\\zeta$"
     head += " & $\\max\\varepsilon_f$ (\\%) & $\\max\\varepsilon_\\zeta$ (\\%)" if truth else ""
+    sim = "eps_freq_truth_pct" in df.columns
+    head += " & $\\varepsilon_{\\mathrm{freq}}$ vs sim. (\\%)" if sim else ""
+    head += " & MSE$_{0.5\\,\\mathrm{s}}$ / AE floor" if robot else ""
     lines = []
     for _, r in df.iterrows():
-        cells = [r.variant.replace("_", "\\_"), r.mass, r.potential, _tex(r.eps_q, ".3f"), _tex(r.eps_freq_pct, ".1f") + (f" [{r.eps_freq_pct_min:.1f}, {r.eps_freq_pct_max:.1f}]" if seeded and r.eps_freq_pct_min is not None else ""), f"${r.eps_I_over_AE:.2f}$", r.f_modes_hz, r.zeta_modes]
+        cells = [r.variant.replace("_", "\\_"), r.mass, r.potential, _tex(r.eps_q, ".3f"), _tex(r.eps_freq_pct, ".1f") + (f" [{r.eps_freq_pct_min:.1f}, {r.eps_freq_pct_max:.1f}]" if seeded and r.eps_freq_pct_min is not None else ""), _tex(r.eps_I_over_AE, ".2f"), r.f_modes_hz or "--", r.zeta_modes or "--"]
         if truth:
             cells += [f"${r.max_eps_mode_freq_pct:.1f}$", f"${r.max_eps_mode_zeta_pct:.0f}$"]
+        if sim:
+            cells += [_tex(r.eps_freq_truth_pct, ".1f")]
+        if robot:
+            cells += [_tex(r.mse_0p5s_over_ae, ".1f")]
         lines.append(" & ".join(str(c) for c in cells) + " \\\\")
     cols = "lll" + "c" * (len(head.split("&")) - 3)
     note = f"% Each row: the median over {int(df.seeds.max())} Stage-2 seeds on the frozen chart.\n" if seeded else ""
