@@ -340,3 +340,19 @@ def test_ablation_table_gives_each_variant_the_median_over_its_seeds(tmp_path):
     assert df.f_modes_hz.iloc[0] == "1.5, 1"  # mode by mode: median of 0.5, 1.5, 2.5 and of 1, 1, 1
     text = tex.read_text()
     assert "median over 3 Stage-2 seeds" in text and "$3.0$ [1.0, 5.0]" in text
+
+
+def test_ablation_rows_under_the_soft_robot_protocol(tmp_path):
+    # the soft-robot metrics carry the 0.5 s image MSE, its AE floor and the frequency against the simulator, no eps_I
+    from lagsplat.report.tables import ablation_rows, ablation_table
+
+    p = tmp_path / "mass_decoder" / "metrics.json"
+    p.parent.mkdir()
+    m = {k: {"value": v} for k, v in dict(eps_q=0.7, eps_freq=0.05, eps_freq_truth=0.06, mse_0p5s=9e-3, ae_floor=3e-4).items()}
+    p.write_text(json.dumps({"variant": "mass_decoder", "stage2": {"mass": "decoder", "potential": "invex"}, "metrics": m}))
+    df = ablation_rows([p])
+    assert df.mse_0p5s_over_ae.iloc[0] == pytest.approx(30.0) and df.eps_freq_truth_pct.iloc[0] == pytest.approx(6.0)
+    assert df.eps_I_over_AE.iloc[0] is None or df.eps_I_over_AE.isna().iloc[0]
+    tex, _ = ablation_table([p], tmp_path / "t.tex")
+    row = [ln for ln in tex.read_text().splitlines() if ln.startswith("mass\\_decoder")][0]
+    assert row.split(" & ")[5:] == ["--", "--", "--", "$6.0$", "$30.0$ \\\\"]
