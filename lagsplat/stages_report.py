@@ -153,17 +153,20 @@ def stage_krauss_table(cfg: DictConfig) -> None:
     Published rows from the versioned CSV of :mod:`lagsplat.report.krauss`;
     ours from the ``metrics.json`` of ``krauss_table.one_segment`` /
     ``two_segments`` and of the two-segment ``krauss_table.ablation``
-    variants. A run whose ``metrics.json`` is missing gives no row.
+    variants (with ``ablation_seeds``: each variant's seeded runs, its row the
+    median). A run whose ``metrics.json`` is missing gives no row.
     """
     from lagsplat.artifacts import table_path, variant_metrics_path
+    from lagsplat.cli_common import seeded_variants
     from lagsplat.report.krauss import krauss_table
 
     t = cfg.krauss_table
     res = cfg.results_dir
+    seeds = None if cfg.get("ablation_seeds") is None else [int(k) for k in cfg.ablation_seeds]
     krauss_table(
         variant_metrics_path(res, str(t.one_segment), None) if t.get("one_segment") else None,
         variant_metrics_path(res, str(t.two_segments), None) if t.get("two_segments") else None,
-        [variant_metrics_path(res, str(t.two_segments), str(v)) for v in (t.get("ablation") or [])],
+        [[variant_metrics_path(res, str(t.two_segments), r) for r in seeded_variants(str(v), seeds)] for v in (t.get("ablation") or [])],
         table_path(res, str(t.name)),
     )
 

@@ -351,3 +351,20 @@ def test_table_refuses_other_metrics_and_bad_csv(tmp_path):
     bad.write_text("block,method,dynamics,d,ae_1e-5,mse_1e-3,eps_freq_pct,ext_force,data,source\none_segment,X,lin.,6,1,1,1,telepathy,real,paper\n")
     with pytest.raises(ValueError, match="ext_force"):
         load_published(bad)
+
+
+def test_an_ablation_variant_over_seeds_gives_its_median_row(tmp_path):
+    res = tmp_path / "results"
+    two = _metrics(res / "krauss_2seg" / "metrics.json", "krauss_2seg")
+    runs = [_metrics(res / "krauss_2seg" / "variants" / f"mass_decoder@seed{k}" / "metrics.json", "krauss_2seg", variant=f"mass_decoder@seed{k}",
+                     mass="decoder", mse_0p5s=m, eps_freq=e) for k, (m, e) in enumerate([(1.0e-3, 0.09), (3.0e-3, 0.02), (2.0e-3, 0.05)])]
+    absent = res / "krauss_2seg" / "variants" / "mass_decoder@seed3" / "metrics.json"  # a seed not run: left out of the median
+    tex, csv, _ = krauss_table(None, two, [[*runs, absent]], res / "tables" / "krauss.tex")
+    import pandas as pd
+
+    abl = pd.read_csv(csv).query("block == 'inertia_ablation' and origin == 'this run'")
+    assert len(abl) == 1
+    r = abl.iloc[0]
+    assert r.method == "LaGSplat, decoder-induced M, median of 3 seeds (this run)" and r.seeds == 3
+    assert (r["mse_1e-3"], r["eps_freq_pct"]) == (pytest.approx(2.0), pytest.approx(5.0))
+    assert "median of 3 seeds" in tex.read_text()

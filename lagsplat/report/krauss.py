@@ -157,6 +157,30 @@ def our_row(metrics_path: str | Path, block: str, label: str | None = None) -> d
     return row
 
 
+def median_row(paths: list[str | Path], block: str) -> dict[str, Any] | None:
+    """One row from several runs of one variant (``<variant>@seed<k>``, Stage-2 seeds on the
+    frozen chart): each number the median over the runs that exist (paper §4.1 reports the
+    median over seeds), ``seeds`` how many there were; ``None`` if none exists.
+
+    Raises:
+        ValueError: see :func:`our_row`.
+    """
+    rows = [r for r in (our_row(p, block) for p in paths) if r is not None]
+    if not rows:
+        return None
+    df = pd.DataFrame(rows)
+    out = dict(rows[0])
+    for col in df.columns:
+        if col not in ("d", "block") and pd.api.types.is_numeric_dtype(df[col]):
+            out[col] = float(df[col].median())
+    n = len(rows)
+    out["method"] = out["method"].replace(" (this run)", f", median of {n} seeds (this run)") if n > 1 else out["method"]
+    kept = [Path(p) for p in paths if Path(p).is_file()]
+    out["source"] = f"this run: median over {n} seeds ({', '.join(p.parent.name for p in kept)} under {kept[0].parent.parent})" if n > 1 else out["source"]
+    out["seeds"] = n
+    return out
+
+
 def krauss_rows(
     one_segment: str | Path | None,
     two_segments: str | Path | None,
@@ -168,7 +192,9 @@ def krauss_rows(
     Args:
         one_segment, two_segments: ``metrics.json`` of our runs (``None`` or a
             missing file: no row).
-        ablation: ``metrics.json`` of the two-segment inertia variants.
+        ablation: ``metrics.json`` of the two-segment inertia variants; an entry
+            that is a list of them (the variant's Stage-2 seeds) gives one row,
+            their median (:func:`median_row`).
         published: the published rows (default :func:`load_published`).
 
     Raises:
@@ -176,7 +202,7 @@ def krauss_rows(
     """
     pub = load_published() if published is None else published
     ours = [our_row(one_segment, "one_segment") if one_segment else None, our_row(two_segments, "two_segments") if two_segments else None]
-    ours += [our_row(a, "inertia_ablation") for a in ablation]
+    ours += [median_row(list(a), "inertia_ablation") if isinstance(a, (list, tuple)) else our_row(a, "inertia_ablation") for a in ablation]
     df_ours = pd.DataFrame([r for r in ours if r is not None])
     parts = []
     for b, _ in BLOCKS:
@@ -291,7 +317,7 @@ def _md(df: pd.DataFrame) -> str:
 def krauss_table(
     one_segment: str | Path | None,
     two_segments: str | Path | None,
-    ablation: Iterable[str | Path],
+    ablation: Iterable[str | Path | list[str | Path]],
     out_tex: str | Path,
     published: str | Path | None = None,
 ) -> tuple[Path, Path, Path]:
@@ -299,7 +325,8 @@ def krauss_table(
 
     Args:
         one_segment, two_segments: our runs' ``metrics.json`` (missing: no row).
-        ablation: the two-segment inertia variants' ``metrics.json``.
+        ablation: the two-segment inertia variants' ``metrics.json`` (a list of
+            them: one variant over seeds, its median row).
         out_tex: e.g. ``results/tables/krauss.tex``.
         published: the published-figures CSV (default the packaged one).
 

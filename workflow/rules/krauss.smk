@@ -152,7 +152,7 @@ rule krauss_table:
     input:
         f"{RESULTS}/{KRAUSS['1seg']}/metrics.json",
         f"{RESULTS}/{KRAUSS['2seg']}/metrics.json",
-        [f"{RESULTS}/{KRAUSS['2seg']}/variants/{v}/metrics.json" for v in KRAUSS_ABLATION],
+        [f"{RESULTS}/{KRAUSS['2seg']}/variants/{r}/metrics.json" for v in KRAUSS_ABLATION for r in seeded_variants(v, ABLATION_SEEDS)],
     output:
         f"{RESULTS}/tables/krauss.tex",
         f"{RESULTS}/tables/krauss.csv",
@@ -163,7 +163,7 @@ rule krauss_table:
         ablation=",".join(KRAUSS_ABLATION),
     shell:
         f"python -m lagsplat krauss_table system={KRAUSS['2seg']} krauss_table.one_segment={KRAUSS['1seg']} krauss_table.two_segments={KRAUSS['2seg']} "
-        f"'krauss_table.ablation=[{{params.ablation}}]' results_dir={RESULTS} {OVR} > {{log}} 2>&1"
+        f"'krauss_table.ablation=[{{params.ablation}}]' 'ablation_seeds={json.dumps(ABLATION_SEEDS)}' results_dir={RESULTS} {OVR} > {{log}} 2>&1"
 
 
 rule robot_figures:
