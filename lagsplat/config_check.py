@@ -66,7 +66,7 @@ FRACTION = Bound(0, 1, words="in [0, 1]")
 OPEN_FRACTION = Bound(0, 1, lo_open=True, words="in (0, 1]")
 
 CHECKS: dict[str, Bound] = {
-    "seed": COUNT, "threads": COUNT,
+    "seed": COUNT, "threads": COUNT, "ablation_seeds[]": COUNT,
     # system (lagsplat.ingest); system.source.<key> rules hold for every system.sources entry too
     "system.d": POSITIVE_INT, "system.segments": POSITIVE_INT, "system.split.train_fraction": OPEN_FRACTION,
     "system.frames[]": COUNT, "system.crop[]": COUNT, "system.resize[]": POSITIVE_INT,
@@ -347,7 +347,7 @@ def validate_config(cfg: DictConfig | Mapping[str, Any]) -> None:
             if base(v) not in variants:
                 raise _bad(f"ablations.{key}[{i}]", v, f"must be one of {known} (conf/config.yaml, key variants)")
     seeds = tree.get("ablation_seeds")
-    if seeds is not None and (not isinstance(seeds, (list, tuple)) or not seeds or any(not isinstance(k, int) or isinstance(k, bool) or k < 0 for k in seeds)):
+    if seeds is not None and (not isinstance(seeds, (list, tuple)) or not seeds):  # each seed's range: CHECKS
         raise _bad("ablation_seeds", seeds, "must be null or a non-empty list of seeds >= 0 (e.g. [0, 1, 2, 3, 4])")
     if ablations and tree.get("ablation") not in ablations:
         raise _bad("ablation", tree.get("ablation"), f"must be one of {', '.join(sorted(ablations))} (conf/config.yaml, key ablations)")

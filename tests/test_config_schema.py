@@ -73,7 +73,7 @@ def test_every_experiment_delta_composes_validates_and_says_what_it_is(experimen
         ("ablations.inertia=[mass_learned,nope]", "ablations.inertia[1]=nope: must be one of"),
         ("variant=nope@seed2", "variant=nope@seed2: must be one of"),
         ("ablation_seeds=[]", "ablation_seeds=[]: must be null or a non-empty list"),
-        ("ablation_seeds=[1,-2]", "must be null or a non-empty list of seeds >= 0"),
+        ("ablation_seeds=[1,-2]", "ablation_seeds[1]=-2: must be an integer >= 0"),
         ("stage1.nope=1", "stage1.nope=1: unknown key (known in stage1: n_gaussians"),
         ("+stage2.nope=1", "stage2.nope=1: unknown key (known in stage2: mass"),
         ("nope=1", "nope=1: unknown key"),
