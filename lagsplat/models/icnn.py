@@ -193,6 +193,19 @@ class ConcaveMap(nn.Module):
         g = torch.stack([h(q) - h(zero) for h in self.heads], -1)
         return q @ self.a.T - g
 
+    def nonlinearity(self, q: Tensor) -> Tensor:
+        """Mean over the batch of ``|grad_q sum_j g_j(q)|^2``: how far the map departs from a linear
+        one (``b(q)`` constant, all channels at equal pressure), zero for a linear map. A prior on it
+        keeps the restoring force in ``V`` where the pressures never vanish in training
+        (``Stage2Config.w_actuation_linear``). Differentiable (graph kept).
+
+        Shapes: ``q [B,d] -> []``.
+        """
+        with torch.enable_grad():
+            q_ = q.detach().requires_grad_(True)
+            (grad,) = torch.autograd.grad(sum(h(q_).sum() for h in self.heads), q_, create_graph=True)
+        return (grad**2).sum(-1).mean()
+
     def force(self, q: Tensor, P: Tensor, create_graph: bool = False) -> Tensor:
         """Generalized actuation force ``f_P = b(q)^T P`` ``[B,d]`` for pressures ``P [B,n_u]``."""
         with torch.enable_grad():
