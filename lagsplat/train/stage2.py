@@ -66,7 +66,8 @@ class Stage2Config:
             simulated two-segment robot the lowest unloaded mode fell to 0.44 Hz at 400 epochs
             (1.55 Hz simulated); with 1 the map's stiffness share went from 0.47 of ``V``'s to 0
             and the free frequency at the published budget (500 x 3000 windows) from 12.0 % to
-            4.9 % off. 0: the free concave map. No effect without actuation.
+            4.9 % off (seed 0). 0: the free concave map. No effect without actuation.
+        select_every: epochs between model-selection rollouts.
         select_from: fraction of the epochs after which a model can be selected: 0 (default) selects over
             the whole run on rollout error (paper §3.3), 1 keeps the last epoch's model (the reference
             implementation's checkpoint), the best earlier one only if the last rollout is not finite.
@@ -148,17 +149,23 @@ def selection_replaces(err: float, best_err: float, best_epoch: int, cfg: Stage2
     return err < best_err or (best_epoch < cfg.select_from * cfg.epochs and bool(np.isfinite(err)))
 
 
-def _actuation_map(model: torch.nn.Module) -> ConcaveMap | None:
-    """The actuation map of ``model`` (a :class:`Lagrangian`, or an augmented module holding it as ``base``), or ``None``."""
+def _lagrangian(model: torch.nn.Module) -> Lagrangian | None:
+    """``model`` itself if a :class:`Lagrangian`, the one an augmented module holds as ``base``, or ``None``."""
     lag = model if isinstance(model, Lagrangian) else getattr(model, "base", None)
-    return lag.actuation if isinstance(lag, Lagrangian) else None
+    return lag if isinstance(lag, Lagrangian) else None
+
+
+def _actuation_map(model: torch.nn.Module) -> ConcaveMap | None:
+    """The actuation map of ``model``'s Lagrangian (:func:`_lagrangian`), or ``None``."""
+    lag = _lagrangian(model)
+    return None if lag is None else lag.actuation
 
 
 def _param_groups(model: torch.nn.Module, cfg: Stage2Config) -> list[dict]:
     """Adam's parameter groups: the potential ICNN's input layers at ``lr * lr_potential_input``, the rest at ``lr``
     (``model`` may be an augmented module holding the Lagrangian as ``base``)."""
-    lag = model if isinstance(model, Lagrangian) else getattr(model, "base", None)
-    fast = [] if not isinstance(lag, Lagrangian) else list(lag.potential_hat.g.inp.parameters())
+    lag = _lagrangian(model)
+    fast = [] if lag is None else list(lag.potential_hat.g.inp.parameters())
     ids = {id(p) for p in fast}
     rest = [p for p in model.parameters() if id(p) not in ids]
     groups = [{"params": rest, "lr": cfg.lr}]
