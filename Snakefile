@@ -43,12 +43,20 @@ TABLES = {
     "physical": ["toy", "oscillating_cart", "red_apple_pendulum"],
     "smoke": ["toy_tiny"],
 }
+
+
+def _csv(value):
+    """``--config`` value -> list of strings: ``"0,1,2"``, a single number, or a YAML list."""
+    items = value if isinstance(value, (list, tuple)) else str(value).split(",")
+    return [str(v).strip() for v in items if str(v).strip()]
+
+
+_CONF = yaml.safe_load(Path("conf/config.yaml").read_text())
 # ablation name -> variants compared on one frozen chart (conf/config.yaml `ablations`)
-ABLATIONS = yaml.safe_load(Path("conf/config.yaml").read_text())["ablations"]
-# --config ablation_seeds=[0,1,2,3,4]: each variant's Stage 2 once per seed (<variant>@seed<k>), rows the medians
-_ablation_seeds = config.get("ablation_seeds", yaml.safe_load(Path("conf/config.yaml").read_text())["ablation_seeds"])
-ABLATION_SEEDS = None if _ablation_seeds is None else [int(k) for k in (_ablation_seeds.split(",") if isinstance(_ablation_seeds, str) else
-                                                                         [_ablation_seeds] if isinstance(_ablation_seeds, int) else _ablation_seeds)]
+ABLATIONS = _CONF["ablations"]
+# --config ablation_seeds=0,1,2,3,4: each variant's Stage 2 once per seed (<variant>@seed<k>), rows the medians
+_ablation_seeds = config.get("ablation_seeds", _CONF["ablation_seeds"])
+ABLATION_SEEDS = None if _ablation_seeds is None else [int(k) for k in _csv(_ablation_seeds)]
 
 
 def system_conf(name):

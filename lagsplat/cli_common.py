@@ -9,6 +9,7 @@ from __future__ import annotations
 import os
 import re
 from pathlib import Path
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 from omegaconf import DictConfig, OmegaConf
@@ -66,8 +67,9 @@ def split_variant(v: str) -> tuple[str, int | None]:
     return (m["name"], int(m["seed"])) if m else (str(v), None)
 
 
-def seeded_variants(name: str, seeds: list[int] | None) -> list[str]:
-    """The run names of variant ``name`` over ``seeds`` (``name@seed<k>`` each; ``None``: ``[name]``, the run's own seed)."""
+def seeded_variants(name: str, seeds: Sequence[int] | None) -> list[str]:
+    """The run names of variant ``name`` over ``seeds`` (any sequence of integers, e.g. the configuration's
+    ``ablation_seeds``; ``name@seed<k>`` each; ``None``: ``[name]``, the run's own seed)."""
     return [name] if seeds is None else [f"{name}@seed{int(k)}" for k in seeds]
 
 

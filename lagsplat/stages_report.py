@@ -125,7 +125,6 @@ def stage_ablation(cfg: DictConfig) -> None:
     if key not in cfg.ablations:
         raise KeyError(f"unknown ablation {key!r}; known: {sorted(cfg.ablations)} (conf/config.yaml, key ablations)")
     seeds = cfg.get("ablation_seeds")
-    seeds = None if seeds is None else [int(k) for k in seeds]
     inputs = [[variant_metrics_path(cfg.results_dir, cfg.system.name, r) for r in seeded_variants(v, seeds)] for v in cfg.ablations[key]]
     ablation_table(inputs, table_path(cfg.results_dir, f"{cfg.system.name}_{key}"))
 
@@ -162,7 +161,7 @@ def stage_krauss_table(cfg: DictConfig) -> None:
 
     t = cfg.krauss_table
     res = cfg.results_dir
-    seeds = None if cfg.get("ablation_seeds") is None else [int(k) for k in cfg.ablation_seeds]
+    seeds = cfg.get("ablation_seeds")
     krauss_table(
         variant_metrics_path(res, str(t.one_segment), None) if t.get("one_segment") else None,
         variant_metrics_path(res, str(t.two_segments), None) if t.get("two_segments") else None,

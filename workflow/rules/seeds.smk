@@ -11,15 +11,7 @@
 # stage2.pt, metrics.json, figures/rollout.png), written by `python -m lagsplat all seed=<k>
 # results_dir=results/seeds/seed<k>`; the table is results/tables/<system>_seeds.md and .csv.
 
-_SEED_TABLE = yaml.safe_load(Path("conf/config.yaml").read_text())["seed_table"]
-
-
-def _csv(value):
-    """``--config`` value -> list of strings: ``"0,1,2"``, a single number, or a YAML list."""
-    items = value if isinstance(value, (list, tuple)) else str(value).split(",")
-    return [str(v).strip() for v in items if str(v).strip()]
-
-
+_SEED_TABLE = _CONF["seed_table"]  # conf/config.yaml, read by the Snakefile
 SEEDS = [int(s) for s in _csv(config.get("seeds", _SEED_TABLE["seeds"]))]
 SEED_SYSTEMS = _csv(config.get("seed_systems", "toy"))
 SEED_ROOT = f"{RESULTS}/{_SEED_TABLE['dir']}"
