@@ -40,6 +40,43 @@ class ICNN(nn.Module):
         for lin in self.inp:
             nn.init.zeros_(lin.bias)
 
+    @torch.no_grad()
+    def spread_kinks(self, x: Tensor, sharpness: float, seed: int = 0) -> None:
+        """Place every input unit's softplus kink inside the data instead of at the origin.
+
+        Unit ``i`` of each input map gets the direction ``a_i`` (``+1`` for ``d = 1``, a random unit vector
+        with a non-negative first entry otherwise), a sign ``sigma_i`` alternating over the units, a knot
+        ``c_i`` at the ``l_i``-quantile of ``x a_i`` (levels evenly spaced over ``[0.02, 0.98]``), and the
+        pre-activation ``sigma_i s (a_i^T x - c_i) / ptp(x a_i)``: a kink of width ``ptp / s`` at ``c_i``. The
+        default initialisation puts every kink at ``x = 0`` with unit slope, so the ICNN starts as a
+        smooth bowl and a wall (an end stop) far from the rest state is smeared over the whole range.
+        Convexity is untouched (the input maps are unconstrained).
+
+        Args:
+            x: ``[N,d]`` training states.
+            sharpness: ``s > 0``, the kinks' slope in units of the data's range.
+            seed: seed of the directions (``d > 1``).
+
+        Raises:
+            ValueError: if ``sharpness <= 0``, ``x`` is not ``[N,d]`` or holds fewer than two states.
+        """
+        d = self.inp[0].in_features
+        if sharpness <= 0 or x.ndim != 2 or x.shape[1] != d or len(x) < 2:
+            raise ValueError(f"spread_kinks needs sharpness > 0 and [N>=2,{d}] states, got {sharpness} and {tuple(x.shape)}")
+        gen = torch.Generator().manual_seed(int(seed))
+        x = x.detach().cpu().float()
+        for lin in self.inp:
+            n = lin.out_features
+            a = torch.ones(n, 1) if d == 1 else torch.randn(n, d, generator=gen)
+            a = a / a.norm(dim=1, keepdim=True) * torch.where(a[:, :1] < 0, -1.0, 1.0)
+            p = x @ a.T  # [N,n]
+            levels = torch.linspace(0.02, 0.98, n)
+            c = torch.stack([torch.quantile(p[:, i], levels[i]) for i in range(n)])
+            sign = torch.where(torch.arange(n) % 2 == 0, 1.0, -1.0)
+            scale = sign * sharpness / (p.max(0).values - p.min(0).values).clamp_min(1e-6)
+            lin.weight.copy_((scale[:, None] * a).to(lin.weight))
+            lin.bias.copy_((-scale * c).to(lin.bias))
+
     def forward(self, x: Tensor) -> Tensor:
         """Evaluate ``g(x)``."""
         h = F.softplus(self.inp[0](x))

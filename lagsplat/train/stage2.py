@@ -14,12 +14,13 @@ from torch import Tensor
 
 from lagsplat import metrics, timeseries
 from lagsplat.chart import Chart
-from lagsplat.dynamics.integrators import actuation_schedule, initial_state, rollout, verlet_step
+from lagsplat.dynamics.integrators import actuation_schedule, initial_state, rollout
 from lagsplat.io.atomic import save_torch
 from lagsplat.io.clip import TRAIN
 from lagsplat.train.config import dataclass_from_mapping
 from lagsplat.train.device import resolve_device
 from lagsplat.train.progress import Progress
+from lagsplat.train.shooting import multi_step_windows, shooting_loss
 from lagsplat.models.icnn import ConcaveMap
 from lagsplat.models.inertia import DecoderInertia
 from lagsplat.models.lagrangian import Lagrangian
@@ -67,6 +68,12 @@ class Stage2Config:
             (1.55 Hz simulated); with 1 the map's stiffness share went from 0.47 of ``V``'s to 0
             and the free frequency at the published budget (500 x 3000 windows) from 12.0 % to
             4.9 % off (seed 0). 0: the free concave map. No effect without actuation.
+        rollout_steps: Verlet steps per training window: 1 is Eq. 8's one-step fit; ``K > 1`` chains the
+            step ``K`` times from the window's state and scores every step (:mod:`~lagsplat.train.shooting`),
+            so one frame's chart noise is outvoted by the ``K`` frames after it.
+        potential_kinks: sharpness ``s`` of the potential ICNN's first kinks, spread over the training
+            range (:meth:`~lagsplat.models.icnn.ICNN.spread_kinks`); 0 keeps the default initialisation
+            (every kink at the origin), which smears an end stop's wall over the whole range.
         select_every: epochs between model-selection rollouts.
         select_from: fraction of the epochs after which a model can be selected: 0 (default) selects over
             the whole run on rollout error (paper §3.3), 1 keeps the last epoch's model (the reference
@@ -74,7 +81,7 @@ class Stage2Config:
         select_windows, select_periods: rollouts used for selection.
     """
 
-    mass: Mass = "scalar"
+    mass: Mass = "learned"
     potential: Potential = "convex"
     c0: float = 1.0
     dissipation_init: float = 0.2
@@ -89,6 +96,8 @@ class Stage2Config:
     lr: float = 1e-3
     lr_potential_input: float = 1.0
     w_actuation_linear: float = 1.0
+    rollout_steps: int = 4
+    potential_kinks: float = 30.0
     epochs: int = 300
     batch: int = 32
     windows_per_epoch: int = 1000
@@ -202,6 +211,8 @@ class TrainingWindows:
         select_q, select_u: the longest segment (the selection's rollouts run over it) and its actuation.
         select_starts, select_horizon: the selection rollouts' start frames and length, states.
         q_std: the longest segment's ``G``-weighted rms spread (the NRMSE scale).
+        shooting: the ``cfg.rollout_steps``-step windows of :func:`~lagsplat.train.shooting.multi_step_windows`
+            ``(q0, v0, Q, V, U)``, concatenated, float32 tensors (``K = 1``: the one-step windows).
     """
 
     dt: float
@@ -220,6 +231,7 @@ class TrainingWindows:
     select_starts: np.ndarray
     select_horizon: int
     q_std: float
+    shooting: tuple
 
 
 def training_windows(chart: Chart, cfg: Stage2Config, seed: int = 0, what: str = "stage-2") -> TrainingWindows:
@@ -236,6 +248,11 @@ def training_windows(chart: Chart, cfg: Stage2Config, seed: int = 0, what: str =
     u_segs = [chart.u[s] for s in segs]
     wins = [one_step_windows(qs, dt, cfg.stride, us) for qs, us in zip(q_smooth, u_segs)]
     Q0, V0, Q1, V1, U0, U1 = (torch.as_tensor(np.concatenate([w[i] for w in wins]), dtype=torch.float32) for i in range(6))
+    K = int(cfg.rollout_steps)
+    multi = [multi_step_windows(qs, dt, cfg.stride, K, us) for qs, us in zip(q_smooth, u_segs)]
+    shooting = tuple(torch.as_tensor(np.concatenate([w[i] for w in multi]), dtype=torch.float32) for i in range(5))
+    if len(shooting[0]) == 0:
+        raise ValueError(f"no training segment is long enough for one {what} window of {K} steps (stage2.rollout_steps)")
     G = metrics.normalise_trace(chart.G_bar)
     i_long = int(np.argmax([len(x) for x in q_smooth]))
     longest = q_smooth[i_long]
@@ -244,7 +261,7 @@ def training_windows(chart: Chart, cfg: Stage2Config, seed: int = 0, what: str =
     hi = len(longest) - horizon - 2
     starts = metrics.window_starts(0, hi, cfg.select_windows, seed) if hi > 0 else np.zeros(1, int)
     return TrainingWindows(dt, q_smooth, u_segs, Q0, V0, Q1, V1, U0, U1, G, f_train, longest, u_segs[i_long], starts,
-                           min(horizon, len(longest) - 2), metrics.g_rms_spread(longest, G))  # fmt: skip
+                           min(horizon, len(longest) - 2), metrics.g_rms_spread(longest, G), shooting)  # fmt: skip
 
 
 def train_stage2(
@@ -304,7 +321,6 @@ def train_stage2(
     rng = np.random.default_rng(seed)
     w = training_windows(chart, cfg, seed, "stage-2")
     dt, d, q_smooth, f_train, G_eval = w.dt, chart.d, w.q_smooth, w.f_train, w.G
-    Q0, V0, Q1, V1, U0, U1 = w.Q0, w.V0, w.Q1, w.V1, w.U0, w.U1
     n_u = chart.n_u
     A = torch.as_tensor(chart.A, dtype=torch.float32)
 
@@ -313,18 +329,21 @@ def train_stage2(
     model = cfg.build(d, n_u if n_u_model is None else int(n_u_model), inertia)
     with torch.no_grad():
         model.potential_hat.q_rest.copy_(torch.as_tensor(np.concatenate(q_smooth).mean(0), dtype=torch.float32))
+    if cfg.potential_kinks > 0:
+        model.potential_hat.g.spread_kinks(torch.as_tensor(np.concatenate(q_smooth), dtype=torch.float32), cfg.potential_kinks, seed)
     model.init_energy_scales(2 * math.pi * f_train, cfg.zeta_floor)
     if augment is not None:
         model = augment(model)
 
     dev = resolve_device(device)
     model = model.to(dev)
-    Q0, V0, Q1, V1, U0, U1, A = (t.to(dev) for t in (Q0, V0, Q1, V1, U0, U1, A))
+    A = A.to(dev)
+    S0, SV0, SQ, SV, SU = (t.to(dev) for t in w.shooting)
     sel_seg, sel_u, q_std, sel_starts, sel_h = w.select_q, w.select_u, w.q_std, w.select_starts, w.select_horizon
 
     h = cfg.stride * dt
     opt = torch.optim.Adam(_param_groups(model, cfg), lr=cfg.lr)
-    n = len(Q0)
+    n = len(S0)
     hist: dict[str, list] = {"epoch": [], "loss": [], "select_nrmse": []}
     best = (float("inf"), copy.deepcopy(model.state_dict()), -1)
     bar = Progress(cfg.epochs, label, enabled=progress, unit="epoch")
@@ -334,13 +353,10 @@ def train_stage2(
         tot, cnt = 0.0, 0
         for i in range(0, len(perm), cfg.batch):
             b = torch.as_tensor(perm[i : i + cfg.batch], device=dev)
-            u_b = None if n_u == 0 else (lambda t, u0=U0[b], u1=U1[b]: u0 if t < 0.5 * h else u1)  # noqa: E731
-            q1, v1 = verlet_step(model, Q0[b], V0[b], h, u=u_b)
-            eq, ev = q1 - Q1[b], h * (v1 - V1[b])
-            loss = (cfg.w_q * torch.einsum("bi,ij,bj->b", eq, A, eq) + cfg.w_v * torch.einsum("bi,ij,bj->b", ev, A, ev)).mean() / d
+            loss = shooting_loss(model, S0[b], SV0[b], SQ[b], SV[b], SU[b], h, A, cfg.w_q, cfg.w_v)
             act = _actuation_map(model)
             if cfg.w_actuation_linear > 0 and act is not None:
-                loss = loss + cfg.w_actuation_linear * act.nonlinearity(Q0[b])
+                loss = loss + cfg.w_actuation_linear * act.nonlinearity(S0[b])
             if not torch.isfinite(loss):
                 continue  # skip a diverged batch (the reference code)
             opt.zero_grad(set_to_none=True)

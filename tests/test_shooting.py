@@ -1,0 +1,127 @@
+"""Stage 2's multi-step (shooting) windows and loss, and the potential's spread kinks."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from lagsplat import timeseries
+from lagsplat.chart import Chart
+from lagsplat.dynamics.integrators import rollout, verlet_step
+from lagsplat.io.clip import HELD_OUT, TRAIN
+from lagsplat.models.icnn import ICNN
+from lagsplat.models.lagrangian import Lagrangian
+from lagsplat.train.shooting import multi_step_windows, shooting_loss
+from lagsplat.train.stage2 import Stage2Config, one_step_windows, train_stage2
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
+
+def test_one_step_shooting_windows_are_the_one_step_windows():
+    rng = np.random.default_rng(0)
+    q, u = rng.normal(size=(40, 2)), rng.normal(size=(40, 3))
+    one = one_step_windows(q, 0.1, 2, u)
+    q0, v0, Q, V, U = multi_step_windows(q, 0.1, 2, 1, u)
+    for a, b in zip(one, (q0, v0, Q[:, 0], V[:, 0], U[:, 0], U[:, 1])):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_multi_step_windows_follow_the_trajectory():
+    t = np.arange(30) * 0.1
+    q = np.stack([t**2, 3 * t], 1)  # central differences are exact on a quadratic
+    q0, v0, Q, V, U = multi_step_windows(q, 0.1, 2, 3)
+    assert q0.shape == (30 - 5 * 2, 2) and Q.shape == (20, 3, 2) and U.shape == (20, 4, 0)
+    s = 4
+    for j in range(1, 4):
+        c = s + 2 + 2 * j
+        np.testing.assert_allclose(Q[s, j - 1], q[c])
+        np.testing.assert_allclose(V[s, j - 1], [2 * t[c], 3.0], atol=1e-12)
+    np.testing.assert_allclose(v0[s], [2 * t[s + 2], 3.0], atol=1e-12)
+    assert multi_step_windows(q[:10], 0.1, 2, 3)[0].shape == (0, 2)
+    with pytest.raises(ValueError, match="K=0"):
+        multi_step_windows(q, 0.1, 2, 0)
+
+
+def test_shooting_loss_scores_every_chained_step():
+    torch.manual_seed(0)
+    model = Lagrangian(1, "scalar", 1.0, 0.2, (8, 8), 0.01, True)
+    model.init_energy_scales(2 * math.pi, 0.01)
+    q0, v0 = torch.tensor([[1.0], [0.5]]), torch.tensor([[0.0], [1.0]])
+    Q, V = torch.zeros(2, 3, 1), torch.zeros(2, 3, 1)
+    h, A = 0.05, torch.eye(1)
+    got = shooting_loss(model, q0, v0, Q, V, torch.zeros(2, 4, 0), h, A, 0.1, 0.2)
+    q, v, want = q0, v0, 0.0
+    for _ in range(3):
+        q, v = verlet_step(model, q, v, h)
+        want = want + (0.1 * q[:, 0] ** 2 + 0.2 * (h * v[:, 0]) ** 2).mean()
+    torch.testing.assert_close(got, want / 3)
+
+
+def test_spread_kinks_put_each_kink_inside_the_data_and_keep_g_convex():
+    x = torch.linspace(-2.0, 3.0, 200)[:, None]
+    g = ICNN(1, (16, 16))
+    g.spread_kinks(x, 30.0)
+    for lin in g.inp:
+        knots = -lin.bias / lin.weight[:, 0]
+        assert bool(((knots > -2.0) & (knots < 3.0)).all())
+        np.testing.assert_allclose(lin.weight.abs().detach().numpy(), 30.0 / 5.0, rtol=1e-5)
+    y = g(torch.linspace(-4, 5, 401)[:, None]).detach().numpy()
+    assert (np.diff(y, 2) > -1e-4).all()  # convex
+    g2 = ICNN(3, (8,))
+    g2.spread_kinks(torch.randn(50, 3), 10.0, seed=1)
+    assert torch.allclose(g2.inp[0].weight.norm(dim=1) > 0, torch.tensor(True))
+    with pytest.raises(ValueError, match="sharpness > 0"):
+        g.spread_kinks(x, 0.0)
+    with pytest.raises(ValueError, match=r"\[N>=2,1\]"):
+        g.spread_kinks(torch.zeros(5, 2), 1.0)
+
+
+def _end_stop_chart(dt: float = 1 / 30) -> tuple[Chart, float]:
+    """An exact oscillator against a stiff one-sided wall (30x the spring) at -0.6 of its amplitude,
+    two training episodes and a held-out one; returns the chart and the held-out frequency."""
+    w0 = 2 * math.pi * 0.7
+
+    def acc(x, v):
+        return -w0**2 * x - 30 * w0**2 * min(0.0, x + 0.6) - 0.02 * w0 * v
+
+    qs = []
+    for amp in (1.0, 0.9, 0.95):
+        x, v, out = amp, 0.0, []
+        for _ in range(int(12 / dt)):
+            for _ in range(20):  # substeps
+                a = acc(x, v)
+                v += a * dt / 20
+                x += v * dt / 20
+            out.append(x)
+        qs.append(out)
+    q = np.concatenate(qs)[:, None]
+    n = len(q)
+    episode = np.repeat([0, 1, 2], n // 3)
+    split = np.where(episode < 2, TRAIN, HELD_OUT).astype(np.int8)
+    I = np.eye(1)
+    chart = Chart(mean=np.zeros(1), W=I, W_inv=I, q=q, t=np.arange(n) * dt, split=split, G_bar=I, A=I, ae_mse=np.zeros(n),
+                  ae_floor_train=0.0, ae_floor_held_out=0.0, height=8, width=8, episode=episode)  # fmt: skip
+    return chart, timeseries.spectral_peak_frequency(q[split == HELD_OUT], dt)
+
+
+@pytest.mark.slow
+def test_spread_kinks_and_shooting_follow_an_end_stop_the_default_smears():
+    """The held-out frequency of an end stop's bouncing oscillation, as a user's rollout reads it: the
+    default potential (all kinks at the origin, one-step fit) is stiffer than the truth; kinks spread over
+    the range with a learned inertia and four-step windows come closer."""
+    chart, f_true = _end_stop_chart()
+    dt = float(chart.t[1] - chart.t[0])
+    ho = np.flatnonzero(chart.split == HELD_OUT)
+
+    def held_out_error(**kw) -> float:
+        model, _ = train_stage2(chart, Stage2Config(epochs=60, windows_per_epoch=500, **kw), seed=0, progress=False)
+        with torch.no_grad():
+            r = rollout(model, torch.tensor(chart.q[ho[:1]], dtype=torch.float32), torch.zeros(1, 1), dt, len(ho))[0][0].numpy()
+        return abs(timeseries.spectral_peak_frequency(r, dt) / f_true - 1)
+
+    smooth = held_out_error()
+    sharp = held_out_error(mass="learned", potential_kinks=30.0, rollout_steps=4)
+    assert sharp < 0.5 * smooth, (sharp, smooth)
