@@ -38,6 +38,10 @@ Potential = Literal["convex", "invex"]
 class Stage2Config:
     """Stage-2 settings (``conf/config.yaml``, group ``stage2``).
 
+    The defaults are those of a new clip (``conf/config.yaml``): learned inertia, four chained steps per
+    window and kinks spread over the range. The paper's fit (Eq. 8) is ``mass="scalar"`` for d = 1,
+    ``rollout_steps=1``, ``potential_kinks=0``.
+
     Attributes:
         mass: ``"scalar"``, ``"constant"``, ``"learned"`` or ``"decoder"`` inertia
             (see :class:`Lagrangian`; ``"decoder"`` needs the Stage-1 decoder).
