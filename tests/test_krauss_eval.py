@@ -282,6 +282,21 @@ def test_evaluate_krauss_end_to_end_on_fakes():
     assert "f_truth_hz" not in wrong
 
 
+def test_the_inputs_share_near_a_mode_reads_the_spectrum_of_the_training_pressures():
+    from lagsplat.evaluate.krauss import _input_share_near
+
+    T = 1200
+    t = np.arange(T) * DT
+    u = np.stack([np.sin(2 * math.pi * 1.5 * t), 0.1 * np.sin(2 * math.pi * 6.0 * t)], 1).astype(np.float32)
+    split = np.full(T, TRAIN, np.int8)
+    split[1000:] = HELD_OUT
+    chart = Chart(mean=np.zeros(1), W=np.eye(1), W_inv=np.eye(1), q=np.zeros((T, 1)), t=t, split=split, G_bar=np.eye(1), A=np.eye(1),
+                  ae_mse=np.zeros(T), ae_floor_train=0.0, ae_floor_held_out=0.0, height=8, width=8, u=u)  # fmt: skip
+    assert _input_share_near(chart, DT, 1.5) > 0.95
+    assert 0.005 < _input_share_near(chart, DT, 6.0) < 0.02  # (0.1)^2 of the power
+    assert _input_share_near(chart, DT, 3.5) < 1e-3
+
+
 # --------------------------------------------------------------------------- Table 4
 def _metrics(path, system, data="real", variant=None, mass="learned", **vals):
     base = {"mse_0p5s": 7.7e-4, "ae_floor": 6.3e-5, "eps_freq": 0.057, "eps_q": 0.3, "f_enc_hz": 1.56, "f_sim_hz": 1.5,

@@ -84,7 +84,7 @@ from lagsplat.evaluate.krauss_windows import (  # noqa: F401  (the protocol's pu
     peak_frequency,
 )
 from lagsplat.evaluate.krauss_rollouts import frequency_windows, multistep_mse, rollout_zoh  # noqa: F401  (re-exported)
-from lagsplat.io.clip import HELD_OUT, Clip, ClipError
+from lagsplat.io.clip import HELD_OUT, TRAIN, Clip, ClipError
 
 __all__ = [
     "KraussEvalConfig",
@@ -122,6 +122,21 @@ def _truth_frequency(truth: Mapping[str, Any]) -> float | None:
 
 def _finite(x: float) -> float | None:
     return float(x) if x is not None and math.isfinite(float(x)) else None
+
+
+def _input_share_near(chart: Chart, dt: float, f: float, band: float = 0.2) -> float | None:
+    """Share of the training actuation's variance within ``f (1 +- band)`` Hz (Welch PSD over the
+    longest training segment, channels summed); ``None`` without actuation or a segment of 64 frames."""
+    from scipy.signal import welch
+
+    segs = chart.segments(TRAIN)
+    if chart.n_u == 0 or not segs or len(max(segs, key=len)) < 64:
+        return None
+    u = chart.u[max(segs, key=len)].astype(np.float64)
+    freq, S = welch(u - u.mean(0), fs=1.0 / dt, nperseg=min(2048, len(u)), axis=0)
+    S = S.sum(1)
+    total = float(S.sum())
+    return float(S[(freq > (1 - band) * f) & (freq < (1 + band) * f)].sum() / total) if total > 0 else None
 
 
 def evaluate_krauss(
@@ -242,6 +257,12 @@ def evaluate_krauss(
                 float(np.mean([abs(w["f_enc_top"] - f_true) / f_true for w in ok])) if ok else None,
                 "mean over the same windows of |f_enc - f_truth| / f_truth: how well the encoded tail shows the simulator's frequency", fw, "fraction",
             )
+            share = _input_share_near(chart, dt, f_true)
+            if share is not None:
+                out["input_share_near_f_truth"] = metric_entry(
+                    share, "share of the training pressures' variance within +-20 % of f_truth (Welch PSD, channels summed): "
+                    "how much the inputs drive the mode whose frequency eps_freq scores", "", "fraction",
+                )  # fmt: skip
         if "tail_start_frame" in truth:
             n_train = int(ho[0])
             out["tail_start_truth"] = metric_entry(int(truth["tail_start_frame"]) - n_train - k, "simulator's depressurisation frame, in validation frames after trimming (compare free_intervals)", "", "frame")
