@@ -263,11 +263,11 @@ def test_quadratic_drag_is_found_on_the_wide_residual_and_the_control_stays_clea
 
 def test_control_with_a_trained_lagrangian_is_not_flagged_and_friction_is() -> None:
     """The paper's model, briefly fitted by Stage 2, as the plain model (its potential misfit must not be flagged)."""
-    from lagsplat.train.stage2 import Stage2Config, train_stage2
+    from lagsplat.train.stage2 import PAPER_FIT, Stage2Config, train_stage2
 
     for effect in ("none", "coulomb"):
         chart = _chart("cart", effect, seed=0)
-        model, _ = train_stage2(chart, Stage2Config(epochs=6, windows_per_epoch=500), seed=0, progress=False)
+        model, _ = train_stage2(chart, Stage2Config(epochs=6, windows_per_epoch=500, **PAPER_FIT), seed=0, progress=False)
         diag, _ = diagnose_chart(model, chart)
         assert diag.winner == effect, diag.summary()
 

@@ -38,7 +38,7 @@ from lagsplat.diagnose.where_time import time_localisation
 from lagsplat.dynamics.integrators import rollout
 from lagsplat.io.clip import HELD_OUT, TRAIN, Clip
 from lagsplat.synth.effects import simulate_effect
-from lagsplat.train.stage2 import Stage2Config, train_stage2
+from lagsplat.train.stage2 import PAPER_FIT, Stage2Config, train_stage2
 from lagsplat.viewer.synthetic import synthetic_pendulum
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -169,7 +169,7 @@ def _friction_case():
         mean=np.zeros(1), W=np.eye(1), W_inv=np.eye(1), q=q[:, None], t=run.t, split=run.split, G_bar=np.eye(1), A=np.eye(1),
         ae_mse=np.zeros(len(q)), ae_floor_train=0.0, ae_floor_held_out=0.0, height=64, width=64, episode=run.episode, u=run.u,
     )  # fmt: skip
-    cfg = Stage2Config(epochs=20, windows_per_epoch=400, hidden=(16, 16), select_every=4)
+    cfg = Stage2Config(epochs=20, windows_per_epoch=400, hidden=(16, 16), select_every=4, **PAPER_FIT)  # a budget for the one-step fit
     model, _ = train_stage2(chart, cfg, seed=0, progress=False)
     return chart, model, cfg
 
@@ -562,7 +562,7 @@ def test_cli_diagnose_stage_on_a_tiny_system(tmp_path) -> None:
     save_clip(d / "clip.npz", clip)
     save_stage1(d / "stage1.pt", AutoEncoder(CpAEEncoder(1, (2, 2, 2), 12), ae.decoder, ae.height, ae.width), {"backend": "auto"}, {}, 1)
     save_chart(d / "chart.npz", chart)
-    save_stage2(d / "stage2.pt", model, Stage2Config(hidden=(16, 16), learn_rest=False), {})
+    save_stage2(d / "stage2.pt", model, Stage2Config(hidden=(16, 16), learn_rest=False, **PAPER_FIT), {})
     r = subprocess.run(
         [sys.executable, "-m", "lagsplat", "diagnose", "system=toy_tiny", f"results_dir={tmp_path}", "threads=1", "progress=false",
          "diagnose.where.n_image_frames=4", "diagnose.refit.enabled=false"],

@@ -18,7 +18,7 @@ from lagsplat.models.decoder import ConditionedGaussians
 from lagsplat.models.icnn import ConcaveMap, ConvexPotential, IResNet
 from lagsplat.models.inertia import DecoderInertia
 from lagsplat.models.lagrangian import Lagrangian
-from lagsplat.train.stage2 import Stage2Config, one_step_windows, train_stage2
+from lagsplat.train.stage2 import PAPER_FIT, Stage2Config, one_step_windows, train_stage2
 
 
 def _perturb(module: torch.nn.Module, scale: float, seed: int) -> None:
@@ -261,7 +261,7 @@ def test_stage2_identifies_an_actuated_oscillator_across_episodes():
         us.append(P[:, None])
     q, u = np.concatenate(qs), np.concatenate(us).astype(np.float32)
     chart = _chart(q, np.repeat([0, 1, 2], 600), np.array([0] * 1200 + [1] * 600), u, dt)
-    cfg = Stage2Config(hidden=(16, 16), epochs=60, select_every=10, zeta_floor=0.01)
+    cfg = Stage2Config(hidden=(16, 16), epochs=60, select_every=10, zeta_floor=0.01, **PAPER_FIT)  # 60 epochs: a budget for the one-step fit
     model, hist = train_stage2(chart, cfg, seed=0, progress=False)
     assert model.n_u == 1
     modes = model.modal_analysis()

@@ -19,7 +19,7 @@ from lagsplat.chart import save_chart
 from lagsplat.io.clip import HELD_OUT, Clip, save_clip
 from lagsplat.models.autoencoder import AutoEncoder, save_stage1
 from lagsplat.models.encoder import CpAEEncoder
-from lagsplat.train.stage2 import Stage2Config, save_stage2
+from lagsplat.train.stage2 import PAPER_FIT, Stage2Config, save_stage2
 from lagsplat.viewer.synthetic import synthetic_pendulum
 from lagsplat.viz import rollout as rollout_viz
 
@@ -37,7 +37,7 @@ def _run_folder(root, metrics: dict):
     save_clip(d / "clip.npz", Clip(images=images, t=chart.t, split=chart.split, meta={"source": "test"}))
     save_stage1(d / "stage1.pt", AutoEncoder(CpAEEncoder(1, (2, 2, 2), 12), ae.decoder, ae.height, ae.width), {"backend": "auto"}, {}, 1)
     save_chart(d / "chart.npz", chart)
-    save_stage2(d / "stage2.pt", model, Stage2Config(hidden=(16, 16), learn_rest=False), {})
+    save_stage2(d / "stage2.pt", model, Stage2Config(hidden=(16, 16), learn_rest=False, **PAPER_FIT), {})
     (d / "metrics.json").write_text(json.dumps({"system": "pendulum", "metrics": metrics}))
     return Artifacts.at(d), chart
 

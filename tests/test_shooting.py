@@ -15,7 +15,7 @@ from lagsplat.io.clip import HELD_OUT, TRAIN
 from lagsplat.models.icnn import ICNN
 from lagsplat.models.lagrangian import Lagrangian
 from lagsplat.train.shooting import multi_step_windows, shooting_loss
-from lagsplat.train.stage2 import Stage2Config, one_step_windows, train_stage2
+from lagsplat.train.stage2 import PAPER_FIT, Stage2Config, one_step_windows, train_stage2
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -122,6 +122,6 @@ def test_spread_kinks_and_shooting_follow_an_end_stop_the_default_smears():
             r = rollout(model, torch.tensor(chart.q[ho[:1]], dtype=torch.float32), torch.zeros(1, 1), dt, len(ho))[0][0].numpy()
         return abs(timeseries.spectral_peak_frequency(r, dt) / f_true - 1)
 
-    smooth = held_out_error(mass="scalar", potential_kinks=0.0, rollout_steps=1)  # the paper's one-step fit
+    smooth = held_out_error(**PAPER_FIT)
     sharp = held_out_error(mass="learned", potential_kinks=30.0, rollout_steps=4)
     assert sharp < 0.5 * smooth, (sharp, smooth)

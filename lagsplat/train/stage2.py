@@ -25,13 +25,17 @@ from lagsplat.models.icnn import ConcaveMap
 from lagsplat.models.inertia import DecoderInertia
 from lagsplat.models.lagrangian import Lagrangian
 
-__all__ = ["Stage2Config", "Mass", "Potential", "one_step_windows", "selection_replaces", "TrainingWindows", "training_windows", "train_stage2", "save_stage2", "load_stage2"]
+__all__ = ["PAPER_FIT", "Stage2Config", "Mass", "Potential", "one_step_windows", "selection_replaces", "TrainingWindows", "training_windows", "train_stage2", "save_stage2", "load_stage2"]
 
 Mass = Literal["scalar", "constant", "learned", "decoder"]
 """Inertia models of Stage 2 (``stage2.mass``; :class:`~lagsplat.models.lagrangian.Lagrangian`)."""
 
 Potential = Literal["convex", "invex"]
 """Potentials of Stage 2 (``stage2.potential``): ICNN, or ICNN o i-ResNet."""
+
+
+PAPER_FIT: dict[str, Any] = {"mass": "scalar", "rollout_steps": 1, "potential_kinks": 0.0}
+"""The paper's Stage-2 fit of a d = 1 chart (§3.3, Eq. 8): ``Stage2Config(**PAPER_FIT, ...)``."""
 
 
 @dataclass
