@@ -24,6 +24,7 @@ from lagsplat import metrics
 from lagsplat.chart import Chart
 from lagsplat.dynamics.integrators import initial_state
 from lagsplat.train.stage2 import Stage2Config, selection_replaces, training_windows
+from lagsplat.train.shooting import step_error
 
 __all__ = ["LatentNeuralODE", "train_neural_ode", "ode_rollout"]
 
@@ -129,7 +130,7 @@ def train_neural_ode(chart: Chart, cfg: Stage2Config, seed: int = 0) -> tuple[La
             b = torch.as_tensor(perm[i : i + cfg.batch])
             q1, v1 = model.step(Q0[b], V0[b], h, U0[b] if chart.n_u else None)
             eq, ev = q1 - Q1[b], h * (v1 - V1[b])
-            loss = (cfg.w_q * torch.einsum("bi,ij,bj->b", eq, A, eq) + cfg.w_v * torch.einsum("bi,ij,bj->b", ev, A, ev)).mean() / d
+            loss = step_error(eq, ev, A, cfg.w_q, cfg.w_v).mean() / d
             if not torch.isfinite(loss):
                 continue
             opt.zero_grad(set_to_none=True)

@@ -130,9 +130,10 @@ def _input_share_near(chart: Chart, dt: float, f: float, band: float = 0.2) -> f
     from scipy.signal import welch
 
     segs = chart.segments(TRAIN)
-    if chart.n_u == 0 or not segs or len(max(segs, key=len)) < 64:
+    longest = max(segs, key=len) if segs else []
+    if chart.n_u == 0 or len(longest) < 64:
         return None
-    u = chart.u[max(segs, key=len)].astype(np.float64)
+    u = chart.u[longest].astype(np.float64)
     freq, S = welch(u - u.mean(0), fs=1.0 / dt, nperseg=min(2048, len(u)), axis=0)
     S = S.sum(1)
     total = float(S.sum())

@@ -18,7 +18,7 @@ from torch import Tensor
 
 from lagsplat.dynamics.integrators import verlet_step
 
-__all__ = ["multi_step_windows", "shooting_loss"]
+__all__ = ["multi_step_windows", "step_error", "shooting_loss"]
 
 
 def multi_step_windows(q: np.ndarray, dt: float, k: int, K: int, u: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
@@ -59,6 +59,12 @@ def multi_step_windows(q: np.ndarray, dt: float, k: int, K: int, u: np.ndarray |
     return q[steps[0]], v(steps[0]), Q, V, U
 
 
+def step_error(eq: Tensor, ev: Tensor, A: Tensor, w_q: float, w_v: float) -> Tensor:
+    """Eq. 8's error of one step per sample, ``w_q e_q^T A e_q + w_v e_v^T A e_v`` (``e_v`` already in
+    position units, ``h (qdot - V)``): ``eq, ev [B,d]``, ``A [d,d]`` -> ``[B]``."""
+    return w_q * torch.einsum("bi,ij,bj->b", eq, A, eq) + w_v * torch.einsum("bi,ij,bj->b", ev, A, ev)
+
+
 def shooting_loss(model, q0: Tensor, v0: Tensor, Q: Tensor, V: Tensor, U: Tensor, h: float, A: Tensor, w_q: float, w_v: float) -> Tensor:
     """Eq. 8's weighted one-step error averaged over ``K`` chained Verlet steps.
 
@@ -85,5 +91,5 @@ def shooting_loss(model, q0: Tensor, v0: Tensor, Q: Tensor, V: Tensor, U: Tensor
         u_j = None if U.shape[2] == 0 else (lambda t, a=U[:, j], b=U[:, j + 1]: a if t < 0.5 * h else b)  # noqa: E731
         q, v = verlet_step(model, q, v, h, u=u_j)
         eq, ev = q - Q[:, j], h * (v - V[:, j])
-        loss = loss + (w_q * torch.einsum("bi,ij,bj->b", eq, A, eq) + w_v * torch.einsum("bi,ij,bj->b", ev, A, ev)).mean()
+        loss = loss + step_error(eq, ev, A, w_q, w_v).mean()
     return loss / (K * d)

@@ -154,14 +154,8 @@ def one_step_windows(q: np.ndarray, dt: float, k: int, u: np.ndarray | None = No
         ``(q0, v0, q1, v1, u0, u1)``, each ``[n - 3k, .]``: ``u0``/``u1`` the
         actuation at the start / end of the step (``[n - 3k, 0]`` without actuation).
     """
-    n = len(q) - 3 * k
-    if u is None:
-        u = np.zeros((len(q), 0), np.float32)
-    if n <= 0:
-        return tuple(np.zeros((0, q.shape[1])) for _ in range(4)) + (np.zeros((0, u.shape[1])),) * 2
-    s = np.arange(n)
-    v = lambda a, b: (q[b] - q[a]) / (2 * k * dt)  # noqa: E731
-    return q[s + k], v(s, s + 2 * k), q[s + 2 * k], v(s + k, s + 3 * k), u[s + k], u[s + 2 * k]
+    q0, v0, Q, V, U = multi_step_windows(q, dt, k, 1, u)
+    return q0, v0, Q[:, 0], V[:, 0], U[:, 0], U[:, 1]
 
 
 def selection_replaces(err: float, best_err: float, best_epoch: int, cfg: Stage2Config) -> bool:
