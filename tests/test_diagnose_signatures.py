@@ -165,3 +165,13 @@ def test_a_constant_oscillator_and_a_duffing_spring_give_a_drift_no_support() ->
         diag = _diagnose(chart)
         assert diag.evidence["frequency"]["support_time"] < 6 and diag.evidence["envelope"]["support"]["accelerating"] < 6
         assert get_effect("drift").signature_support(diag.evidence)[0] < 6 and diag.winner != "drift"
+
+
+def test_a_lightly_damped_hardening_spring_is_read_by_its_amplitude_not_as_a_drift() -> None:
+    # the amplitude decays slowly and steadily, so time and amplitude are nearly collinear: the periods
+    # that start on a rising and on a falling crossing differ a little, and a per-period amplitude that
+    # steps in pairs let a time trend take that difference for a drift (support 19 before the fix)
+    diag = _diagnose(_drifting(eps=0.3, zeta=(0.006, 0.006)))
+    f = diag.evidence["frequency"]
+    assert f["support_time"] < 6 and f["relative_shift_at_max_amplitude"] > 0.03
+    assert diag.winner != "drift"

@@ -163,34 +163,46 @@ def _rest(res: Residual, p: np.ndarray) -> dict[str, Any]:
 
 
 def _frequency(res: Residual, p: np.ndarray) -> dict[str, Any]:
-    """Period-by-period frequency regressed on amplitude^2 and time (Duffing shift vs drift)."""
-    F, A2, TT = [], [], []
+    """Period-by-period frequency regressed on amplitude^2 and time (Duffing shift vs drift).
+
+    Each period runs between two zero crossings in the same direction (an offset of the centre shifts
+    alternate half periods in opposite directions and cancels there). Its amplitude is the envelope of
+    the turning points at the period's mid-time (linear interpolation), not the largest excursion inside
+    it: two consecutive periods share that excursion, so it steps in pairs while the mid-time rises, and
+    a time trend then explains what is only the difference of the periods that start on a rising and on
+    a falling crossing. That difference (the crossings move with a decaying amplitude when the crossing
+    level is not the exact centre of the swing) gets its own column, +-1 by the crossing's direction.
+    """
+    F, A2, TT, UP = [], [], [], []
+    f = res.f_dominant_hz
+    gap = int(0.35 / (f * res.dt)) if math.isfinite(f) and f > 0 else 5
     for idx in res.segment_slices():
         pk = p[idx] - np.median(p[idx])
         tk = res.t[idx]
         sgn = np.signbit(pk)
         cross = np.flatnonzero(sgn[1:] != sgn[:-1])
-        if len(cross) < 3:
+        te, ae = _extrema(pk, tk, gap)
+        if len(cross) < 3 or len(te) < 2:
             continue
         tc = tk[cross] - pk[cross] * (tk[cross + 1] - tk[cross]) / (pk[cross + 1] - pk[cross])
-        # full periods between crossings in the same direction: an offset of the centre shifts
-        # alternate half periods in opposite directions and cancels here
-        for a, b, i0, i1 in zip(tc[:-2], tc[2:], cross[:-2], cross[2:]):
-            amp = float(np.max(np.abs(pk[i0 : i1 + 2])))
+        for a, b, i0 in zip(tc[:-2], tc[2:], cross[:-2]):
+            amp = float(np.interp(0.5 * (a + b), te, ae))
             if amp <= 3 * float(np.max(res.noise_q)) or b <= a:
                 continue
             F.append(1.0 / (b - a))
             A2.append(amp * amp)
             TT.append(0.5 * (a + b))
+            UP.append(1.0 if pk[i0] < 0 else -1.0)
     if len(F) < 6:
         return {"n_periods": len(F)}
-    F, A2, TT = map(np.asarray, (F, A2, TT))
-    X = np.stack([np.ones_like(F), A2 - A2.mean(), TT - TT.mean()], 1)
+    F, A2, TT, UP = map(np.asarray, (F, A2, TT, UP))
+    alt = UP - UP.mean()
+    X = np.stack([np.ones_like(F), A2 - A2.mean(), TT - TT.mean(), alt], 1)
     c, *_ = np.linalg.lstsq(X, F, rcond=None)
     r = F - X @ c
-    s2 = float(r @ r) / max(len(F) - 3, 1)
+    s2 = float(r @ r) / max(len(F) - X.shape[1], 1)
     se = np.sqrt(2.0 * np.maximum(np.diag(s2 * np.linalg.pinv(X.T @ X)), 0.0))  # x sqrt(2): consecutive periods overlap by half
-    return {**_time_support(F, A2, TT),
+    return {**_time_support(F, A2, TT, alt),
         "n_periods": int(len(F)), "f_mean_hz": float(c[0]),
         "slope_amp2": float(c[1]), "slope_amp2_se": float(se[1]), "z_amp2": float(c[1] / max(se[1], 1e-300)),
         "relative_shift_at_max_amplitude": float(c[1] * A2.max() / c[0]),
@@ -199,23 +211,24 @@ def _frequency(res: Residual, p: np.ndarray) -> dict[str, Any]:
     }  # fmt: skip
 
 
-def _time_support(F: np.ndarray, A2: np.ndarray, TT: np.ndarray) -> dict[str, float]:
+def _time_support(F: np.ndarray, A2: np.ndarray, TT: np.ndarray, alt: np.ndarray) -> dict[str, float]:
     """Evidence that the frequency changes with time at a given amplitude (a drift), on the ``Delta BIC`` scale.
 
     The period-by-period frequencies ``F [n]`` (Hz) are fitted by any quadratic function of the squared
     amplitude ``A2 [n]`` (a Duffing spring, a pendulum, an end stop that is hit harder at larger
-    amplitude), then by the same plus a linear trend in the periods' mid-times ``TT [n]`` (s); the
-    support is the information criterion of the second over the first,
-    ``n_eff log(SSR_amplitude / SSR_amplitude+time) - log n_eff`` with ``n_eff = n / 2`` (consecutive
-    periods share half their samples). Where the amplitude itself falls steadily with time the two
-    cannot be told apart and the support stays near zero: a drift is claimed only where the timing
-    changes in a way no dependence on the amplitude explains. ``support_time`` 0 with fewer than 8 periods.
+    amplitude) and the crossing-direction column ``alt [n]`` (:func:`_frequency`), then by the same plus a
+    linear trend in the periods' mid-times ``TT [n]`` (s); the support is the information criterion of the
+    second over the first, ``n_eff log(SSR_amplitude / SSR_amplitude+time) - log n_eff`` with
+    ``n_eff = n / 2`` (consecutive periods share half their samples). Where the amplitude itself falls
+    steadily with time the two cannot be told apart and the support stays near zero: a drift is claimed
+    only where the timing changes in a way no dependence on the amplitude explains. ``support_time`` 0
+    with fewer than 8 periods.
     """
     n = len(F)
     if n < 8:
         return {"support_time": 0.0}
     a = (A2 - A2.mean()) / max(float(A2.std()), 1e-300)
-    X0 = np.stack([np.ones(n), a, a * a], 1)
+    X0 = np.stack([np.ones(n), a, a * a, alt], 1)
     X1 = np.column_stack([X0, TT - TT.mean()])
     ssr = [float(np.sum((F - X @ np.linalg.lstsq(X, F, rcond=None)[0]) ** 2)) for X in (X0, X1)]
     n_eff = n / 2.0
