@@ -175,3 +175,17 @@ def test_a_lightly_damped_hardening_spring_is_read_by_its_amplitude_not_as_a_dri
     f = diag.evidence["frequency"]
     assert f["support_time"] < 6 and f["relative_shift_at_max_amplitude"] > 0.03
     assert diag.winner != "drift"
+
+
+def test_two_beating_modes_give_a_drift_no_support_from_the_timing() -> None:
+    # a 2-D chart of two light, constant modes (0.7 and 0.95 Hz): along any one direction the crossings come
+    # early or late with the modes' relative phase, which is not a stiffness that drifts
+    t = np.arange(int(round(12.0 / DT))) * DT
+    m1 = np.exp(-0.02 * t) * np.cos(2 * math.pi * 0.7 * t)
+    m2 = 0.35 * np.exp(-0.02 * t) * np.cos(2 * math.pi * 0.95 * t + 0.4)
+    q = np.stack([m1 + m2, 0.6 * m1 - m2], 1) + 0.005 * np.random.default_rng(3).standard_normal((len(t), 2))
+    n, I = len(q), np.eye(2)
+    chart = Chart(mean=np.zeros(2), W=I, W_inv=I, q=q, t=t, split=np.full(n, TRAIN, np.int8), G_bar=np.diag([1.0, 0.3]),
+                  A=I, ae_mse=np.zeros(n), ae_floor_train=0.0, ae_floor_held_out=0.0, height=64, width=64)  # fmt: skip
+    ev = _diagnose(chart).evidence["frequency"]
+    assert ev["n_periods"] >= 8 and ev["support_time"] == 0.0

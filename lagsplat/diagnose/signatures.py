@@ -258,7 +258,9 @@ def signatures(res: Residual, model_freqs_hz: Sequence[float] | None = None, dir
     * ``frequency``: frequency of each period (between zero crossings in the same
       direction, so an offset cancels) regressed on ``amplitude^2``
       (Duffing shift: > 0 hardening, < 0 softening or a pendulum) and on time
-      (drift), slopes with standard errors and z-scores.
+      (drift), slopes with standard errors and z-scores; the time's evidence
+      (``support_time``) is 0 on a chart with ``d > 1``, whose modes beat along
+      any one direction.
     * ``spectrum``: strongest peaks of the residual's power spectrum, and those
       not within 5 % of a model frequency or its 2nd / 3rd harmonic (a force
       or a mode the model lacks).
@@ -284,6 +286,10 @@ def signatures(res: Residual, model_freqs_hz: Sequence[float] | None = None, dir
 
     e_top = metrics.top_direction(res.G) if e is None else e
     out: dict[str, Any] = {"envelope": _envelope(res, p), "frequency": _frequency(res, p)}
+    if res.d > 1 and "support_time" in out["frequency"]:
+        # along one direction of a chart with several degrees of freedom the modes beat, and the crossings'
+        # timing changes with their phase, not with a drifting stiffness: no evidence for a drift there
+        out["frequency"]["support_time"] = 0.0
     peaks = residual_peaks(res.r @ e_top, res.segment, res.dt, 4)
     ref = list(model_freqs_hz) if model_freqs_hz is not None else [res.f_dominant_hz]
     ref = [f for f in ref if math.isfinite(f) and f > 0]
