@@ -189,3 +189,36 @@ def test_two_beating_modes_give_a_drift_no_support_from_the_timing() -> None:
                   A=I, ae_mse=np.zeros(n), ae_floor_train=0.0, ae_floor_held_out=0.0, height=64, width=64)  # fmt: skip
     ev = _diagnose(chart).evidence["frequency"]
     assert ev["n_periods"] >= 8 and ev["support_time"] == 0.0
+
+
+def _takes(n_takes: int = 3, take_s: float = 8.0, zeta: tuple[float, float] = (0.003, 0.03)) -> Chart:
+    """Separate takes of one oscillator (0.7 Hz, each released at a random phase) whose damping ratio rises
+    linearly with the recording's clock from ``zeta[0]`` to ``zeta[1]``; a 1-D chart, 1 % noise, one episode per take."""
+    from scipy.integrate import solve_ivp
+
+    w, T = 2 * math.pi * 0.7, n_takes * take_s
+    rng = np.random.default_rng(0)
+    qs, ts, eps = [], [], []
+    for k in range(n_takes):
+        t = k * take_s + np.arange(int(round(take_s / DT))) * DT
+        ph = rng.uniform(0, 2 * math.pi)
+        rhs = lambda tt, y: [y[1], -w * w * y[0] - 2 * (zeta[0] + (zeta[1] - zeta[0]) * tt / T) * w * y[1]]  # noqa: E731
+        qs.append(solve_ivp(rhs, (t[0], t[-1]), [math.cos(ph), -w * math.sin(ph)], t_eval=t, rtol=1e-9, atol=1e-11).y[0])
+        ts.append(t)
+        eps.append(np.full(len(t), k, np.int16))
+    q = np.concatenate(qs)
+    q = q / q.std() + 0.01 * rng.standard_normal(len(q))
+    n, I = len(q), np.eye(1)
+    return Chart(mean=np.zeros(1), W=I, W_inv=I, q=q[:, None], t=np.concatenate(ts), split=np.full(n, TRAIN, np.int8), G_bar=I,
+                 A=I, ae_mse=np.zeros(n), ae_floor_train=0.0, ae_floor_held_out=0.0, height=64, width=64, episode=np.concatenate(eps))  # fmt: skip
+
+
+def test_a_drifting_damping_is_read_on_the_recording_clock_across_takes() -> None:
+    # the decay rate of each take starts where the previous take left off: on each take's own clock the three
+    # takes' rates disagree and the envelope looked linear (dry friction) instead
+    diag = _diagnose(_takes())
+    env = diag.evidence["envelope"]
+    assert diag.settings["n_segments"] == 3
+    assert env["support"]["accelerating"] >= 10 and env["accelerating"]["rate_change_per_s2"] > 0
+    assert env["support"]["accelerating"] > env["support"]["linear"]
+    assert diag.winner == "drift"

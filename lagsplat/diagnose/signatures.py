@@ -46,23 +46,28 @@ def _envelope(res: Residual, p: np.ndarray) -> dict[str, Any]:
     """Fit linear, exponential and hyperbolic envelopes (shared rate, one intercept per segment) to the turning-point amplitudes."""
     f = res.f_dominant_hz
     gap = int(0.35 / (f * res.dt)) if math.isfinite(f) and f > 0 else 5
-    T, A, S = [], [], []
+    T, TA, A, S = [], [], [], []
     for k, idx in enumerate(res.segment_slices()):
         pk = p[idx] - np.median(p[idx])
         tk, ak = _extrema(pk, res.t[idx], gap)
         keep = ak > 3 * float(np.max(res.noise_q))
         if keep.sum() >= 3:
             T.append(tk[keep] - tk[keep][0])
+            TA.append(tk[keep])
             A.append(ak[keep])
             S.append(np.full(int(keep.sum()), k))
     if not T:
         return {"n_turning_points": 0, "best": None}
     t, a, s = np.concatenate(T), np.concatenate(A), np.concatenate(S)
+    ta = np.concatenate(TA)
+    ta = ta - ta.mean()
     segs = np.unique(s)
     D = (s[:, None] == segs[None]).astype(float)
 
     def lin(y: np.ndarray, wgt: np.ndarray, power: int = 1) -> tuple[np.ndarray, np.ndarray]:
-        X = np.concatenate([D, *(t[:, None] ** k for k in range(1, power + 1))], 1)
+        # a rate that changes in time changes with the recording's clock, not with the time since a segment began:
+        # the quadratic term is in the recording's (centred) time, so the takes of one recording share one drift
+        X = np.concatenate([D, t[:, None], *(ta[:, None] ** k for k in range(2, power + 1))], 1)
         sw = np.sqrt(wgt)
         c = np.linalg.lstsq(X * sw[:, None], y * sw, rcond=None)[0]
         return c, X @ c
