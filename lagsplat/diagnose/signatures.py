@@ -42,14 +42,24 @@ def _extrema(p: np.ndarray, t: np.ndarray, min_gap: int) -> tuple[np.ndarray, np
     return t[idx], np.abs(p[idx])
 
 
-def _envelope(res: Residual, p: np.ndarray) -> dict[str, Any]:
-    """Fit linear, exponential and hyperbolic envelopes (shared rate, one intercept per segment) to the turning-point amplitudes."""
+def _segments(res: Residual, p: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    """Per segment of the residual: ``(pk, tk, te, ae)``, the trajectory ``p`` about its median and its times, and
+    the times and absolute values of its turning points (:func:`_extrema`, at least 0.35 dominant periods apart).
+    Read once by both the envelope and the timing."""
     f = res.f_dominant_hz
     gap = int(0.35 / (f * res.dt)) if math.isfinite(f) and f > 0 else 5
+    out = []
+    for idx in res.segment_slices():
+        pk, tk = p[idx] - np.median(p[idx]), res.t[idx]
+        out.append((pk, tk, *_extrema(pk, tk, gap)))
+    return out
+
+
+def _envelope(res: Residual, segs: list[tuple[np.ndarray, ...]]) -> dict[str, Any]:
+    """Fit linear, exponential and hyperbolic envelopes (shared rate, one intercept per segment) to the turning-point
+    amplitudes of :func:`_segments`."""
     T, TA, A, S = [], [], [], []
-    for k, idx in enumerate(res.segment_slices()):
-        pk = p[idx] - np.median(p[idx])
-        tk, ak = _extrema(pk, res.t[idx], gap)
+    for k, (_, _, tk, ak) in enumerate(segs):
         keep = ak > 3 * float(np.max(res.noise_q))
         if keep.sum() >= 3:
             T.append(tk[keep] - tk[keep][0])
@@ -167,8 +177,8 @@ def _rest(res: Residual, p: np.ndarray) -> dict[str, Any]:
     return best
 
 
-def _frequency(res: Residual, p: np.ndarray) -> dict[str, Any]:
-    """Period-by-period frequency regressed on amplitude^2 and time (Duffing shift vs drift).
+def _frequency(res: Residual, segs: list[tuple[np.ndarray, ...]]) -> dict[str, Any]:
+    """Period-by-period frequency regressed on amplitude^2 and time (Duffing shift vs drift), per segment of :func:`_segments`.
 
     Each period runs between two zero crossings in the same direction (an offset of the centre shifts
     alternate half periods in opposite directions and cancels there). Its amplitude is the envelope of
@@ -179,14 +189,9 @@ def _frequency(res: Residual, p: np.ndarray) -> dict[str, Any]:
     level is not the exact centre of the swing) gets its own column, +-1 by the crossing's direction.
     """
     F, A2, TT, UP = [], [], [], []
-    f = res.f_dominant_hz
-    gap = int(0.35 / (f * res.dt)) if math.isfinite(f) and f > 0 else 5
-    for idx in res.segment_slices():
-        pk = p[idx] - np.median(p[idx])
-        tk = res.t[idx]
+    for pk, tk, te, ae in segs:
         sgn = np.signbit(pk)
         cross = np.flatnonzero(sgn[1:] != sgn[:-1])
-        te, ae = _extrema(pk, tk, gap)
         if len(cross) < 3 or len(te) < 2:
             continue
         tc = tk[cross] - pk[cross] * (tk[cross + 1] - tk[cross]) / (pk[cross + 1] - pk[cross])
@@ -207,7 +212,9 @@ def _frequency(res: Residual, p: np.ndarray) -> dict[str, Any]:
     r = F - X @ c
     s2 = float(r @ r) / max(len(F) - X.shape[1], 1)
     se = np.sqrt(2.0 * np.maximum(np.diag(s2 * np.linalg.pinv(X.T @ X)), 0.0))  # x sqrt(2): consecutive periods overlap by half
-    return {**_time_support(F, A2, TT, alt),
+    # along one direction of a chart with several degrees of freedom the modes beat, and the crossings' timing
+    # changes with their phase, not with a drifting stiffness: no evidence for a drift there
+    return {**(_time_support(F, A2, TT, alt) if res.d == 1 else {"support_time": 0.0}),
         "n_periods": int(len(F)), "f_mean_hz": float(c[0]),
         "slope_amp2": float(c[1]), "slope_amp2_se": float(se[1]), "z_amp2": float(c[1] / max(se[1], 1e-300)),
         "relative_shift_at_max_amplitude": float(c[1] * A2.max() / c[0]),
@@ -290,11 +297,8 @@ def signatures(res: Residual, model_freqs_hz: Sequence[float] | None = None, dir
     from lagsplat import metrics
 
     e_top = metrics.top_direction(res.G) if e is None else e
-    out: dict[str, Any] = {"envelope": _envelope(res, p), "frequency": _frequency(res, p)}
-    if res.d > 1 and "support_time" in out["frequency"]:
-        # along one direction of a chart with several degrees of freedom the modes beat, and the crossings'
-        # timing changes with their phase, not with a drifting stiffness: no evidence for a drift there
-        out["frequency"]["support_time"] = 0.0
+    segs = _segments(res, p)
+    out: dict[str, Any] = {"envelope": _envelope(res, segs), "frequency": _frequency(res, segs)}
     peaks = residual_peaks(res.r @ e_top, res.segment, res.dt, 4)
     ref = list(model_freqs_hz) if model_freqs_hz is not None else [res.f_dominant_hz]
     ref = [f for f in ref if math.isfinite(f) and f > 0]
