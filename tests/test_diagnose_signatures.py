@@ -25,6 +25,14 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 DT = 1 / 30.0
 
 
+def _chart(q: np.ndarray, t: np.ndarray, G_bar: np.ndarray | None = None, episode: np.ndarray | None = None) -> Chart:
+    """An all-training chart of ``q [n,d]`` at times ``t [n]`` (identity whitening, no AE error)."""
+    n, d = q.shape
+    I = np.eye(d)
+    return Chart(mean=np.zeros(d), W=I, W_inv=I, q=q, t=t, split=np.full(n, TRAIN, np.int8), G_bar=I if G_bar is None else G_bar,
+                 A=I, ae_mse=np.zeros(n), ae_floor_train=0.0, ae_floor_held_out=0.0, height=64, width=64, episode=episode)  # fmt: skip
+
+
 def _oscillator(x0: float, mu_over_k: float, zeta: float, duration_s: float = 12.0, f_hz: float = 0.8) -> tuple[Chart, np.ndarray]:
     """``x'' = -w^2 x - 2 zeta w x' - w^2 (mu / k) sign(x')``, sticking once ``|x| <= mu / k`` at a reversal; a 1-D chart of it."""
     w, sub = 2 * math.pi * f_hz, 20
@@ -41,10 +49,7 @@ def _oscillator(x0: float, mu_over_k: float, zeta: float, duration_s: float = 12
             v, x = v_new, x + h * v_new
     x = np.asarray(xs)
     q = x / x.std() + 0.01 * np.random.default_rng(0).standard_normal(len(x))
-    n, I = len(q), np.eye(1)
-    chart = Chart(mean=np.zeros(1), W=I, W_inv=I, q=q[:, None], t=np.arange(n) * DT, split=np.full(n, TRAIN, np.int8), G_bar=I,
-                  A=I, ae_mse=np.zeros(n), ae_floor_train=0.0, ae_floor_held_out=0.0, height=64, width=64)  # fmt: skip
-    return chart, x
+    return _chart(q[:, None], np.arange(len(q)) * DT), x
 
 
 def _diagnose(chart: Chart) -> Diagnosis:
@@ -140,9 +145,7 @@ def _drifting(alpha: float = 0.0, zeta: tuple[float, float] = (0.01, 0.01), eps:
     t = np.arange(int(round(T / DT))) * DT
     x = solve_ivp(rhs, (0, t[-1]), [1.0, 0.0], t_eval=t, rtol=1e-9, atol=1e-11, method="DOP853").y[0]
     q = x / x.std() + 0.01 * np.random.default_rng(1).standard_normal(len(x))
-    n, I = len(q), np.eye(1)
-    return Chart(mean=np.zeros(1), W=I, W_inv=I, q=q[:, None], t=t, split=np.full(n, TRAIN, np.int8), G_bar=I,
-                 A=I, ae_mse=np.zeros(n), ae_floor_train=0.0, ae_floor_held_out=0.0, height=64, width=64)  # fmt: skip
+    return _chart(q[:, None], t)
 
 
 def test_a_drifting_stiffness_shows_in_the_timing_and_a_drifting_damping_in_the_envelope() -> None:
@@ -184,10 +187,7 @@ def test_two_beating_modes_give_a_drift_no_support_from_the_timing() -> None:
     m1 = np.exp(-0.02 * t) * np.cos(2 * math.pi * 0.7 * t)
     m2 = 0.35 * np.exp(-0.02 * t) * np.cos(2 * math.pi * 0.95 * t + 0.4)
     q = np.stack([m1 + m2, 0.6 * m1 - m2], 1) + 0.005 * np.random.default_rng(3).standard_normal((len(t), 2))
-    n, I = len(q), np.eye(2)
-    chart = Chart(mean=np.zeros(2), W=I, W_inv=I, q=q, t=t, split=np.full(n, TRAIN, np.int8), G_bar=np.diag([1.0, 0.3]),
-                  A=I, ae_mse=np.zeros(n), ae_floor_train=0.0, ae_floor_held_out=0.0, height=64, width=64)  # fmt: skip
-    ev = _diagnose(chart).evidence["frequency"]
+    ev = _diagnose(_chart(q, t, G_bar=np.diag([1.0, 0.3]))).evidence["frequency"]
     assert ev["n_periods"] >= 8 and ev["support_time"] == 0.0
 
 
@@ -208,9 +208,7 @@ def _takes(n_takes: int = 3, take_s: float = 8.0, zeta: tuple[float, float] = (0
         eps.append(np.full(len(t), k, np.int16))
     q = np.concatenate(qs)
     q = q / q.std() + 0.01 * rng.standard_normal(len(q))
-    n, I = len(q), np.eye(1)
-    return Chart(mean=np.zeros(1), W=I, W_inv=I, q=q[:, None], t=np.concatenate(ts), split=np.full(n, TRAIN, np.int8), G_bar=I,
-                 A=I, ae_mse=np.zeros(n), ae_floor_train=0.0, ae_floor_held_out=0.0, height=64, width=64, episode=np.concatenate(eps))  # fmt: skip
+    return _chart(q[:, None], np.concatenate(ts), episode=np.concatenate(eps))
 
 
 def test_a_drifting_damping_is_read_on_the_recording_clock_across_takes() -> None:
