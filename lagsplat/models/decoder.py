@@ -45,7 +45,8 @@ __all__ = ["ConditionedGaussians", "DecoderGeometry", "inverse_softplus", "laten
 
 DIAG_FLOOR = 1e-4
 """Floor added to the softplus of each Cholesky diagonal entry (keeps the covariances positive definite)."""
-_GATE_CLAMP = 20.0  # Mahalanobis^2 clamp of the gate: w_z >= exp(-10)
+GATE_CLAMP = 20.0
+"""Clamp of the gate's squared Mahalanobis distance (:func:`latent_gate`): every gate is at least ``exp(-10)``."""
 
 
 def inverse_softplus(y: Tensor) -> Tensor:
@@ -77,13 +78,13 @@ def latent_gate(z: Tensor, mu_q: Tensor, L_qq: Tensor, L_qq_inv: Tensor | None =
 
     Returns:
         ``[B,K]`` in ``[exp(-10), 1]``: the Mahalanobis distance is clamped at
-        ``_GATE_CLAMP`` so that no gradient vanishes entirely.
+        ``GATE_CLAMP`` so that no gradient vanishes entirely.
     """
     diff = z[:, None, :] - mu_q[None]
     # y = L_qq^-1 (z - mu_q): one inverse per primitive, shared by the batch
     L_inv = tril_inverse(L_qq) if L_qq_inv is None else L_qq_inv
     y = torch.einsum("kij,bkj->bki", L_inv, diff)
-    return torch.exp(-0.5 * (y * y).sum(-1).clamp(max=_GATE_CLAMP))
+    return torch.exp(-0.5 * (y * y).sum(-1).clamp(max=GATE_CLAMP))
 
 
 @dataclass

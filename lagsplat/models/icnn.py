@@ -15,7 +15,13 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-__all__ = ["ICNN", "IResNet", "ConvexPotential", "ConcaveMap"]
+__all__ = ["ICNN", "IResNet", "ConvexPotential", "ConcaveMap", "softplus_slope"]
+
+
+def softplus_slope(x: Tensor) -> Tensor:
+    """``d softplus(x) / dx`` as autograd takes it for :func:`torch.nn.functional.softplus`: ``sigmoid(x)``, exactly 1
+    beyond softplus's linear threshold (20)."""
+    return torch.where(x > 20.0, torch.ones_like(x), torch.sigmoid(x))
 
 
 class ICNN(nn.Module):
@@ -83,6 +89,23 @@ class ICNN(nn.Module):
         for lin, R in zip(self.inp[1:], self.rec):
             h = F.softplus(lin(x) + h @ F.softplus(R).T)
         return h @ F.softplus(self.out)
+
+    def gradient(self, x: Tensor) -> Tensor:
+        """``grad g(x) [B,d]`` by an explicit backward pass through the layers (``softplus' = sigmoid``).
+
+        Built of first-order operations, so it is differentiable in ``x`` and the weights without a second
+        autograd pass; equal to ``torch.autograd.grad`` of :meth:`forward` (tests/test_inertia_jacobian.py).
+        """
+        R = [F.softplus(r) for r in self.rec]
+        pre = [self.inp[0](x)]
+        for lin, R_l in zip(self.inp[1:], R):
+            pre.append(lin(x) + F.softplus(pre[-1]) @ R_l.T)
+        delta = F.softplus(self.out) * softplus_slope(pre[-1])
+        grad = delta @ self.inp[-1].weight
+        for layer in range(len(pre) - 2, -1, -1):
+            delta = (delta @ R[layer]) * softplus_slope(pre[layer])
+            grad = grad + delta @ self.inp[layer].weight
+        return grad
 
 
 def spectral_norm_estimate(w: Tensor) -> Tensor:
@@ -203,6 +226,18 @@ class ConvexPotential(nn.Module):
         y = q if self.phi is None else self.phi(q)
         diff = y - qr
         return self.g(y) - g_r - (diff * grad_r).sum(-1) + 0.5 * self.eps * (diff * diff).sum(-1)
+
+    def gradient(self, q: Tensor) -> Tensor:
+        """``grad V(q) = grad g(q) - grad g(q*) + eps (q - q*)`` ``[B,d]`` of the convex form, in closed form
+        (:meth:`ICNN.gradient`; first-order differentiable).
+
+        Raises:
+            ValueError: for the invex form (its gradient goes through the i-ResNet; use autograd).
+        """
+        if self.phi is not None:
+            raise ValueError("the closed-form gradient is the convex form's; the invex potential needs autograd")
+        qr = self.q_rest.unsqueeze(0)
+        return self.g.gradient(q) - self.g.gradient(qr) + self.eps * (q - qr)
 
 
 class ConcaveMap(nn.Module):

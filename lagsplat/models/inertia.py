@@ -14,7 +14,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from lagsplat.models.decoder import latent_gate
+from lagsplat.models.decoder import GATE_CLAMP, latent_gate, tril_inverse
+from lagsplat.models.icnn import softplus_slope
 
 __all__ = ["CholeskyField", "DecoderInertia"]
 
@@ -56,6 +57,33 @@ class CholeskyField(nn.Module):
         L = raw.new_zeros(q.shape[0], self.d, self.d)
         L[:, self.ii, self.jj] = raw
         return L @ L.transpose(-1, -2)
+
+    def value_and_jacobian(self, q: Tensor) -> tuple[Tensor, Tensor]:
+        """``(S, dS)``: the field ``S(q) [B,d,d]`` and its derivative ``dS [B,d,d,d]``, ``dS[b,i,j,k] = dS_ij / dq_k``.
+
+        Forward-mode through the MLP (one tangent per coordinate, no second autograd pass), so the
+        result is differentiable with ordinary first-order autograd; equal to ``torch.autograd``'s
+        Jacobian of :meth:`forward` (tests/test_inertia_jacobian.py).
+        """
+        B, d = q.shape
+        x = q
+        dx = torch.eye(d, dtype=q.dtype, device=q.device).expand(B, d, d)  # dx[b, i, k] = dx_i / dq_k
+        for layer in self.net:
+            if isinstance(layer, nn.Linear):
+                x, dx = layer(x), torch.einsum("hi,bik->bhk", layer.weight, dx)
+            else:  # ELU (alpha 1): elu'(z) = 1 for z > 0, elu(z) + 1 otherwise
+                y = layer(x)
+                dx = dx * torch.where(x > 0, torch.ones_like(y), y + 1.0).unsqueeze(-1)
+                x = y
+        diag = self.ii == self.jj
+        draw = torch.where(diag[:, None], softplus_slope(x).unsqueeze(-1) * dx, dx)
+        raw = torch.where(diag, F.softplus(x), x)
+        L = raw.new_zeros(B, d, d)
+        L[:, self.ii, self.jj] = raw
+        dL = raw.new_zeros(B, d, d, d)
+        dL[:, self.ii, self.jj] = draw
+        LdLt = torch.einsum("bim,bjmk->bijk", L, dL)
+        return L @ L.transpose(-1, -2), LdLt + LdLt.transpose(1, 2)
 
 
 class DecoderInertia(nn.Module):
@@ -122,3 +150,24 @@ class DecoderInertia(nn.Module):
     def forward(self, q: Tensor) -> Tensor:
         """``M_hat(q) [B,d,d]`` (before the floor and the mass ``m``)."""
         return self._raw(q) / self.scale
+
+    def value_and_jacobian(self, q: Tensor) -> tuple[Tensor, Tensor]:
+        """``(M_hat, dM_hat)``: ``M_hat(q) [B,d,d]`` and ``dM_hat [B,d,d,d]``, ``dM_hat[b,i,j,k] = dM_hat_ij / dq_k``.
+
+        Closed form of the gate's derivative (paper Eq. 4): ``dw_i / dq = -w_i (L_i^-T y_i)^T W_inv^T`` where
+        the Mahalanobis distance is below the gate's clamp (0 beyond it), then the normalisation's quotient
+        rule. Equal to ``torch.autograd``'s Jacobian of :meth:`forward` (tests/test_inertia_jacobian.py).
+        """
+        diff = (q @ self.W_inv + self.mean)[:, None, :] - self.mu_q[None]
+        L_inv = tril_inverse(self.L_qq)
+        y = torch.einsum("kij,bkj->bki", L_inv, diff)
+        r2 = (y * y).sum(-1)
+        w = self.alpha[None] * torch.exp(-0.5 * r2.clamp(max=GATE_CLAMP))  # [B,K]
+        g_z = torch.einsum("kji,bkj->bki", L_inv, y)  # d(r2/2)/dz, [B,K,d]
+        dw = -(w * (r2 < GATE_CLAMP)).unsqueeze(-1) * (g_z @ self.W_inv.T)  # dw_i/dq, [B,K,d]
+        total = w.sum(-1, keepdim=True).clamp_min(1e-12)
+        w_hat = w / total
+        dw_hat = (dw - w_hat.unsqueeze(-1) * dw.sum(1, keepdim=True)) / total.unsqueeze(-1)
+        JtJ = torch.einsum("kai,kaj->kij", self.J, self.J)
+        return (torch.einsum("bk,kij->bij", w_hat, JtJ) / self.scale,
+                torch.einsum("bkl,kij->bijl", dw_hat, JtJ) / self.scale)  # fmt: skip

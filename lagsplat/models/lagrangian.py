@@ -50,7 +50,7 @@ class Lagrangian(nn.Module):
             ``"constant"`` (a learned constant SPD matrix, ablation) or
             ``"learned"`` (``M(q) = L(q) L(q)^T + eps I`` from an MLP Cholesky
             factor, SPD floor ``eps = 0.1``; its Coriolis terms come from
-            ``d(M qdot)/dq`` by autograd, paper §3.3 "Inertia") or
+            ``d(M qdot)/dq`` in forward mode, paper §3.3 "Inertia") or
             ``"decoder"`` (``M(q) = m (M_hat(q) + 0.1 I) / 1.1`` with ``M_hat`` the
             :class:`DecoderInertia` passed as ``inertia``; ``m = exp(s_M)`` is
             frozen after :meth:`init_energy_scales`, so the form has no learned
@@ -129,6 +129,21 @@ class Lagrangian(nn.Module):
             M = m * (L @ L.T + 0.1 * torch.eye(self.d, dtype=q.dtype, device=q.device)) / 1.1
         return M.expand(B, self.d, self.d)
 
+    def mass_matrix_and_derivative(self, q: Tensor) -> tuple[Tensor, Tensor]:
+        """``(M, dM)`` of a position-dependent inertia: ``M(q) [B,d,d]`` (:meth:`mass_matrix`) and
+        ``dM [B,d,d,d]``, ``dM[b,i,j,k] = dM_ij / dq_k`` (the Coriolis terms of paper Eq. 7), by the field's
+        forward-mode ``value_and_jacobian``: first-order differentiable, no second autograd pass.
+
+        Raises:
+            ValueError: if the inertia is constant (``mass`` ``"scalar"`` or ``"constant"``).
+        """
+        if self.mass_field is None:
+            raise ValueError("a constant inertia has no derivative field (mass is 'scalar' or 'constant')")
+        S, dS = self.mass_field.value_and_jacobian(q)
+        m = torch.exp(self.s_M)
+        eye = torch.eye(self.d, dtype=q.dtype, device=q.device)
+        return m * (S + 0.1 * eye) / 1.1, m * dS / 1.1
+
     def dissipation_matrix(self, q: Tensor) -> Tensor:
         """Rayleigh matrix ``C(q) = e^{s_M} L_C L_C^T + c0 I``, ``[B,d,d]``."""
         eye = torch.eye(self.d, dtype=q.dtype, device=q.device)
@@ -139,8 +154,12 @@ class Lagrangian(nn.Module):
         return torch.exp(self.s_V) * self.potential_hat(q)
 
     def potential_grad(self, q: Tensor, create_graph: bool | None = None) -> Tensor:
-        """``dV/dq [B,d]`` by autograd (graph kept while training)."""
+        """``dV/dq [B,d]``: in closed form for the convex potential (:meth:`ConvexPotential.gradient`), by autograd
+        for the invex one; differentiable while training (or with ``create_graph``), detached otherwise."""
         cg = self.training if create_graph is None else create_graph
+        if self.potential_hat.phi is None:
+            g = torch.exp(self.s_V) * self.potential_hat.gradient(q)
+            return g if cg else g.detach()
         with torch.enable_grad():
             q_ = q if q.requires_grad else q.detach().requires_grad_(True)
             (g,) = torch.autograd.grad(self.potential(q_).sum(), q_, create_graph=cg)
@@ -199,18 +218,11 @@ class Lagrangian(nn.Module):
         if f_ext is not None:
             force = force + f_ext
         if self.mass_field is not None:
-            # M qddot = dT/dq - (d(M qdot)/dq) qdot + ...   (paper Eq. 7 with M(q))
-            cg = self.training
-            with torch.enable_grad():
-                q_ = q if q.requires_grad else q.detach().requires_grad_(True)
-                M = self.mass_matrix(q_)
-                p = torch.einsum("bij,bj->bi", M, qdot)
-                (dT,) = torch.autograd.grad(0.5 * (p * qdot).sum(), q_, create_graph=cg, retain_graph=True)
-                rows = [torch.autograd.grad(p[:, i].sum(), q_, create_graph=cg, retain_graph=True)[0] for i in range(self.d)]
-            coriolis = torch.einsum("bij,bj->bi", torch.stack(rows, 1), qdot)
+            # M qddot = dT/dq - (d(M qdot)/dq) qdot + ...   (paper Eq. 7 with M(q)); dM/dq in forward mode
+            M, dM = self.mass_matrix_and_derivative(q)
+            dT = 0.5 * torch.einsum("bijk,bi,bj->bk", dM, qdot, qdot)
+            coriolis = torch.einsum("bijk,bj,bk->bi", dM, qdot, qdot)
             force = force + dT - coriolis
-            if not cg:
-                M, force = M.detach(), force.detach()
             return torch.linalg.solve(M, force.unsqueeze(-1)).squeeze(-1)
         M = self.mass_matrix(q)
         if self.M_raw is None:
