@@ -115,3 +115,24 @@ def test_the_convex_potentials_closed_form_gradient_matches_autograd(d: int) -> 
         np.testing.assert_allclose(gn.numpy(), gr.numpy(), rtol=1e-8, atol=1e-11)
     m.eval()
     assert m.potential_grad(q).grad_fn is None  # detached outside training, as autograd's create_graph=False
+
+
+def test_the_actuation_maps_closed_form_force_and_nonlinearity_match_autograd() -> None:
+    from lagsplat.models.icnn import ConcaveMap
+
+    torch.manual_seed(0)
+    act = ConcaveMap(3, 4, hidden=(8, 6)).double()
+    _randomise(act, 30, scale=0.4)
+    gen = torch.Generator().manual_seed(5)
+    q = torch.randn(7, 3, dtype=torch.float64, generator=gen).requires_grad_(True)
+    P = torch.rand(7, 4, dtype=torch.float64, generator=gen)
+    (ref,) = torch.autograd.grad((act(q) * P).sum(), q, create_graph=True)
+    f = act.force(q, P, create_graph=True)
+    np.testing.assert_allclose(f.detach().numpy(), ref.detach().numpy(), rtol=1e-10, atol=1e-12)
+    params = list(act.parameters())
+    for gn, gr in zip(torch.autograd.grad((f**2).sum(), params), torch.autograd.grad((ref**2).sum(), params)):
+        np.testing.assert_allclose(gn.numpy(), gr.numpy(), rtol=1e-8, atol=1e-11)
+    assert act.force(q, P).grad_fn is None
+    x = q.detach().requires_grad_(True)
+    (g,) = torch.autograd.grad(sum(h(x).sum() for h in act.heads), x)
+    assert float(act.nonlinearity(q)) == pytest.approx(float((g**2).sum(-1).mean()), rel=1e-12)

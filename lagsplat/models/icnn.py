@@ -273,14 +273,12 @@ class ConcaveMap(nn.Module):
 
         Shapes: ``q [B,d] -> []``.
         """
-        with torch.enable_grad():
-            q_ = q.detach().requires_grad_(True)
-            (grad,) = torch.autograd.grad(sum(h(q_).sum() for h in self.heads), q_, create_graph=True)
+        grad = sum(h.gradient(q.detach()) for h in self.heads)
         return (grad**2).sum(-1).mean()
 
     def force(self, q: Tensor, P: Tensor, create_graph: bool = False) -> Tensor:
-        """Generalized actuation force ``f_P = b(q)^T P`` ``[B,d]`` for pressures ``P [B,n_u]``."""
-        with torch.enable_grad():
-            q_ = q if q.requires_grad else q.detach().requires_grad_(True)
-            (f,) = torch.autograd.grad((self(q_) * P).sum(), q_, create_graph=create_graph)
-        return f
+        """Generalized actuation force ``f_P = b(q)^T P = sum_j P_j (a_j - grad g_j(q))`` ``[B,d]`` for pressures
+        ``P [B,n_u]``, in closed form (:meth:`ICNN.gradient`); differentiable with ``create_graph``, detached otherwise."""
+        P = P.to(q.dtype)
+        f = P @ self.a - sum(P[:, j : j + 1] * h.gradient(q) for j, h in enumerate(self.heads))
+        return f if create_graph else f.detach()
