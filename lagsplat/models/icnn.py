@@ -139,13 +139,33 @@ class IResNet(nn.Module):
                 lin.weight.mul_(1e-2)
                 lin.bias.zero_()
 
+    def _blocks(self) -> list[tuple[Tensor, Tensor, Tensor, Tensor]]:
+        """Each block's ``(W_1, b_1, W_2, b_2)`` with the weights rescaled to their spectral caps."""
+        return [(a.weight / spectral_norm_estimate(a.weight).clamp_min(1.0), a.bias,
+                 b.weight * (self.lip / spectral_norm_estimate(b.weight).clamp_min(self.lip)), b.bias)
+                for a, b in zip(self.l1, self.l2)]  # fmt: skip
+
     def forward(self, x: Tensor) -> Tensor:
         """``phi(x)``."""
-        for a, b in zip(self.l1, self.l2):
-            w1 = a.weight / spectral_norm_estimate(a.weight).clamp_min(1.0)
-            w2 = b.weight * (self.lip / spectral_norm_estimate(b.weight).clamp_min(self.lip))
-            x = x + F.linear(F.elu(F.linear(x, w1, a.bias)), w2, b.bias)
-        return x
+        return self.forward_saved(x)[0]
+
+    def forward_saved(self, x: Tensor) -> tuple[Tensor, tuple]:
+        """``(phi(x), saved)``: ``saved`` is what :meth:`pullback` needs (the rescaled weights, each block's
+        pre-activation)."""
+        blocks, pre = self._blocks(), []
+        for w1, b1, w2, b2 in blocks:
+            pre.append(F.linear(x, w1, b1))
+            x = x + F.linear(F.elu(pre[-1]), w2, b2)
+        return x, (blocks, pre)
+
+    @staticmethod
+    def pullback(saved: tuple, v: Tensor) -> Tensor:
+        """``Dphi(x)^T v [B,d]`` at the ``x`` of :meth:`forward_saved`, by an explicit backward pass through the
+        blocks (``I + W_2 diag(elu'(W_1 x + b_1)) W_1`` each); first-order differentiable."""
+        blocks, pre = saved
+        for (w1, _, w2, _), p in zip(reversed(blocks), reversed(pre)):
+            v = v + ((v @ w2) * torch.where(p > 0, torch.ones_like(p), torch.exp(p))) @ w1
+        return v
 
     @torch.no_grad()
     def inverse(self, y: Tensor, iters: int = 100, tol: float = 1e-7) -> Tensor:
@@ -228,16 +248,17 @@ class ConvexPotential(nn.Module):
         return self.g(y) - g_r - (diff * grad_r).sum(-1) + 0.5 * self.eps * (diff * diff).sum(-1)
 
     def gradient(self, q: Tensor) -> Tensor:
-        """``grad V(q) = grad g(q) - grad g(q*) + eps (q - q*)`` ``[B,d]`` of the convex form, in closed form
-        (:meth:`ICNN.gradient`; first-order differentiable).
-
-        Raises:
-            ValueError: for the invex form (its gradient goes through the i-ResNet; use autograd).
-        """
-        if self.phi is not None:
-            raise ValueError("the closed-form gradient is the convex form's; the invex potential needs autograd")
-        qr = self.q_rest.unsqueeze(0)
-        return self.g.gradient(q) - self.g.gradient(qr) + self.eps * (q - qr)
+        """``grad V(q) [B,d]`` in closed form, first-order differentiable: ``grad g(y) - grad g(y*) + eps (y - y*)``
+        at ``y = q`` (convex form, :meth:`ICNN.gradient`) or pulled back through the i-ResNet,
+        ``Dphi(q)^T (...)`` at ``y = phi(q)`` (invex form, :meth:`IResNet.pullback`)."""
+        x = torch.cat([q, self.q_rest.unsqueeze(0).to(q.dtype)])  # the rest state rides along as one more row
+        y, saved = (x, None) if self.phi is None else self.phi.forward_saved(x)
+        g = self.g.gradient(y)
+        v = g[:-1] - g[-1:] + self.eps * (y[:-1] - y[-1:])
+        if saved is None:
+            return v
+        blocks, pre = saved
+        return self.phi.pullback((blocks, [p[:-1] for p in pre]), v)
 
 
 class ConcaveMap(nn.Module):

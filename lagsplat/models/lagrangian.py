@@ -154,16 +154,11 @@ class Lagrangian(nn.Module):
         return torch.exp(self.s_V) * self.potential_hat(q)
 
     def potential_grad(self, q: Tensor, create_graph: bool | None = None) -> Tensor:
-        """``dV/dq [B,d]``: in closed form for the convex potential (:meth:`ConvexPotential.gradient`), by autograd
-        for the invex one; differentiable while training (or with ``create_graph``), detached otherwise."""
+        """``dV/dq [B,d]`` in closed form (:meth:`ConvexPotential.gradient`, convex or invex): differentiable while
+        training (or with ``create_graph``), detached otherwise."""
         cg = self.training if create_graph is None else create_graph
-        if self.potential_hat.phi is None:
-            g = torch.exp(self.s_V) * self.potential_hat.gradient(q)
-            return g if cg else g.detach()
-        with torch.enable_grad():
-            q_ = q if q.requires_grad else q.detach().requires_grad_(True)
-            (g,) = torch.autograd.grad(self.potential(q_).sum(), q_, create_graph=cg)
-        return g
+        g = torch.exp(self.s_V) * self.potential_hat.gradient(q)
+        return g if cg else g.detach()
 
     @property
     def q_rest(self) -> Tensor:
