@@ -121,11 +121,11 @@ def rollout(
             raise ValueError(f"fast=True but the compiled rollout cannot be used: {why}")
     qs, vs = [q0.detach()], [qdot0.detach()]
     q, v = q0.detach(), qdot0.detach()
-    for i in range(n_states - 1):
-        q, v = verlet_step(model, q, v, h, f_ext, t0 + i * h, u)
-        q, v = q.detach(), v.detach()
-        qs.append(q)
-        vs.append(v)
+    with torch.no_grad():  # no graph is recorded (the model's own derivatives are closed-form or enable grad locally)
+        for i in range(n_states - 1):
+            q, v = verlet_step(model, q, v, h, f_ext, t0 + i * h, u)
+            qs.append(q)
+            vs.append(v)
     return torch.stack(qs, 1), torch.stack(vs, 1)
 
 
