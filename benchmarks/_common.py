@@ -22,8 +22,10 @@ import shlex
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import TYPE_CHECKING, TextIO
@@ -46,6 +48,43 @@ def time_call(fn: Callable[[], object], repeats: int) -> float:
         fn()
         times.append(time.perf_counter() - t0)
     return statistics.median(times)
+
+
+@contextmanager
+def checkouts(against: str | None) -> Iterator[dict[str, Path]]:
+    """``{"this checkout": ROOT}``, and ``"against <commit>"``: a detached git worktree of ``against`` in a temporary
+    folder (removed on exit) when a commit is named; a speed script times the same work in each, in one run."""
+    roots = {"this checkout": ROOT}
+    with tempfile.TemporaryDirectory() as tmp:
+        if against:
+            wt = Path(tmp) / "against"
+            subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", "-q", str(wt), against], check=True)
+            roots[f"against {against}"] = wt
+        try:
+            yield roots
+        finally:
+            if against:
+                subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(wt)], check=False)
+
+
+def alternating_medians(roots: dict[str, Path], rounds: int, run: Callable[[Path], float]) -> dict[str, float]:
+    """Median of ``run(root)`` over ``rounds`` rounds for each checkout of :func:`checkouts`, the checkouts alternating
+    within each round (so a change of the machine's load falls on both)."""
+    times: dict[str, list[float]] = {name: [] for name in roots}
+    for _ in range(rounds):
+        for name, root in roots.items():
+            times[name].append(run(root))
+    return {name: statistics.median(ts) for name, ts in times.items()}
+
+
+def against_columns(medians: dict[str, float], label: str) -> dict[str, str]:
+    """The other checkouts' figures (``"<label> against <commit>"``) and the speed-up, theirs over this checkout's."""
+    base, cols = medians["this checkout"], {}
+    for name, other in medians.items():
+        if name != "this checkout":
+            cols[f"{label} {name}"] = f"{other:.4f}"
+            cols["speed-up"] = f"{other / base:.2f}x"
+    return cols
 
 
 def env_header(numba_info: str) -> str:

@@ -50,10 +50,8 @@ import argparse
 import contextlib
 import json
 import os
-import statistics
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -182,7 +180,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--rounds", type=int, default=2, help="alternating timing rounds per checkout")
     ap.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     sys.path.insert(0, str(HERE))
-    from _common import Report, add_report_options, env_header
+    from _common import Report, add_report_options, against_columns, alternating_medians, checkouts, env_header
 
     add_report_options(ap, "stage1")
     args = ap.parse_args(argv)
@@ -205,39 +203,21 @@ def main(argv: list[str] | None = None) -> None:
         f"s/step: slope between runs of {max(1, args.steps // 3)} and {args.steps} steps, each in a fresh process, median of {args.rounds} "
         f"round(s); phase shares over {args.profile_steps} steps; rasteriser ratio at the setting's batch and size (5 timed calls)"
     )
-    with tempfile.TemporaryDirectory() as tmp:
-        roots = {"this checkout": ROOT}
-        if args.against:
-            wt = Path(tmp) / "against"
-            subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", "-q", str(wt), args.against], check=True)
-            roots[f"against {args.against}"] = wt
-        try:
-            rows = []
-            for setting in args.settings:
-                cfg, _ = _config(setting, 1)
-                times: dict[str, list[float]] = {name: [] for name in roots}
-                for _ in range(args.rounds):
-                    for name, root in roots.items():
-                        times[name].append(seconds_per_step(root, setting, args.steps, args.threads))
-                base = statistics.median(times["this checkout"])
-                row = {"setting": setting, "s/step": f"{base:.4f}", "frames/s": f"{cfg.batch / base:.0f}"}
-                for name, ts in times.items():
-                    if name != "this checkout":
-                        other = statistics.median(ts)
-                        row[f"s/step {name}"] = f"{other:.4f}"
-                        row["speed-up"] = f"{other / base:.2f}x"
-                fwd, fb, _ = bench_one("cpu", cfg.batch, cfg.n_gaussians, SETTINGS[setting]["size"], 5)
-                row["raster fwd+bwd / fwd"] = f"{fb / fwd:.2f}"
-                rows.append(row)
-                print(f"  done: {row}", flush=True)
-            rep.table(rows)
-            shares = [{"setting": st, **{k: f"{v:.0%}" for k, v in phase_shares(st, args.profile_steps).items()}} for st in args.settings]
-            rep.table(shares, title="share of a step's wall time by phase (this checkout):")
-            rep.write()
-        finally:
-            if args.against:
-                subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(wt)], check=False)
-
+    with checkouts(args.against) as roots:
+        rows = []
+        for setting in args.settings:
+            cfg, _ = _config(setting, 1)
+            medians = alternating_medians(roots, args.rounds, lambda root: seconds_per_step(root, setting, args.steps, args.threads))
+            base = medians["this checkout"]
+            row = {"setting": setting, "s/step": f"{base:.4f}", "frames/s": f"{cfg.batch / base:.0f}", **against_columns(medians, "s/step")}
+            fwd, fb, _ = bench_one("cpu", cfg.batch, cfg.n_gaussians, SETTINGS[setting]["size"], 5)
+            row["raster fwd+bwd / fwd"] = f"{fb / fwd:.2f}"
+            rows.append(row)
+            print(f"  done: {row}", flush=True)
+        rep.table(rows)
+        shares = [{"setting": st, **{k: f"{v:.0%}" for k, v in phase_shares(st, args.profile_steps).items()}} for st in args.settings]
+        rep.table(shares, title="share of a step's wall time by phase (this checkout):")
+        rep.write()
 
 if __name__ == "__main__":
     main()

@@ -33,10 +33,8 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import statistics
 import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -56,9 +54,9 @@ SETTINGS: dict[str, tuple[int, str, int, int]] = {
 def _step_seconds(d: int, mass: str, K: int, n_u: int, steps: int) -> float:
     """Median seconds of one Adam step on random windows at batch 32 (after warm-up steps)."""
     import math
-    import time
 
     import torch
+    from _common import time_call
 
     from lagsplat.train.shooting import shooting_loss
     from lagsplat.train.stage2 import Stage2Config
@@ -88,14 +86,9 @@ def _step_seconds(d: int, mass: str, K: int, n_u: int, steps: int) -> float:
         loss.backward()
         opt.step()
 
-    for _ in range(5):
+    for _ in range(4):  # Adam's state and the allocator settle (time_call warms up once more)
         step()
-    times = []
-    for _ in range(steps):
-        t0 = time.perf_counter()
-        step()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
+    return time_call(step, steps)
 
 
 def _epoch_seconds(epochs: int) -> float:
@@ -149,7 +142,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--rounds", type=int, default=2, help="alternating timing rounds per checkout")
     ap.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     sys.path.insert(0, str(HERE))
-    from _common import Report, add_report_options
+    from _common import Report, add_report_options, against_columns, alternating_medians, checkouts
 
     add_report_options(ap, "stage2")
     args = ap.parse_args(argv)
@@ -160,36 +153,18 @@ def main(argv: list[str] | None = None) -> None:
     rep = Report("Stage-2 training speed", args.report, __file__, argv)
     rep.text(f"seconds per optimiser step at batch 32 (median of {args.steps} steps), or per epoch for d1-epochs; each setting in a fresh "
              f"process, one thread, median of {args.rounds} round(s)")  # fmt: skip
-    with tempfile.TemporaryDirectory() as tmp:
-        roots = {"this checkout": ROOT}
-        if args.against:
-            wt = Path(tmp) / "against"
-            subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", "-q", str(wt), args.against], check=True)
-            roots[f"against {args.against}"] = wt
-        try:
-            rows = []
-            for setting in args.settings:
-                times: dict[str, list[float]] = {name: [] for name in roots}
-                for _ in range(args.rounds):
-                    for name, root in roots.items():
-                        times[name].append(_run(root, setting, args.steps))
-                d, mass, K, n_u = SETTINGS[setting]
-                base = statistics.median(times["this checkout"])
-                unit = "s/epoch" if setting == "d1-epochs" else "s/step"
-                row = {"setting": setting, "d": d, "inertia": mass, "steps/window": K, "pressures": n_u, unit: f"{base:.4f}"}
-                for name, ts in times.items():
-                    if name != "this checkout":
-                        other = statistics.median(ts)
-                        row[f"{name}"] = f"{other:.4f}"
-                        row["speed-up"] = f"{other / base:.2f}x"
-                rows.append(row)
-                print(f"  done: {row}", flush=True)
-            rep.table(rows)
-            rep.write()
-        finally:
-            if args.against:
-                subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(wt)], check=False)
-
+    with checkouts(args.against) as roots:
+        rows = []
+        for setting in args.settings:
+            medians = alternating_medians(roots, args.rounds, lambda root: _run(root, setting, args.steps))
+            d, mass, K, n_u = SETTINGS[setting]
+            unit = "s/epoch" if setting == "d1-epochs" else "s/step"
+            row = {"setting": setting, "d": d, "inertia": mass, "steps/window": K, "pressures": n_u,
+                   unit: f"{medians['this checkout']:.4f}", **against_columns(medians, unit)}  # fmt: skip
+            rows.append(row)
+            print(f"  done: {row}", flush=True)
+        rep.table(rows)
+        rep.write()
 
 if __name__ == "__main__":
     main()
