@@ -50,6 +50,14 @@ def time_call(fn: Callable[[], object], repeats: int) -> float:
     return statistics.median(times)
 
 
+def add_comparison_options(ap: argparse.ArgumentParser) -> None:
+    """Add ``--against COMMIT`` (time another commit side by side, :func:`checkouts`), ``--rounds`` and the hidden
+    ``--worker SETTING`` (the per-process timing a speed script runs in each checkout)."""
+    ap.add_argument("--against", default=None, help="git commit to compare with, side by side")
+    ap.add_argument("--rounds", type=int, default=2, help="alternating timing rounds per checkout")
+    ap.add_argument("--worker", default=None, help=argparse.SUPPRESS)
+
+
 @contextmanager
 def checkouts(against: str | None) -> Iterator[dict[str, Path]]:
     """``{"this checkout": ROOT}``, and ``"against <commit>"``: a detached git worktree of ``against`` in a temporary

@@ -176,12 +176,10 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--steps", type=int, default=300, help="steps of the longer timed run (the shorter has a third)")
     ap.add_argument("--profile-steps", type=int, default=60, help="steps timed by phase for the shares")
     ap.add_argument("--threads", type=int, default=2, help="torch and numba threads")
-    ap.add_argument("--against", default=None, help="git commit to compare with, side by side")
-    ap.add_argument("--rounds", type=int, default=2, help="alternating timing rounds per checkout")
-    ap.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     sys.path.insert(0, str(HERE))
-    from _common import Report, add_report_options, against_columns, alternating_medians, checkouts, env_header
+    from _common import Report, add_comparison_options, add_report_options, against_columns, alternating_medians, checkouts, env_header
 
+    add_comparison_options(ap)
     add_report_options(ap, "stage1")
     args = ap.parse_args(argv)
     if args.worker:

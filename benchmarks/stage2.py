@@ -138,12 +138,10 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--settings", nargs="+", default=list(SETTINGS), choices=list(SETTINGS))
     ap.add_argument("--steps", type=int, default=40, help="timed optimiser steps per setting (d1-epochs: a tenth as epochs, at least 2)")
-    ap.add_argument("--against", default=None, help="git commit to compare with, side by side")
-    ap.add_argument("--rounds", type=int, default=2, help="alternating timing rounds per checkout")
-    ap.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     sys.path.insert(0, str(HERE))
-    from _common import Report, add_report_options, against_columns, alternating_medians, checkouts
+    from _common import Report, add_comparison_options, add_report_options, against_columns, alternating_medians, checkouts
 
+    add_comparison_options(ap)
     add_report_options(ap, "stage2")
     args = ap.parse_args(argv)
     if args.worker:
