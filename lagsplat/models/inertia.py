@@ -143,9 +143,12 @@ class DecoderInertia(nn.Module):
         w = self.alpha[None] * latent_gate(q @ self.W_inv + self.mean, self.mu_q, self.L_qq)
         return w / w.sum(-1, keepdim=True).clamp_min(1e-12)
 
+    def _JtJ(self) -> Tensor:
+        """``J_i^T J_i [K,d,d]`` of every primitive."""
+        return torch.einsum("kai,kaj->kij", self.J, self.J)
+
     def _raw(self, q: Tensor) -> Tensor:
-        JtJ = torch.einsum("kai,kaj->kij", self.J, self.J)
-        return torch.einsum("bk,kij->bij", self.presence(q), JtJ)
+        return torch.einsum("bk,kij->bij", self.presence(q), self._JtJ())
 
     def forward(self, q: Tensor) -> Tensor:
         """``M_hat(q) [B,d,d]`` (before the floor and the mass ``m``)."""
@@ -168,6 +171,6 @@ class DecoderInertia(nn.Module):
         total = w.sum(-1, keepdim=True).clamp_min(1e-12)
         w_hat = w / total
         dw_hat = (dw - w_hat.unsqueeze(-1) * dw.sum(1, keepdim=True)) / total.unsqueeze(-1)
-        JtJ = torch.einsum("kai,kaj->kij", self.J, self.J)
+        JtJ = self._JtJ()
         return (torch.einsum("bk,kij->bij", w_hat, JtJ) / self.scale,
                 torch.einsum("bkl,kij->bijl", dw_hat, JtJ) / self.scale)  # fmt: skip

@@ -116,9 +116,8 @@ class Lagrangian(nn.Module):
         """Inertia ``M(q) [B,d,d]``, SPD."""
         B = q.shape[0]
         m = torch.exp(self.s_M)
-        eye = torch.eye(self.d, dtype=q.dtype, device=q.device)
         if self.mass_field is not None:  # L L^T = I (learned) / trace-d M_hat (decoder) at start
-            return m * (self.mass_field(q) + 0.1 * eye) / 1.1
+            return self._floored(self.mass_field(q))
         if self.M_raw is None:
             M = m * torch.eye(self.d, dtype=q.dtype, device=q.device)
         else:
@@ -140,9 +139,12 @@ class Lagrangian(nn.Module):
         if self.mass_field is None:
             raise ValueError("a constant inertia has no derivative field (mass is 'scalar' or 'constant')")
         S, dS = self.mass_field.value_and_jacobian(q)
-        m = torch.exp(self.s_M)
-        eye = torch.eye(self.d, dtype=q.dtype, device=q.device)
-        return m * (S + 0.1 * eye) / 1.1, m * dS / 1.1
+        return self._floored(S), torch.exp(self.s_M) * dS / 1.1
+
+    def _floored(self, S: Tensor) -> Tensor:
+        """``M = m (S + 0.1 I) / 1.1`` of a field ``S [B,d,d]`` (the SPD floor of a position-dependent inertia)."""
+        eye = torch.eye(self.d, dtype=S.dtype, device=S.device)
+        return torch.exp(self.s_M) * (S + 0.1 * eye) / 1.1
 
     def dissipation_matrix(self, q: Tensor) -> Tensor:
         """Rayleigh matrix ``C(q) = e^{s_M} L_C L_C^T + c0 I``, ``[B,d,d]``."""
