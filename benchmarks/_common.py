@@ -120,6 +120,15 @@ def print_table(rows: list[dict], file: TextIO | None = None) -> pd.DataFrame:
     return table
 
 
+def realistic_verdict_ok(effect: str, verdict: str) -> bool:
+    """Whether a diagnosis ``verdict`` is right for a realistic-suite clip whose effect is ``effect``.
+
+    Right when it names the effect (``"none"`` for a clip without one), or, for a hardening spring
+    (``cubic_stiffness``), also when it reads "nothing significant": a convex potential can absorb it.
+    """
+    return verdict == effect or (effect == "cubic_stiffness" and verdict == "none")
+
+
 def score_verdicts(rows: list[dict], file: TextIO | None = None) -> tuple[pd.DataFrame, float, int, int]:
     """Print the per-clip table and the confusion matrix of a blind diagnosis run to ``file`` (default stdout).
 

@@ -65,3 +65,21 @@ def test_the_reading_after_the_diagnosis_takes_the_refit_only_where_its_held_out
             ((row, "spring_cart-end_stop-s0-128"), (ctrl, "pendulum-none-s0-128"))]  # fmt: skip
     A = bench.gather(rows, tmp_path / "r.md", [])["after_diagnosis"]
     assert A["n"] == 2 and A["eps_freq_truth_median"] == pytest.approx(0.035)
+
+
+def test_the_truth_level_chart_is_split_where_the_pipeline_split_the_clip_and_whitened_on_its_training_frames(load_benchmark) -> None:
+    import numpy as np
+
+    latent = load_benchmark("diagnosis_latent")
+    name = "spring_cart-none-s0-128"
+    entry = next(e for e in latent.realistic_suite() if e["name"] == name)
+    n_train = json.loads((latent.REPORTS / "realistic" / f"{name}.json").read_text())["n_train"]
+    chart = latent.realistic_chart(entry, 0.0, 0)
+    tr = chart.split == 0
+    assert int(tr.sum()) == n_train and bool(tr[:n_train].all())
+    assert abs(float(chart.q[tr].mean())) < 1e-12 and abs(float(chart.q[tr].std()) - 1.0) < 1e-12
+    # the map is linear: the chart is the true coordinate up to scale and offset
+    x = latent.motion_of(entry).q[:, 0]
+    assert abs(abs(np.corrcoef(x, chart.q[:, 0])[0, 1]) - 1.0) < 1e-12
+    noisy = latent.realistic_chart(entry, 0.05, 0)
+    assert 0.03 < float(np.std(noisy.q[:, 0] - chart.q[:, 0])) < 0.07
