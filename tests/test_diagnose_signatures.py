@@ -220,3 +220,21 @@ def test_a_drifting_damping_is_read_on_the_recording_clock_across_takes() -> Non
     assert env["support"]["accelerating"] >= 10 and env["accelerating"]["rate_change_per_s2"] > 0
     assert env["support"]["accelerating"] > env["support"]["linear"]
     assert diag.winner == "drift"
+
+
+def test_on_one_decaying_take_the_report_says_whether_the_timing_tells_a_drifting_stiffness_from_an_amplitude_dependent_one() -> None:
+    from lagsplat.diagnose.reading import distinguishing_lines
+
+    def amplitude_and_time(chart: Chart) -> tuple[dict, list[str]]:
+        dg = _diagnose(chart).to_dict()
+        return dg["evidence"]["frequency"], [s for s in distinguishing_lines(dg) if s.startswith("- amplitude and time: ")]
+
+    # a hardening spring decaying steadily: A^2 and t are one variable, and the timing cannot separate them
+    fr, lines = amplitude_and_time(_drifting(eps=0.3, zeta=(0.006, 0.006)))
+    assert fr["corr_amp2_time"] < -0.9 and len(lines) == 1 and "cannot be told apart here" in lines[0]
+    # a stiffness drift of 25 % over the clip: the timing changes at a given amplitude, and says so
+    fr, lines = amplitude_and_time(_drifting(alpha=0.25))
+    assert fr["corr_amp2_time"] < -0.9 and fr["support_time"] >= 10 and len(lines) == 1 and "the timing still separates them" in lines[0]
+    # separate takes released at other amplitudes: amplitude and time are not one variable, no such line
+    fr, lines = amplitude_and_time(_takes())
+    assert abs(fr["corr_amp2_time"]) < 0.9 and lines == []

@@ -13,13 +13,16 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-__all__ = ["distinguishing_lines", "indistinguishable", "INDISTINGUISHABLE", "STRONG_Z"]
+__all__ = ["distinguishing_lines", "indistinguishable", "INDISTINGUISHABLE", "STRONG_Z", "CONFOUNDED"]
 
 #: Evidence difference below which two candidates cannot be told apart ("not worth more than a bare mention", Kass & Raftery 1995)
 INDISTINGUISHABLE = 2.0
 
 #: |z| of a frequency slope that counts as a dependence (on amplitude or on time)
 STRONG_Z = 3.0
+
+#: |corr(A^2, t)| of the periods above which amplitude and time are one variable on the recording
+CONFOUNDED = 0.9
 
 _FORM = {"linear": "linear (dry friction)", "hyperbolic": "hyperbolic (quadratic drag)", "exponential": "exponential (viscous damping, what the model has)"}
 
@@ -39,7 +42,7 @@ def _decay(env: Mapping[str, Any]) -> str:
     return f"decay shape: {_FORM[best]}, evidence {_num(sup.get(best)):.1f} over an exponential decay ({n} turning points)"
 
 
-def _frequency(fr: Mapping[str, Any]) -> list[str]:
+def _frequency(fr: Mapping[str, Any], min_delta_bic: float = 10.0) -> list[str]:
     if "z_amp2" not in fr:
         return [f"frequency: {fr.get('n_periods', 0)} periods are too few to read it against amplitude and time"]
     za, zt = _num(fr["z_amp2"]), _num(fr["z_time"])
@@ -52,7 +55,16 @@ def _frequency(fr: Mapping[str, Any]) -> list[str]:
         time = f"it drifts over the recording ({100 * _num(fr['relative_change_over_span']):+.1f} %, z = {zt:.1f})"
     else:
         time = f"no drift in time (z = {zt:.1f})"
-    return [f"{amp}; {time}"]
+    lines = [f"{amp}; {time}"]
+    corr, sup = _num(fr.get("corr_amp2_time")), _num(fr.get("support_time"))
+    if abs(corr) >= CONFOUNDED and max(abs(za), abs(zt)) >= STRONG_Z:
+        lines.append(
+            f"amplitude and time: the amplitude falls steadily over this recording (corr(A^2, t) = {corr:.2f}), so a frequency "
+            "that depends on the amplitude (cubic stiffness, a stop) and a stiffness that drifts in time change the periods alike; "
+            + (f"the timing still separates them (a change in time at a given amplitude, evidence {sup:.1f})" if sup >= min_delta_bic else
+               "they cannot be told apart here: a second take released at another amplitude would")
+        )  # fmt: skip
+    return lines
 
 
 def _rest(rest: Mapping[str, Any]) -> str:
@@ -102,12 +114,15 @@ def distinguishing_lines(dg: Mapping[str, Any]) -> list[str]:
         dg: ``report.json["diagnosis"]``.
 
     Returns:
-        Lines starting with ``"- "``: the decay shape, the frequency against amplitude and time, the
-        rest, the residual spectrum, and the candidates the data cannot tell apart (if any).
+        Lines starting with ``"- "``: the decay shape, the frequency against amplitude and time (and, on a
+        recording whose amplitude falls steadily in time, whether the timing can still tell an
+        amplitude-dependent stiffness from a drifting one), the rest, the residual spectrum, and the
+        candidates the data cannot tell apart (if any).
     """
     ev = dg.get("evidence") or {}
-    lines = [_decay(ev.get("envelope") or {}), *_frequency(ev.get("frequency") or {}), _rest(ev.get("rest") or {}), _spectrum(ev.get("spectrum") or {})]
     st = dg.get("settings") or {}
+    lines = [_decay(ev.get("envelope") or {}), *_frequency(ev.get("frequency") or {}, float(st.get("min_delta_bic", 10.0))),
+             _rest(ev.get("rest") or {}), _spectrum(ev.get("spectrum") or {})]  # fmt: skip
     close = indistinguishable(dg.get("ranking") or [], 0.5 * float(st.get("min_delta_bic", 10.0)))
     if close:
         lines.append(f"the residual cannot tell {', '.join(close[:-1])} and {close[-1]} apart (evidence within {INDISTINGUISHABLE:g} of each other)")

@@ -180,6 +180,10 @@ def _rest(res: Residual, p: np.ndarray) -> dict[str, Any]:
 def _frequency(res: Residual, segs: list[tuple[np.ndarray, ...]]) -> dict[str, Any]:
     """Period-by-period frequency regressed on amplitude^2 and time (Duffing shift vs drift), per segment of :func:`_segments`.
 
+    ``corr_amp2_time`` is the correlation of the periods' squared amplitudes with their mid-times: near -1
+    on one freely decaying take, where a frequency that depends on the amplitude and one that drifts in
+    time change the periods alike.
+
     Each period runs between two zero crossings in the same direction (an offset of the centre shifts
     alternate half periods in opposite directions and cancels there). Its amplitude is the envelope of
     the turning points at the period's mid-time (linear interpolation), not the largest excursion inside
@@ -220,6 +224,7 @@ def _frequency(res: Residual, segs: list[tuple[np.ndarray, ...]]) -> dict[str, A
         "relative_shift_at_max_amplitude": float(c[1] * A2.max() / c[0]),
         "slope_time": float(c[2]), "slope_time_se": float(se[2]), "z_time": float(c[2] / max(se[2], 1e-300)),
         "relative_change_over_span": float(c[2] * np.ptp(TT) / c[0]),
+        "corr_amp2_time": float(np.corrcoef(A2, TT)[0, 1]) if A2.std() > 0 and TT.std() > 0 else 0.0,
     }  # fmt: skip
 
 
