@@ -24,11 +24,13 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import TYPE_CHECKING, TextIO
+
+import numpy as np
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -118,6 +120,48 @@ def print_table(rows: list[dict], file: TextIO | None = None) -> pd.DataFrame:
     print(file=file)
     print(format_table(table), file=file)
     return table
+
+
+def measurable_gap_medians(rows: list[dict], metrics: Sequence[str]) -> dict[str, dict]:
+    """Median gap reduction per metric over the effect clips whose gap stands out of the no-effect level.
+
+    A reduction ``1 - after / before`` measures something only where there is
+    a gap to shrink. Where an effect leaves a metric at the level the pipeline
+    reaches with nothing missing (dry friction barely moves the frequency),
+    ``before`` and ``after`` are two draws of the same noise and their ratio's
+    median is about 0 (with a long negative tail) whatever the refit does. The
+    no-effect level of a metric is read off the suite's own controls: the
+    largest ``before`` among the control clips of the same system (plain and
+    actuated). A clip's gap in that metric is *measurable* when its identified
+    model's ``before`` exceeds it; the rest are counted as kept at the
+    no-effect level when the refit's ``after`` stays at or below it.
+
+    ``rows``: scored clips (``benchmarks/diagnosis.py``'s ``score``; ``system``, ``truth``, ``refit``,
+    ``before``, ``after``, ``red_<metric>``; ``before`` and ``after`` map each metric to
+    its value or ``None``). Returns, per metric of ``metrics``: ``median`` (``None`` without a measurable clip), ``n``
+    measurable, ``n_refit`` effect clips with a reduction, ``n_kept`` of the
+    ``n_refit - n`` others whose refit stays at or below the level,
+    ``median_vs_control`` (the measurable clips' ``red_ctrl_<metric>``: the
+    refit against the same fine-tune without the term), and ``levels``
+    (system -> no-effect level; systems without controls are left out, and so
+    are their clips).
+    """
+    out: dict[str, dict] = {}
+    for k in metrics:
+        levels: dict[str, float] = {}
+        for r in rows:
+            v = r["before"].get(k)
+            if r["truth"] == "none" and v is not None:
+                levels[r["system"]] = max(levels.get(r["system"], -np.inf), float(v))
+        scored = [r for r in rows if r["truth"] != "none" and r["refit"] and r.get(f"red_{k}") is not None and r["system"] in levels]
+        above = [r["before"].get(k) is not None and r["before"][k] > levels[r["system"]] for r in scored]
+        meas = [r for r, a in zip(scored, above) if a]
+        rest = [r for r, a in zip(scored, above) if not a]
+        kept = [r for r in rest if r["after"].get(k) is not None and r["after"][k] <= levels[r["system"]]]
+        vs_ctrl = [r[f"red_ctrl_{k}"] for r in meas if r.get(f"red_ctrl_{k}") is not None]
+        out[k] = {"median": float(np.median([r[f"red_{k}"] for r in meas])) if meas else None, "n": len(meas), "n_refit": len(scored),
+                  "n_kept": len(kept), "median_vs_control": float(np.median(vs_ctrl)) if vs_ctrl else None, "levels": levels}  # fmt: skip
+    return out
 
 
 def realistic_verdict_ok(effect: str, verdict: str) -> bool:

@@ -91,6 +91,7 @@ import lagsplat  # noqa: F401  (sets the OpenMP wait policy before torch)
 import numpy as np
 import torch
 from _common import REPORTS, Report, score_verdicts
+from _common import measurable_gap_medians as measurable_gap_medians_of
 
 from lagsplat.artifacts import Artifacts  # noqa: E402
 from lagsplat.chart import build_chart, load_chart, save_chart
@@ -287,45 +288,8 @@ def score(entry: dict, budget: str, root: Path, timing: dict) -> dict:
 
 
 def measurable_gap_medians(rows: list[dict]) -> dict[str, dict]:
-    """Median gap reduction per metric over the effect clips whose gap stands out of the no-effect level.
-
-    A reduction ``1 - after / before`` measures something only where there is
-    a gap to shrink. Where an effect leaves a metric at the level the pipeline
-    reaches with nothing missing (dry friction barely moves the frequency),
-    ``before`` and ``after`` are two draws of the same noise and their ratio's
-    median is about 0 (with a long negative tail) whatever the refit does. The
-    no-effect level of a metric is read off the suite's own controls: the
-    largest ``before`` among the control clips of the same system (plain and
-    actuated). A clip's gap in that metric is *measurable* when its identified
-    model's ``before`` exceeds it; the rest are counted as kept at the
-    no-effect level when the refit's ``after`` stays at or below it.
-
-    ``rows``: the rows of :func:`score` (``system``, ``truth``, ``refit``,
-    ``before``, ``after``, ``red_<metric>``). Returns, per metric of
-    ``GAP_METRICS``: ``median`` (``None`` without a measurable clip), ``n``
-    measurable, ``n_refit`` effect clips with a reduction, ``n_kept`` of the
-    ``n_refit - n`` others whose refit stays at or below the level,
-    ``median_vs_control`` (the measurable clips' ``red_ctrl_<metric>``: the
-    refit against the same fine-tune without the term), and ``levels``
-    (system -> no-effect level; systems without controls are left out, and so
-    are their clips).
-    """
-    out: dict[str, dict] = {}
-    for k in GAP_METRICS:
-        levels: dict[str, float] = {}
-        for r in rows:
-            v = r["before"].get(k)
-            if r["truth"] == "none" and v is not None:
-                levels[r["system"]] = max(levels.get(r["system"], -np.inf), float(v))
-        scored = [r for r in rows if r["truth"] != "none" and r["refit"] and r[f"red_{k}"] is not None and r["system"] in levels]
-        above = [r["before"].get(k) is not None and r["before"][k] > levels[r["system"]] for r in scored]
-        meas = [r for r, a in zip(scored, above) if a]
-        rest = [r for r, a in zip(scored, above) if not a]
-        kept = [r for r in rest if r["after"].get(k) is not None and r["after"][k] <= levels[r["system"]]]
-        vs_ctrl = [r[f"red_ctrl_{k}"] for r in meas if r.get(f"red_ctrl_{k}") is not None]
-        out[k] = {"median": float(np.median([r[f"red_{k}"] for r in meas])) if meas else None, "n": len(meas), "n_refit": len(scored),
-                  "n_kept": len(kept), "median_vs_control": float(np.median(vs_ctrl)) if vs_ctrl else None, "levels": levels}  # fmt: skip
-    return out
+    """:func:`_common.measurable_gap_medians` over every metric of ``GAP_METRICS``."""
+    return measurable_gap_medians_of(rows, GAP_METRICS)
 
 
 def summarize(rows: list[dict], timings: dict[str, dict], budget: str, markdown: bool = False) -> tuple[str, dict]:

@@ -43,7 +43,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from _common import Report, realistic_verdict_ok  # this script's folder
+from _common import Report, measurable_gap_medians, realistic_verdict_ok  # this script's folder
 
 from lagsplat.artifacts import Artifacts  # noqa: E402
 from lagsplat.io.atomic import write_json  # noqa: E402
@@ -136,6 +136,15 @@ def diagnosis_of(name: str, results: Path, code: int, reason: str, wall_s: float
             "f_sim_refit_hz": f_refit, "diagnosis_wall_s": round(wall_s, 1)}  # fmt: skip
 
 
+def _gap_row(row: dict) -> dict:
+    """A realistic row in the form :func:`_common.measurable_gap_medians` reads: held-out ``eps_q`` before the refit
+    (the identified model's) and after it (``before * (1 - reduction)``)."""
+    red, before = row.get("gap_reduction_eps_q"), row.get("eps_q")
+    after = None if red is None or before is None else before * (1.0 - red)
+    return {"system": row.get("system"), "truth": row.get("truth_effect"), "refit": red is not None,
+            "before": {"eps_q": before}, "after": {"eps_q": after}, "red_eps_q": red}  # fmt: skip
+
+
 def eps_freq_after_diagnosis(row: dict) -> float | None:
     """Frequency error against the truth of the model the diagnosis leaves: the refit's free-oscillation
     frequency when its held-out check confirmed the effect, else the Stage-2 model's; ``None`` for a row
@@ -212,6 +221,7 @@ def gather(rows: list[dict], out_md: Path, argv: list[str] | None = None) -> dic
             "failed_gate_read_cannot_diagnose": sum(r["verdict"] == "cannot_diagnose" for r in dg if r.get("gate_passed") is False),
             "n_failed_gate": sum(r.get("gate_passed") is False for r in dg),
             "median_gap_reduction_eps_q": float(np.median(reds)) if reds else None,
+            "measurable_gap": measurable_gap_medians([_gap_row(r) for r in passed], ("eps_q",))["eps_q"],
         }  # fmt: skip
     commits = sorted({r.get("commit", "unknown") for r in rows})
     summary["commits"] = commits
@@ -236,6 +246,13 @@ def gather(rows: list[dict], out_md: Path, argv: list[str] | None = None) -> dic
         L += [f"Diagnosis ({D['n_diagnosed']} clips): top-1 {top1} over the {D['n_on_passed_charts']} whose chart passed the gate; "
               f"controls flagged {D['controls_flagged']}/{D['n_controls']}; charts that failed the gate read cannot_diagnose "
               f"{D['failed_gate_read_cannot_diagnose']}/{D['n_failed_gate']}; median held-out eps_q change after the refit {red}.", ""]  # fmt: skip
+        m = D["measurable_gap"]
+        if m["levels"]:
+            lv = ", ".join(f"{k} {v:.3f}" for k, v in sorted(m["levels"].items()))
+            med = "n/a" if m["median"] is None else f"{100 * m['median']:+.0f} %"
+            L += [f"Over the clips with a measurable gap (held-out eps_q above the largest of the same system's controls: {lv}): "
+                  f"median eps_q change after the refit {med} ({m['n']} of the {m['n_refit']} refits; of the others, {m['n_kept']} "
+                  "stay at or below the no-effect level after it).", ""]  # fmt: skip
     L += [f"Wall time per clip: median {summary['wall_s_median']:.0f} s, max {summary['wall_s_max']:.0f} s.", "",
           "| clip | status | gate | attempts | f_truth (Hz) | f_sim (Hz) | eps_freq vs truth | after diagnosis | eps_q | eps_I / eps_AE | continuity | coverage | saturation | verdict | reason |",
           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip

@@ -83,3 +83,27 @@ def test_the_truth_level_chart_is_split_where_the_pipeline_split_the_clip_and_wh
     assert abs(abs(np.corrcoef(x, chart.q[:, 0])[0, 1]) - 1.0) < 1e-12
     noisy = latent.realistic_chart(entry, 0.05, 0)
     assert 0.03 < float(np.std(noisy.q[:, 0] - chart.q[:, 0])) < 0.07
+
+
+def test_the_gap_reduction_is_also_read_over_the_clips_whose_gap_stands_out_of_their_systems_controls(bench, tmp_path) -> None:
+    base = {"status": "ok", "f_truth_hz": 1.0, "eps_freq_truth": 0.01, "wall_s": 100.0, "diagnosis_status": "ok", "gate_passed": True}
+
+    def row(name: str, effect: str, eps_q: float, red: float | None) -> dict:
+        system = name.split("-")[0]
+        return {**base, "name": name, "system": system, "truth_effect": effect, "verdict": effect, "diagnosis_ok": True,
+                "eps_q": eps_q, "gap_reduction_eps_q": red}  # fmt: skip
+
+    rows = [
+        row("pendulum-none-s0-128", "none", 0.05, None), row("pendulum-none-s1-128", "none", 0.066, None),
+        row("pendulum-end_stop-s0-128", "end_stop", 0.37, 0.6),  # measurable
+        row("pendulum-periodic_force-s0-128", "periodic_force", 0.14, 0.4),  # measurable
+        row("pendulum-quadratic_drag-s0-128", "quadratic_drag", 0.06, -0.5),  # at the no-effect level; after 0.09 is above it
+        row("pendulum-cubic_stiffness-s0-128", "cubic_stiffness", 0.053, 0.1),  # at the level; after 0.048 stays below
+        row("spring_cart-end_stop-s0-128", "end_stop", 0.2, -0.9),  # no control of its system: left out
+    ]  # fmt: skip
+    D = bench.gather(rows, tmp_path / "r.md", [])["diagnosis"]
+    assert D["median_gap_reduction_eps_q"] == pytest.approx(0.1)  # every refit: -0.9, -0.5, 0.1, 0.4, 0.6
+    m = D["measurable_gap"]
+    assert m["levels"] == {"pendulum": 0.066} and (m["n"], m["n_refit"], m["n_kept"]) == (2, 4, 1)
+    assert m["median"] == pytest.approx(0.5)
+    assert "measurable gap (held-out eps_q above the largest of the same system's controls: pendulum 0.066): median eps_q change after the refit +50 %" in (tmp_path / "r.md").read_text()
