@@ -103,6 +103,27 @@ def test_decide_adds_the_signature_to_the_evidence_and_a_confirmed_one_replaces_
     assert decide([_fit("coulomb", 30.0, 0.5, 30.0, r2=0.05)], **rule) is None  # R2 still applies
 
 
+def test_on_one_steady_decay_a_drift_goes_behind_a_law_of_the_state_it_cannot_be_told_from() -> None:
+    from lagsplat.diagnose.select import state_laws_first
+
+    rule = {"min_delta_bic": 10.0, "min_r2": 0.1, "min_cv_gain": 0.02}
+
+    def ranked() -> list[CandidateFit]:  # drift 1.2 ahead of dry friction, a periodic force far behind
+        return [_fit("drift", 22.6, 0.7, 5.5), _fit("coulomb", 20.8, 0.7, 6.1), _fit("periodic_force", 9.8, 0.07, 0.0)]
+
+    one_take = state_laws_first(ranked(), {"corr_amp2_time": -0.99})
+    assert [f.effect for f in one_take] == ["coulomb", "drift", "periodic_force"]
+    assert decide(one_take, **rule).effect == "coulomb" and one_take[1].interpretation["behind"].startswith("coulomb: one steady decay")
+    # takes released at other amplitudes, or too few periods to read: the evidence's order stands
+    for frequency in ({"corr_amp2_time": -0.4}, {}):
+        assert [f.effect for f in state_laws_first(ranked(), frequency)] == ["drift", "coulomb", "periodic_force"]
+    # a drift clearly ahead keeps its place; a periodic force is no trend in time and is never moved
+    ahead = [_fit("drift", 30.0, 0.7, 5.5), _fit("coulomb", 20.8, 0.7, 6.1)]
+    assert [f.effect for f in state_laws_first(ahead, {"corr_amp2_time": -0.99})] == ["drift", "coulomb"]
+    periodic = [_fit("periodic_force", 21.0, 0.7, 0.0), _fit("coulomb", 20.8, 0.7, 0.0)]
+    assert [f.effect for f in state_laws_first(periodic, {"corr_amp2_time": -0.99})] == ["periodic_force", "coulomb"]
+
+
 def test_a_signature_confirmed_winner_is_not_overruled_by_a_rival_refit() -> None:
     """The refit choice would refit both and could take the rival; a confirmed winner is kept without a refit."""
     winner, rival = _fit("coulomb", 21.5, 0.4, 25.0), _fit("periodic_force", 18.0, 0.5, 0.0)

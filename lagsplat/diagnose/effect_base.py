@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -63,6 +63,10 @@ class Effect:
     signature: str
     in_class: bool = False
     also_in_class: bool = False
+
+    #: the effect is a slow change of the system's parameters in time, which on one steady decay the amplitude
+    #: stands in for (:func:`~lagsplat.diagnose.select.state_laws_first`)
+    trend_in_time: ClassVar[bool] = False
 
     # ------------------------------------------------------------------ interface
     def applicable(self, res: Residual) -> bool:

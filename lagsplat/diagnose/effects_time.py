@@ -84,6 +84,8 @@ class DriftEffect(Effect):
     the recorded span and which one dominates.
     """
 
+    trend_in_time = True
+
     def feature(self, res, e, params):
         """``-(t - t_bar)(s - s_bar), -(t - t_bar) sdot``; coefficients ``dk_dt, dc_dt``."""
         s_bar = float(np.mean(res.q @ e))

@@ -90,6 +90,10 @@ candidates) and passes all of
   folds has no CV gain (``nan``, ``settings["cv_folds"] < 2``): nothing is
   significant and the report says why.
 
+On one steady decay (amplitude and time one variable) a drift that the evidence cannot tell from a
+law of the state is ranked behind it (:func:`state_laws_first`): a time dependence is claimed only
+where the recording shows one beyond what the amplitude explains.
+
 Otherwise the verdict is ``"none"`` ("nothing significant"). With
 ``max_effects > 1`` the search is repeated with the winners' features added
 to the nuisance (greedy forward selection).
@@ -139,11 +143,12 @@ from lagsplat.diagnose.candidates import candidate_design, fit_candidates
 from lagsplat.diagnose.diagnosis import CandidateFit, Diagnosis
 from lagsplat.diagnose.effect_base import Effect
 from lagsplat.diagnose.effects import EFFECTS, get_effect
+from lagsplat.diagnose.reading import CONFOUNDED, INDISTINGUISHABLE
 from lagsplat.diagnose.regression import Regression, blocked_folds, linear_features, n_cv_folds
 from lagsplat.diagnose.residual_data import Residual
 from lagsplat.diagnose.signatures import directions, signatures
 
-__all__ = ["select_effect", "rank_candidates", "decide", "signature_confirmed"]
+__all__ = ["select_effect", "rank_candidates", "state_laws_first", "decide", "signature_confirmed"]
 
 
 def select_effect(
@@ -298,6 +303,41 @@ def rank_candidates(fits: list[CandidateFit], probs: dict[bool, Regression], min
         if lin not in cv_ref:
             cv_ref[lin] = prob.cv_sse(None, False)
         fit.cv_gain = 1.0 - prob.cv_sse(fit.design, eff.positive) / max(cv_ref[lin], 1e-300)
+    return state_laws_first(fits, (probs[True].res.meta.get("signatures") or {}).get("frequency") or {})
+
+
+def state_laws_first(fits: list[CandidateFit], frequency: dict[str, Any]) -> list[CandidateFit]:
+    """On one steady decay, a time-dependent candidate goes behind a law of the state it cannot be told from.
+
+    A drift's signature is a change in time *independently of the amplitude*. Where the amplitude falls
+    steadily over the recording (``|corr(A^2, t)| >= CONFOUNDED`` of the frequency signature,
+    :func:`~lagsplat.diagnose.signatures.signatures`: one freely decaying take), amplitude and time are one
+    variable, and a damping or stiffness that drifts in time fits the residual as a law of the state does
+    (dry friction's decay rate rises as the amplitude falls; a hardening spring's frequency falls with it).
+    A time-independent law is then the reading (the recording gives no evidence of a time dependence
+    beyond it): a fit of a :attr:`~lagsplat.diagnose.effect_base.Effect.trend_in_time` effect whose evidence exceeds a physical dissipative or conservative
+    rival's by no more than :data:`~lagsplat.diagnose.reading.INDISTINGUISHABLE` is moved behind the last
+    such rival, with ``interpretation["behind"]`` naming it. The evidence values are left as they are; the
+    report names the pair as indistinguishable (:func:`~lagsplat.diagnose.reading.indistinguishable`).
+
+    Args:
+        fits: ranked fits, best first (reordered in place).
+        frequency: the frequency signature (its ``corr_amp2_time``; absent: nothing moves).
+
+    Returns:
+        ``fits``.
+    """
+    corr = frequency.get("corr_amp2_time")
+    if corr is None or not abs(float(corr)) >= CONFOUNDED:
+        return fits
+    for fit in [f for f in fits if get_effect(f.effect).trend_in_time]:
+        i = fits.index(fit)
+        close = [j for j in range(i + 1, len(fits)) if fits[j].physical and get_effect(fits[j].effect).kind in ("dissipative", "conservative")
+                 and fit.evidence - fits[j].evidence <= INDISTINGUISHABLE]  # fmt: skip
+        if close:
+            fits.insert(close[-1], fits.pop(i))
+            fit.interpretation["behind"] = (f"{fits[close[-1] - 1].effect}: one steady decay cannot tell a change in time from a "
+                                            f"dependence on the amplitude (corr(A^2, t) = {float(corr):.2f}; evidence within {INDISTINGUISHABLE:g})")  # fmt: skip
     return fits
 
 
