@@ -290,7 +290,8 @@ def rank_candidates(fits: list[CandidateFit], probs: dict[bool, Regression], min
         min_delta_bic, min_r2: the part of the significance rule that decides whether CV is needed.
 
     Returns:
-        ``fits`` (the same list), best first, with ``cv_gain`` set.
+        ``fits`` (the same list), best first, with ``cv_gain`` set; on one steady decay a drift the evidence
+        cannot tell from a law of the state is behind it (:func:`state_laws_first`).
     """
     fits.sort(key=lambda f: f.evidence, reverse=True)
     cv_ref: dict[bool, float] = {}
@@ -310,15 +311,12 @@ def state_laws_first(fits: list[CandidateFit], frequency: dict[str, Any]) -> lis
     """On one steady decay, a time-dependent candidate goes behind a law of the state it cannot be told from.
 
     A drift's signature is a change in time *independently of the amplitude*. Where the amplitude falls
-    steadily over the recording (``|corr(A^2, t)| >= CONFOUNDED`` of the frequency signature,
-    :func:`~lagsplat.diagnose.signatures.signatures`: one freely decaying take), amplitude and time are one
-    variable, and a damping or stiffness that drifts in time fits the residual as a law of the state does
-    (dry friction's decay rate rises as the amplitude falls; a hardening spring's frequency falls with it).
-    A time-independent law is then the reading (the recording gives no evidence of a time dependence
-    beyond it): a fit of a :attr:`~lagsplat.diagnose.effect_base.Effect.trend_in_time` effect whose evidence exceeds a physical dissipative or conservative
-    rival's by no more than :data:`~lagsplat.diagnose.reading.INDISTINGUISHABLE` is moved behind the last
-    such rival, with ``interpretation["behind"]`` naming it. The evidence values are left as they are; the
-    report names the pair as indistinguishable (:func:`~lagsplat.diagnose.reading.indistinguishable`).
+    steadily (``|corr(A^2, t)| >= CONFOUNDED`` in the frequency signature: one freely decaying take), a
+    damping or stiffness drifting in time fits as a law of the state does (dry friction's decay rate rises
+    as the amplitude falls), and the time-independent law is the reading: a fit of a
+    :attr:`~lagsplat.diagnose.effect_base.Effect.trend_in_time` effect whose evidence exceeds a physical
+    dissipative or conservative rival's by at most ``INDISTINGUISHABLE`` goes behind the last such rival
+    (``interpretation["behind"]`` names it; evidence values unchanged, and the report names the pair).
 
     Args:
         fits: ranked fits, best first (reordered in place).
