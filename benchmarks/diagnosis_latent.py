@@ -67,27 +67,35 @@ from lagsplat.synth.realistic import motion_of, realistic_suite
 from lagsplat.train.stage2 import Stage2Config, train_stage2
 
 
+def noisy_chart(z: np.ndarray, t: np.ndarray, split: np.ndarray, noise: float, rng: np.random.Generator, label: str,
+                episode: np.ndarray | None = None, u: np.ndarray | None = None) -> Chart:
+    """A :class:`Chart` of a mapped true coordinate ``z [T,d]``: whitened on the training frames, then white noise
+    of ``noise`` times its (unit) std drawn from ``rng``; identity metric, no AE error."""
+    d = z.shape[1]
+    tr = split == TRAIN
+    Wc = np.linalg.cholesky(np.linalg.inv(np.cov(z[tr].T, bias=True).reshape(d, d)))
+    q = (z - z[tr].mean(0)) @ Wc
+    q = q + noise * rng.standard_normal(q.shape)
+    I = np.eye(d)
+    return Chart(
+        mean=np.zeros(d), W=I, W_inv=I, q=q, t=t, split=split, G_bar=I, A=I, ae_mse=np.zeros(len(q)),
+        ae_floor_train=0.0, ae_floor_held_out=0.0, height=64, width=64, meta={"label": label}, episode=episode, u=u,
+    )  # fmt: skip
+
+
 def latent_chart(entry: dict, noise: float, seed: int) -> Chart:
-    """A 1-D :class:`Chart` from the clip's true latent: random linear map, whitening, white noise."""
+    """A 1-D :class:`Chart` from the clip's true latent: random linear map, whitening, white noise (:func:`noisy_chart`)."""
     run = simulate_effect(entry["system"], entry["effect"], entry["seed"], entry["actuated"])
     rng = np.random.default_rng([seed, entry["seed"], len(entry["name"])])
     z = rng.choice([-1.0, 1.0]) * rng.uniform(0.5, 2.0) * run.latent + rng.uniform(-1.0, 1.0)
-    tr = run.split == TRAIN
-    q = (z - z[tr].mean()) / z[tr].std()
-    q = q + noise * rng.standard_normal(len(q))
-    I = np.eye(1)
-    return Chart(
-        mean=np.zeros(1), W=I, W_inv=I, q=q[:, None], t=run.t, split=run.split, G_bar=I, A=I, ae_mse=np.zeros(len(q)),
-        ae_floor_train=0.0, ae_floor_held_out=0.0, height=64, width=64, meta={"label": entry["effect"]},
-        episode=run.episode, u=run.u,
-    )  # fmt: skip
+    return noisy_chart(z[:, None], run.t, run.split, noise, rng, entry["effect"], run.episode, run.u)
 
 
 def realistic_chart(entry: dict, noise: float, seed: int) -> Chart:
     """A :class:`Chart` from a realistic-suite clip's true trajectory, split where the pipeline's run split it.
 
-    The first coordinate (both angles of the double pendulum) is linearly mapped, whitened on the
-    training frames and given white noise of ``noise`` times its std, as :func:`latent_chart` does.
+    The first coordinate (both angles of the double pendulum) is linearly mapped, then whitened and given
+    noise by :func:`noisy_chart`, as :func:`latent_chart` does.
     """
     motion = motion_of(entry)
     d = 2 if entry["system"] == "double_pendulum" else 1
@@ -101,15 +109,7 @@ def realistic_chart(entry: dict, noise: float, seed: int) -> Chart:
     split[: int(n_train)] = TRAIN
     rng = np.random.default_rng([seed, entry["seed"], len(entry["name"])])
     z = x @ rng.uniform(0.5, 2.0, (d, d)) * rng.choice([-1.0, 1.0]) + rng.uniform(-1.0, 1.0, d)
-    tr = split == TRAIN
-    Wc = np.linalg.cholesky(np.linalg.inv(np.cov(z[tr].T, bias=True).reshape(d, d)))
-    q = (z - z[tr].mean(0)) @ Wc
-    q = q + noise * rng.standard_normal(q.shape)
-    I = np.eye(d)
-    return Chart(
-        mean=np.zeros(d), W=I, W_inv=I, q=q, t=motion.t, split=split, G_bar=I, A=I, ae_mse=np.zeros(len(q)),
-        ae_floor_train=0.0, ae_floor_held_out=0.0, height=64, width=64, meta={"label": entry["effect"]},
-    )  # fmt: skip
+    return noisy_chart(z, motion.t, split, noise, rng, entry["effect"])
 
 
 def fit_plain(chart: Chart, kind: str, epochs: int, seed: int):

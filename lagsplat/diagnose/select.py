@@ -304,7 +304,7 @@ def rank_candidates(fits: list[CandidateFit], probs: dict[bool, Regression], min
         if lin not in cv_ref:
             cv_ref[lin] = prob.cv_sse(None, False)
         fit.cv_gain = 1.0 - prob.cv_sse(fit.design, eff.positive) / max(cv_ref[lin], 1e-300)
-    return state_laws_first(fits, (probs[True].res.meta.get("signatures") or {}).get("frequency") or {})
+    return state_laws_first(fits, probs[True].res.meta.get("frequency_signature") or {})
 
 
 def state_laws_first(fits: list[CandidateFit], frequency: dict[str, Any]) -> list[CandidateFit]:
