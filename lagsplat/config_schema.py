@@ -171,15 +171,17 @@ class ChartConfig:
     Attributes:
         n_metric_samples: training frames the metric ``G_bar`` averages over (>= 1).
         rho: whitening regulariser (> 0).
-        refine_iters: Levenberg-Marquardt steps per frame of :func:`lagsplat.chart_refine.refine_latents`
-            (0: the paper's chart, the encoder's output; ``conf/experiment/refined_chart.yaml`` sets 8).
+        refine_iters: Levenberg-Marquardt steps per frame of :func:`lagsplat.chart_refine.refine_latents`;
+            the refined chart is used where it passes the gate with less noise than the encoder's
+            (:func:`lagsplat.chart_gate.gated_chart`); 0: the paper's chart, the encoder's output
+            (``conf/experiment/encoder_chart.yaml``).
         gate: Stage 2 refuses a chart that fails the quality gate (:func:`lagsplat.chart_gate.chart_gate`);
             ``false`` runs it anyway and marks the metrics as read on a failed chart.
     """
 
     n_metric_samples: int = 64
     rho: float = 0.01
-    refine_iters: int = 0
+    refine_iters: int = 8
     gate: bool = True
 
 

@@ -114,14 +114,16 @@ def stage_stage1(cfg: DictConfig, a: "Artifacts | None" = None) -> None:
 
 def stage_chart(cfg: DictConfig, a: "Artifacts | None" = None) -> None:
     """``stage1.pt`` -> ``chart.npz`` (paths: ``a``, default the run's :func:`~lagsplat.cli_common.artifacts_of`)."""
-    from lagsplat.chart import build_chart, save_chart
+    from lagsplat.chart import save_chart
 
-    from lagsplat.chart_gate import chart_gate, gate_summary
+    from lagsplat.chart_gate import gate_summary, gated_chart
 
     a = a or artifacts_of(cfg)
     model, clip = a.load_stage1(), a.load_clip()
-    chart = build_chart(model, clip, int(cfg.chart.n_metric_samples), float(cfg.chart.rho), int(cfg.seed), refine_iters=int(cfg.chart.refine_iters))
-    chart.meta["gate"] = chart_gate(model, clip, chart)
+    chart, gate = gated_chart(model, clip, int(cfg.chart.n_metric_samples), float(cfg.chart.rho), int(cfg.seed), int(cfg.chart.refine_iters))
+    chart.meta["gate"] = gate
+    if "refine_choice" in chart.meta:
+        print(f"[lagsplat] {cfg.system.name}: chart {chart.meta['refine_choice']['reason']}", flush=True)
     print(f"[lagsplat] {cfg.system.name}: chart quality gate {gate_summary(chart.meta['gate'])}", flush=True)
     save_chart(a.chart, chart)
     save_stage_config(cfg, "chart", a)

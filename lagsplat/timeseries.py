@@ -1,4 +1,4 @@
-"""Signal helpers for latent trajectories: smoothing, derivative filters, the spectral peak.
+"""Signal helpers for latent trajectories: smoothing, derivative filters, the spectral peak, the chart-noise level.
 
 The shared toolkit of the evaluation (:mod:`lagsplat.metrics`), the
 simulators (:mod:`lagsplat.synth`), the integrators and the diagnosis, so
@@ -15,6 +15,7 @@ raises :class:`ValueError` naming the offending argument.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -33,6 +34,7 @@ __all__ = [
     "central_difference_velocity",
     "gaussian_smooth",
     "smoothing_edge",
+    "chart_noise",
 ]
 
 
@@ -340,3 +342,27 @@ def envelope_fit(t: np.ndarray, a: np.ndarray, form: str) -> tuple[np.ndarray, f
     w = np.abs(a)
     c = np.linalg.lstsq(X * w[:, None], np.log(a) * w, rcond=None)[0]
     return c, float(np.sum((a - np.exp(X @ c)) ** 2))
+
+
+def chart_noise(segments: Sequence[np.ndarray]) -> np.ndarray:
+    """Per-sample white-noise level of a trajectory, from its fourth difference.
+
+    ``Delta^4 q`` cancels a smooth signal (to ``(w dt)^4``) and multiplies white
+    noise of std ``s`` by ``sqrt(70)``; the scale is the robust MAD estimate
+    ``1.4826 median|x - median x|`` pooled over the segments.
+
+    Args:
+        segments: list of ``[m,d]`` raw trajectories (each ``m >= 5``; shorter ones are skipped).
+
+    Returns:
+        float64 ``[d]`` noise standard deviation per coordinate.
+
+    Raises:
+        ValueError: if no segment has 5 samples.
+    """
+    d4 = [np.diff(np.asarray(s, np.float64), 4, axis=0) for s in segments if len(s) >= 5]
+    if not d4:
+        raise ValueError("chart_noise needs a segment of at least 5 samples")
+    x = np.concatenate(d4, 0)
+    mad = 1.4826 * np.median(np.abs(x - np.median(x, 0)), 0)
+    return mad / math.sqrt(70.0)

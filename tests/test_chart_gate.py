@@ -125,3 +125,45 @@ def test_stage1_retries_while_the_gate_fails_and_records_every_attempt():
     kept = next(a for a in attempts if a["kept"])
     assert len(kept["gate"]["reasons"]) == min(len(a["gate"]["reasons"]) for a in attempts)
     assert model.decoder.K == kept["n_gaussians"]
+
+
+def test_gated_chart_takes_the_refined_chart_where_the_encoders_fails_the_gate():
+    from lagsplat.chart_gate import gated_chart
+
+    clip, ae = _clip(1.2), _blob_autoencoder(saturate=0.8)  # the encoder reads the extremes at 0.8 of 1.2
+    plain, gate = gated_chart(ae, clip, n_metric_samples=8, refine_iters=0)
+    assert not gate["passed"] and "refine_choice" not in plain.meta and plain.meta["refine_iters"] == 0
+    chart, gate = gated_chart(ae, clip, n_metric_samples=8, refine_iters=8)
+    assert gate["passed"], gate["reasons"]
+    choice = chart.meta["refine_choice"]
+    assert chart.meta["refine_iters"] == 8 and choice["used"] == "refined"
+    assert set(choice["relative_noise"]) == {"encoder", "refined"}
+    assert np.ptp(chart.q[:, 0]) > 0  # the refined amplitude, not the clamped one
+    assert abs(encoder_saturation(ae, clip, chart)) < 0.05
+
+
+def test_gated_chart_keeps_the_encoders_chart_where_refinement_adds_noise(monkeypatch):
+    import lagsplat.chart_gate as cg
+
+    clip, ae = _clip(0.6), _blob_autoencoder()  # both charts pass the gate
+    monkeypatch.setattr(cg, "relative_chart_noise", lambda chart: 0.02 if chart.meta["refine_iters"] else 0.01)
+    chart, gate = cg.gated_chart(ae, clip, n_metric_samples=8, refine_iters=8)
+    assert gate["passed"] and chart.meta["refine_iters"] == 0
+    assert chart.meta["refine_choice"]["used"] == "encoder" and "not less noisy" in chart.meta["refine_choice"]["reason"]
+    monkeypatch.setattr(cg, "relative_chart_noise", lambda chart: 0.005 if chart.meta["refine_iters"] else 0.01)
+    chart, gate = cg.gated_chart(ae, clip, n_metric_samples=8, refine_iters=8)
+    assert chart.meta["refine_iters"] == 8 and chart.meta["refine_choice"]["used"] == "refined"
+
+
+def test_relative_chart_noise_reads_the_white_noise_over_the_spread():
+    import dataclasses
+
+    from lagsplat.chart_gate import relative_chart_noise
+
+    clip, ae = _clip(0.6, n=600), _blob_autoencoder()
+    chart = build_chart(ae, clip, n_metric_samples=8)
+    rng = np.random.default_rng(0)
+    s = np.sin(2 * np.pi * 0.5 * np.arange(600) / 30.0)[:, None]
+    for level in (0.005, 0.02):
+        noisy = dataclasses.replace(chart, q=s + level * s[chart.split == 0].std() * rng.standard_normal(s.shape))
+        assert abs(relative_chart_noise(noisy) / level - 1.0) < 0.2

@@ -4,42 +4,19 @@ The residual of :mod:`lagsplat.diagnose.residual` differentiates the encoded
 trajectory with Gaussian derivative filters (standard deviation ``sigma``
 frames, kernels truncated at 6 sigma); the noise of the chart propagates into
 it through the norm of those kernels (:func:`kernel_norm`), and its level is
-read from the trajectory's fourth difference (:func:`chart_noise`).
+read from the trajectory's fourth difference (:func:`~lagsplat.timeseries.chart_noise`,
+re-exported here).
 """
 
 from __future__ import annotations
 
-import math
-from collections.abc import Sequence
 
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
+from lagsplat.timeseries import chart_noise
+
 __all__ = ["chart_noise", "kernel_norm", "pad_odd"]
-
-
-def chart_noise(segments: Sequence[np.ndarray]) -> np.ndarray:
-    """Per-sample white-noise level of a trajectory, from its fourth difference.
-
-    ``Delta^4 q`` cancels a smooth signal (to ``(w dt)^4``) and multiplies white
-    noise of std ``s`` by ``sqrt(70)``; the scale is the robust MAD estimate
-    ``1.4826 median|x - median x|`` pooled over the segments.
-
-    Args:
-        segments: list of ``[m,d]`` raw trajectories (each ``m >= 5``; shorter ones are skipped).
-
-    Returns:
-        float64 ``[d]`` noise standard deviation per coordinate.
-
-    Raises:
-        ValueError: if no segment has 5 samples.
-    """
-    d4 = [np.diff(np.asarray(s, np.float64), 4, axis=0) for s in segments if len(s) >= 5]
-    if not d4:
-        raise ValueError("chart_noise needs a segment of at least 5 samples")
-    x = np.concatenate(d4, 0)
-    mad = 1.4826 * np.median(np.abs(x - np.median(x, 0)), 0)
-    return mad / math.sqrt(70.0)
 
 
 def kernel_norm(sigma: float, order: int) -> float:

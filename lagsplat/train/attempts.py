@@ -21,8 +21,7 @@ import dataclasses
 import time
 from typing import Any
 
-from lagsplat.chart import build_chart
-from lagsplat.chart_gate import chart_gate, gate_summary
+from lagsplat.chart_gate import gate_summary, gated_chart
 from lagsplat.io.clip import Clip
 from lagsplat.models.autoencoder import AutoEncoder
 from lagsplat.train.stage1 import Stage1Config, train_stage1
@@ -91,7 +90,7 @@ def train_stage1_gated(
         s = seed + 1000 * k
         t0 = time.perf_counter()
         model, hist = train_stage1(clip, c, d, seed=s, progress=progress, device=device, label=f"{label} attempt {k + 1}" if k else label, views=views)
-        gate = chart_gate(model, clip, build_chart(model, clip, seed=seed, **kw))  # the chart stage's own chart
+        gate = gated_chart(model, clip, seed=seed, **kw)[1]  # the chart stage's own chart
         stopped = hist.get("stopped") or {}
         attempts.append({"seed": s, "steps": c.steps, "steps_run": stopped.get("step", c.steps), "stopped": stopped.get("reason"),
                          "n_gaussians": c.n_gaussians, "w_temporal": c.w_temporal, "wall_s": round(time.perf_counter() - t0, 1), "gate": gate, "kept": False})  # fmt: skip
