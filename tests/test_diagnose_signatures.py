@@ -259,3 +259,69 @@ def test_on_one_decaying_take_the_report_says_whether_the_timing_tells_a_driftin
     # separate takes released at other amplitudes: amplitude and time are not one variable, no such line
     fr, lines = amplitude_and_time(_takes())
     assert abs(fr["corr_amp2_time"]) < 0.9 and lines == []
+
+
+def _quintic(e5: float, zeta: float, seed: int = 1) -> Chart:
+    """``x'' = -w^2 x (1 + e5 x^4) - 2 zeta w x'`` (0.7 Hz, released from 1, 12 s); a 1-D chart of it with 1 % noise."""
+    from scipy.integrate import solve_ivp
+
+    w = 2 * math.pi * 0.7
+    t = np.arange(int(round(12.0 / DT))) * DT
+    x = solve_ivp(lambda _, y: [y[1], -w * w * y[0] * (1 + e5 * y[0] ** 4) - 2 * zeta * w * y[1]], (0, t[-1]), [1.0, 0.0],
+                  t_eval=t, rtol=1e-9, atol=1e-11, method="DOP853").y[0]  # fmt: skip
+    q = x / x.std() + 0.01 * np.random.default_rng(seed).standard_normal(len(x))
+    return _chart(q[:, None], t)
+
+
+def test_a_stiffness_that_a_cubic_cannot_follow_is_not_read_as_a_drift() -> None:
+    # a quintic spring on one decaying take: the stiffness falls with the amplitude in a way a cubic correction
+    # does not follow, and with only cubic nuisance terms the rest fitted as a drift (Delta BIC 52, significant)
+    for e5 in (0.4, -0.3):
+        diag = _diagnose(_quintic(e5, 0.02))
+        assert diag.winner == "cubic_stiffness"
+        assert not any(f.significant for f in diag.ranking if f.effect == "drift")
+
+
+def test_a_drift_whose_stiffness_change_the_periods_contradict_is_not_practical() -> None:
+    from lagsplat.diagnose.effects import get_effect
+
+    drift = get_effect("drift")
+    th = {"min_cubic_shift": 0.03}
+    chk = {"predicted_rel_per_s": 0.012, "measured_rel_per_s": 0.001, "measured_se_rel_per_s": 0.001, "span_s": 8.0}
+    ok, why = drift.practical({"timing_check": chk}, th)  # +9.6 % predicted, +0.8 +- 0.8 % recorded
+    assert not ok and "predicts +9.6 %" in why and "misfit" in why
+    assert drift.practical({"timing_check": {**chk, "measured_rel_per_s": 0.008}}, th)[0]  # the periods show it
+    assert drift.practical({"timing_check": {**chk, "measured_se_rel_per_s": 0.004}}, th)[0]  # within 3 s.e.
+    assert drift.practical({"timing_check": {**chk, "predicted_rel_per_s": 0.0015}}, th)[0]  # a stiffness change too small to check
+    assert drift.practical({"timing_check": None}, th)[0] and drift.practical({}, th)[0]
+
+
+def test_a_force_that_beats_with_the_oscillation_slower_than_the_record_is_not_sought() -> None:
+    from types import SimpleNamespace
+
+    from lagsplat.diagnose.spectrum import frequency_allowed
+
+    dt = 1 / 30
+
+    def res(seconds: float) -> SimpleNamespace:
+        return SimpleNamespace(meta={"model_freqs_hz": [0.8]}, f_dominant_hz=0.78, dt=dt, n_u=0, states=[SimpleNamespace(t=np.arange(int(seconds / dt)) * dt)])
+
+    assert not frequency_allowed(res(9.4), 0.671)  # 0.86x: fewer than 1.5 beats in 9.4 s
+    assert frequency_allowed(res(40.0), 0.671)  # 4.4 beats in 40 s
+    assert frequency_allowed(res(9.4), 0.39)  # 0.5x: where the realistic suite's slow forces lie
+
+
+def test_a_hidden_mode_too_small_to_move_the_object_is_not_a_finding() -> None:
+    # a plain viscous oscillator with 1 % chart noise: this noise draw fits a "mode" at 2.3x the oscillation with
+    # Delta BIC 11, whose motion is 0.2 % of the recorded one
+    from scipy.integrate import solve_ivp
+
+    w = 2 * math.pi * 0.7
+    t = np.arange(int(round(12.0 / DT))) * DT
+    x = solve_ivp(lambda _, y: [y[1], -w * w * y[0] - 0.02 * w * y[1]], (0, t[-1]), [1.0, 0.0], t_eval=t, rtol=1e-9, atol=1e-11).y[0]
+    q = x / x.std() + 0.01 * np.random.default_rng(1).standard_normal(len(x))
+    diag = _diagnose(_chart(q[:, None], t))
+    mode = next(f for f in diag.ranking if f.effect == "missing_dof")
+    assert mode.interpretation["driven_over_motion"] < 0.01 and not mode.practical
+    assert "too small to change what the video shows" in mode.interpretation["below_practical_size"]
+    assert diag.winner == "none"

@@ -18,6 +18,23 @@ from lagsplat.diagnose.spectrum import excluded_bands, frequency_allowed, residu
 __all__ = ["PeriodicForceEffect", "DriftEffect", "ActuationDelayEffect", "MissingDofEffect", "peak_frequencies"]
 
 
+def _driven_over_motion(force_rms: float, f_over_motion: float, scale: dict[str, float]) -> float:
+    """The motion a force of rms ``force_rms`` at ``f_over_motion`` times the oscillation drives through the fitted spring
+    off resonance (``force / (k |1 - r^2|)``, rms), over the rms of the recorded (unsmoothed) motion along the direction."""
+    return ratio(force_rms, scale["k"] * abs(1.0 - f_over_motion**2) * scale["s_raw_rms"])
+
+
+def _visible_motion(interpretation: dict, thresholds: dict, what: str, kind: str) -> tuple[bool, str]:
+    """:meth:`Effect.practical` of an effect at its own frequency: its motion (``interpretation["driven_over_motion"]``)
+    must reach ``min_periodic_response`` of the recorded one."""
+    rel = interpretation.get("driven_over_motion", float("nan"))
+    lo = thresholds.get("min_periodic_response", 0.01)
+    if not (rel >= lo):
+        return False, (f"{what} is {100 * rel:.2g} % of the recorded motion (rms), below {100 * lo:g} %: "
+                       f"{kind} too small to change what the video shows")  # fmt: skip
+    return True, ""
+
+
 def peak_frequencies(res, r0, n: int) -> list[float]:
     """Candidate frequencies (Hz): ``n`` steps across one clip-frequency bin (``+-1 / T``) around each of the
     residual's 3 strongest allowed spectral peaks (:func:`residual_peaks`), those :func:`frequency_allowed` keeps."""
@@ -53,12 +70,7 @@ class PeriodicForceEffect(Effect):
 
     def practical(self, interpretation, thresholds):
         """A force only when the motion it drives off resonance reaches ``min_periodic_response`` of the recorded one."""
-        rel = interpretation.get("driven_over_motion", float("nan"))
-        lo = thresholds.get("min_periodic_response", 0.01)
-        if not (rel >= lo):
-            return False, (f"the motion it drives off resonance is {100 * rel:.2g} % of the recorded motion (rms), below "
-                           f"{100 * lo:g} %: a force too small to change what the video shows")  # fmt: skip
-        return True, ""
+        return _visible_motion(interpretation, thresholds, "the motion it drives off resonance", "a force")
 
     def interpret(self, coef, se, params, res, e, scale):
         """Frequency, amplitude and phase, and the motion it drives relative to the recorded one."""
@@ -71,7 +83,7 @@ class PeriodicForceEffect(Effect):
             "amplitude_over_restoring": ratio(amp, scale["k"] * scale["s_rms"]),
             # linear response of the fitted spring off resonance (the model's own band is excluded):
             # amplitude / (k |1 - r^2|), as an rms, over the rms of the recorded (unsmoothed) motion along e
-            "driven_over_motion": ratio(amp, scale["k"] * abs(1.0 - r * r) * math.sqrt(2.0) * scale["s_raw_rms"]),
+            "driven_over_motion": _driven_over_motion(amp / math.sqrt(2.0), r, scale),
             "text": f"an unlogged periodic force at {params['f_hz']:.3g} Hz ({r:.2f}x the "
             f"oscillation), amplitude {amp:.3g} +- {amp_se:.2g}, phase-locked over the clip",
         }  # fmt: skip
@@ -81,7 +93,9 @@ class DriftEffect(Effect):
     """Slow linear drift of stiffness and damping: ``phi = (-(t - t_bar)(s - s_bar), -(t - t_bar) sdot)``.
 
     Coefficients ``dk/dt, dc/dt`` (per second); reading: the relative change of each over
-    the recorded span and which one dominates.
+    the recorded span and which one dominates. The stiffness part must agree with the recorded timing
+    (:meth:`practical`): a stiffness changing by ``dk/dt`` moves the frequency at a given amplitude by
+    ``dk/dt / (2 k)`` per second, which the zero-crossing periods (no monotone chart moves them) show.
     """
 
     trend_in_time = True
@@ -123,8 +137,33 @@ class DriftEffect(Effect):
                          f"(evidence {c_sup:.1f} over a constant-rate, linear or hyperbolic decay)")  # fmt: skip
         return k_sup + c_sup, "; ".join(parts)
 
+    def practical(self, interpretation, thresholds):
+        """Not where the recorded periods contradict the fitted stiffness change.
+
+        The stiffness part predicts the frequency at a given amplitude to change by ``dk/dt / (2 k)``
+        per second; the frequency signature measures that change (its time slope, fitted beside any
+        dependence on the amplitude, with its standard error). Where the prediction reaches half
+        ``min_cubic_shift`` over the recording and lies more than 3 standard errors from the measured
+        slope, while the measured slope is not at least half of it with the same sign, the stiffness
+        trend is the fitted model's own misfit on this take (e.g. a frequency that depends on the
+        amplitude a little differently from the recording's), not a change of the recording.
+        """
+        chk = interpretation.get("timing_check")
+        if not chk:
+            return True, ""
+        pred, meas, se, span = chk["predicted_rel_per_s"], chk["measured_rel_per_s"], chk["measured_se_rel_per_s"], chk["span_s"]
+        if abs(pred) * span < 0.5 * thresholds.get("min_cubic_shift", 0.03):
+            return True, ""
+        agrees = meas * pred > 0 and abs(meas) >= 0.5 * abs(pred)
+        if agrees or abs(pred - meas) <= 3.0 * se:
+            return True, ""
+        return False, (
+            f"the recorded periods change by {100 * meas * span:+.1f} +- {100 * se * span:.1f} % over the {span:.0f} s at a given "
+            f"amplitude where this stiffness change predicts {100 * pred * span:+.1f} %: the trend is the model's misfit, not the recording's"
+        )
+
     def interpret(self, coef, se, params, res, e, scale):
-        """Relative change of stiffness and damping over the recorded span, and which dominates."""
+        """Relative change of stiffness and damping over the recorded span, which dominates, and the timing it predicts."""
         span = float(np.ptp(res.t))
         rk, rc = ratio(coef[0] * span, scale["k"]), ratio(coef[1] * span, scale["c"])
         zk, zc = abs(coef[0]) / max(se[0], 1e-300), abs(coef[1]) / max(se[1], 1e-300)
@@ -133,9 +172,22 @@ class DriftEffect(Effect):
             "dk_dt": float(coef[0]), "dk_dt_se": float(se[0]), "dc_dt": float(coef[1]), "dc_dt_se": float(se[1]),
             "stiffness_change_over_clip": rk, "damping_change_over_clip": rc, "dominant": which,
             "t_bar": float(np.mean(res.t)), "s_bar": float(np.mean(res.q @ e)), "k_model": scale["k"], "c_model": scale["c"],
+            "timing_check": _timing_check(coef[0], scale["k"], span, res),
             "text": f"slow drift, mainly of the {which}: over the {span:.0f} s recorded the stiffness changes by "
             f"{100 * rk:+.1f} % (z = {zk:.1f}) and the damping by {100 * rc:+.0f} % (z = {zc:.1f})",
         }  # fmt: skip
+
+
+def _timing_check(dk_dt: float, k: float, span: float, res) -> dict[str, float] | None:
+    """The frequency change per second a stiffness drift ``dk_dt`` predicts (``dk_dt / (2 k)``, relative) beside the one the
+    recorded periods show at a given amplitude (the frequency signature's time slope and its s.e., relative to the mean
+    frequency); ``None`` without a usable signature (fewer than 6 periods, or several latent dimensions, whose modes beat)."""
+    fsig = (res.meta.get("signatures") or {}).get("frequency") or res.meta.get("frequency_signature") or {}
+    f0 = float(fsig.get("f_mean_hz", float("nan")))
+    if res.d != 1 or fsig.get("n_periods", 0) < 6 or not (f0 > 0) or "slope_time" not in fsig or not (k > 0):
+        return None
+    return {"predicted_rel_per_s": float(dk_dt / (2.0 * k)), "measured_rel_per_s": float(fsig["slope_time"]) / f0,
+            "measured_se_rel_per_s": float(fsig["slope_time_se"]) / f0, "span_s": span}  # fmt: skip
 
 
 class ActuationDelayEffect(Effect):
@@ -203,12 +255,23 @@ class MissingDofEffect(Effect):
 
         return phi, [f"seg{k}_{c}" for k in range(n_seg) for c in ("cos", "sin")]
 
+    def practical(self, interpretation, thresholds):
+        """A mode only when its motion in the chart reaches ``min_periodic_response`` of the recorded one (as a periodic force's)."""
+        return _visible_motion(interpretation, thresholds, "the motion of the mode", "a mode")
+
     def interpret(self, coef, se, params, res, e, scale):
-        """Frequency, damping ratio and the amplitude in each segment."""
+        """Frequency, damping ratio, the amplitude in each segment, and the mode's motion relative to the recorded one.
+
+        The mode's force on the chart coordinate, ``a exp(-l t')`` per segment (rms over the residual's samples), moves it
+        by ``a / (k |1 - r^2|)`` (``r`` the mode's frequency over the oscillation's), as a periodic force does.
+        """
         a = np.hypot(coef[0::2], coef[1::2])
+        lam = params["zeta"] * 2 * math.pi * params["f_hz"]
+        env2 = [float(np.mean((a[st.index] * np.exp(-lam * (st.t - st.t[st.keep.start]))) ** 2)) for st in res.states]
+        r = ratio(params["f_hz"], res.f_dominant_hz)
         return {
             "f_hz": params["f_hz"], "zeta": params["zeta"], "segment_amplitudes": a.tolist(),
-            "f_over_model": ratio(params["f_hz"], res.f_dominant_hz),
+            "f_over_model": r, "driven_over_motion": _driven_over_motion(math.sqrt(0.5 * float(np.mean(env2))), r, scale),
             "text": f"a hidden mode at {params['f_hz']:.3g} Hz ({ratio(params['f_hz'], res.f_dominant_hz):.2f}x the oscillation), "
             f"damping ratio ~{params['zeta']:.3g}, with its own amplitude and phase in each segment: a degree of freedom the "
             "latent chart does not carry (remedy: one more latent dimension)",

@@ -36,7 +36,14 @@ def poly_features(res: Residual, parts: tuple[str, ...] = ("potential", "inertia
     """In-class corrections of the fitted model, float64 ``[n, p]`` (``p = 0`` when ``parts`` is empty).
 
     * monomials of degree 2 and 3 of the centred ``q`` (all for ``d <= 3``, else
-      per coordinate): the potential a convex ``V`` can still bend to;
+      per coordinate; for ``d = 1`` also 4 and 5, two more coefficients): the
+      potential a convex ``V`` can still bend to. A learned potential whose
+      stiffness follows the amplitude a little differently from the recording's
+      (a pendulum's ``1 - cos`` read through a chart) leaves a force a cubic does
+      not follow, and on one decaying take that rest fits as a drift of the
+      stiffness (a realistic pendulum with dry friction: drift Delta BIC 30.6,
+      dry friction 0.4; with the quintic terms drift 15, not practical, and dry
+      friction 15, significant);
     * ``qdot_i qdot_j`` and ``(q_k - q_bar_k) qdot_i qdot_j``: the Coriolis /
       centrifugal forces ``-(dM/dq) qdot qdot`` of a position-dependent inertia
       (paper §3.3, "Inertia"), which is also what a chart that is a nonlinear
@@ -46,7 +53,8 @@ def poly_features(res: Residual, parts: tuple[str, ...] = ("potential", "inertia
     d = res.d
     mu = res.q.mean(0)
     small = d <= 3
-    combos = [c for k in (2, 3) for c in combinations_with_replacement(range(d), k)] if small else [(i,) * k for k in (2, 3) for i in range(d)]
+    degrees = (2, 3, 4, 5) if d == 1 else (2, 3)
+    combos = [c for k in degrees for c in combinations_with_replacement(range(d), k)] if small else [(i,) * k for k in degrees for i in range(d)]
     pairs = list(combinations_with_replacement(range(d), 2)) if small else [(i, i) for i in range(d)]
 
     def phi(st):

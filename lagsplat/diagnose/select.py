@@ -21,7 +21,7 @@ significant" is the nuisance fit alone). Two regressions share the work:
   ``r ~ dK q + dC qdot + f_0 (+ dB u)`` (free ``[d,d]`` matrices, one offset),
   plus the in-class corrections a convex potential, a position-dependent
   inertia and the input map ``b(q)`` could still make (centred ``q`` monomials
-  of degree 2 and 3; ``qdot_i qdot_j`` and ``q_k qdot_i qdot_j``; ``u_j q_i``),
+  of degree 2 and 3, also 4 and 5 for one coordinate; ``qdot_i qdot_j`` and ``q_k qdot_i qdot_j``; ``u_j q_i``),
   so that a model learned slightly wrong within its own class (or a chart
   that is a nonlinear function of the physical coordinate) is not taken for
   an effect it lacks (a drift, whose stiffness part a potential can partly
@@ -176,7 +176,7 @@ def select_effect(
       smoothing of :attr:`Residual.wide <lagsplat.diagnose.residual_data.Residual.wide>`
       when it is there (see "Band of the out-of-class regression" in the module
       docstring), with the linear nuisance plus the in-class corrections (potential: centred ``q``
-      monomials of degree 2 and 3; inertia: ``qdot qdot`` and ``q qdot qdot``;
+      monomials of degree 2 and 3, also 4 and 5 for one coordinate; inertia: ``qdot qdot`` and ``q qdot qdot``;
       input map: ``u q``), so that a model learned slightly wrong within its
       own class is not mistaken for an effect it lacks;
     * in-class candidates (:attr:`~lagsplat.diagnose.effect_base.Effect.in_class`: cubic stiffness, end stop),

@@ -26,7 +26,15 @@ def excluded_bands(res: Residual) -> tuple[tuple[float, float], ...]:
     or force) of the motion the model has, not a force or a mode it lacks (and a
     force locked to a harmonic could not be told from one); and the logged
     inputs' strongest frequencies (+-10 %), where an unlogged force cannot be
-    told from an input-gain error. The observed frequency counts besides the
+    told from an input-gain error. Around the modes and the motion's frequency
+    the band is at least ``1.5 / T`` wide on each side (``T`` the longest
+    segment; the same 1.5 cycles per record as the searchable band's lower
+    edge, :func:`frequency_allowed`): a force closer beats with the oscillation
+    fewer than 1.5 times over the record, and that slow modulation cannot be
+    told from a drift of the oscillation or from a model whose frequency follows
+    the decaying amplitude a little differently (on a realistic pendulum with
+    dry friction, 9.4 s of training frames, a "force" at 0.86x the oscillation
+    was such a misfit). The observed frequency counts besides the
     model's linearised ones because a chart distortion puts its harmonics at
     multiples of the motion *as recorded*: on a control clip of the blind suite
     (``cart-none-1``, model mode 0.78 Hz, motion 0.755 Hz) the 2nd harmonic of the
@@ -36,7 +44,8 @@ def excluded_bands(res: Residual) -> tuple[tuple[float, float], ...]:
     base = sorted({f for f in [*res.meta.get("model_freqs_hz", []), res.f_dominant_hz] if math.isfinite(f) and f > 0})
     f_max = 0.25 / res.dt
     # harmonics k f (k >= 2) up to the band edge, each +-0.12 f: a distorted chart or force puts power there
-    out = [(f, 0.1) for f in base] + [(k * f, 0.12 / k) for f in base for k in range(2, int(f_max / f) + 2)]
+    T = max(len(st.t) for st in res.states) * res.dt
+    out = [(f, max(0.1, 1.5 / (T * f))) for f in base] + [(k * f, 0.12 / k) for f in base for k in range(2, int(f_max / f) + 2)]
     out += [(g, 0.12 * min(f, h) / g) for i, f in enumerate(base) for h in base[i + 1 :] for g in (f + h, abs(f - h)) if g > 0]  # combination tones
     for j in range(res.n_u):
         out += [(f, 0.1) for f in residual_peaks(res.u[:, j], res.segment, res.dt, 3)]
