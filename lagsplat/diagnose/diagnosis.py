@@ -34,7 +34,7 @@ class CandidateFit:
             ``delta_bic`` plus it (what the ranking and the decision read).
         physical: sign constraints satisfied (and the fit is not degenerate).
         significant: passes the significance rule (see module docstring).
-        practical: large enough physically (:meth:`~lagsplat.diagnose.effect_base.Effect.practical`; always true for out-of-class effects).
+        practical: large enough physically (:meth:`~lagsplat.diagnose.effect_base.Effect.practical`; for out-of-class effects, a rule of the periodic force, the hidden mode and the drift only).
         force: ``[n,d]`` fitted effect force on the residual samples (not serialised).
         design: ``[n d, p]`` the candidate's stacked, noise-weighted regression columns on the residual
             it was fitted to (the wide one for out-of-class candidates; not serialised).

@@ -109,9 +109,11 @@ class Effect:
         """Whether the fitted effect is large enough to matter physically, and why not.
 
         In-class candidates have a size rule (:class:`~lagsplat.diagnose.effects_state.CubicStiffnessEffect`,
-        :class:`~lagsplat.diagnose.effects_state.EndStopEffect`), and so does the periodic force
-        (:class:`~lagsplat.diagnose.effects_time.PeriodicForceEffect`: the motion it drives must reach
-        1 % of the recorded one); the others must merely pass the statistical rule.
+        :class:`~lagsplat.diagnose.effects_state.EndStopEffect`), and so do the periodic force and the hidden
+        mode (:class:`~lagsplat.diagnose.effects_time.PeriodicForceEffect`,
+        :class:`~lagsplat.diagnose.effects_time.MissingDofEffect`: the motion they drive must reach 1 % of the
+        recorded one); a drift's stiffness change must not be contradicted by the recorded periods
+        (:class:`~lagsplat.diagnose.effects_time.DriftEffect`); the others must merely pass the statistical rule.
         """
         return True, ""
 

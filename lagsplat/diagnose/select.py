@@ -190,10 +190,10 @@ def select_effect(
       (zero-crossing periods, which no monotone chart changes) must have the
       sign of ``k3`` and at least half the practical size, since a chart that
       stretches large excursions makes an isochronous oscillation look
-      anharmonic in ``q`` but leaves its period alone. A periodic force must
-      drive a motion of at least ``min_periodic_response`` (1 %) of the recorded
-      one: coherent over the whole clip, a far smaller one is still
-      significant, but changes nothing the video shows.
+      anharmonic in ``q`` but leaves its period alone. A periodic force (and a
+      hidden mode) must drive a motion of at least ``min_periodic_response``
+      (1 %) of the recorded one: coherent over the whole clip, a far smaller
+      one is still significant, but changes nothing the video shows.
 
     Args:
         res: the residual (:func:`~lagsplat.diagnose.residual.residual_force`), normally
@@ -204,7 +204,7 @@ def select_effect(
             :data:`~lagsplat.diagnose.effects.EFFECTS`).
         min_delta_bic, min_r2, min_cv_gain: the statistical significance rule.
         min_cubic_shift, min_stop_stiffness_ratio: physical size of in-class effects.
-        min_periodic_response: physical size of a periodic force: the rms motion it drives
+        min_periodic_response: physical size of a periodic force or a hidden mode: the rms motion it drives
             off resonance (``amplitude / (k |1 - (f / f_motion)^2|) / sqrt 2``) over the rms of
             the recorded motion along its direction.
         max_effects: how many effects greedy forward selection may accept.
