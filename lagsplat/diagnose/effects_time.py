@@ -13,7 +13,7 @@ import numpy as np
 
 from lagsplat.diagnose.effect_base import Effect, ratio
 from lagsplat.diagnose.signatures import timing_drifts
-from lagsplat.diagnose.spectrum import excluded_bands, frequency_allowed, residual_peaks
+from lagsplat.diagnose.spectrum import excluded_bands, frequency_allowed, longest_segment_s, residual_peaks
 
 __all__ = ["PeriodicForceEffect", "DriftEffect", "ActuationDelayEffect", "MissingDofEffect", "peak_frequencies"]
 
@@ -39,7 +39,7 @@ def peak_frequencies(res, r0, n: int) -> list[float]:
     """Candidate frequencies (Hz): ``n`` steps across one clip-frequency bin (``+-1 / T``) around each of the
     residual's 3 strongest allowed spectral peaks (:func:`residual_peaks`), those :func:`frequency_allowed` keeps."""
     peaks = residual_peaks(r0, res.segment, res.dt, 3, exclude=excluded_bands(res))
-    T = max(len(st.t) for st in res.states) * res.dt
+    T = longest_segment_s(res)
     return [float(f + k / T) for f in peaks for k in np.linspace(-1.0, 1.0, n) if frequency_allowed(res, f + k / T)]
 
 
@@ -60,7 +60,7 @@ class PeriodicForceEffect(Effect):
         """Frequencies within ``0.2 / T`` of the best one in steps of ``0.01 / span`` (phase-locked over the clip)."""
         # the phase is locked over the whole clip: resolve f to ~0.01 / (time span)
         span = float(np.ptp(res.t)) + res.dt
-        T = max(len(st.t) for st in res.states) * res.dt
+        T = longest_segment_s(res)
         return [{"f_hz": float(best["f_hz"] + k)} for k in np.arange(-0.2 / T, 0.2 / T + 1e-12, 0.01 / span) if frequency_allowed(res, best["f_hz"] + k)]
 
     def feature(self, res, e, params):
@@ -182,7 +182,7 @@ def _timing_check(dk_dt: float, k: float, span: float, res) -> dict[str, float] 
     """The frequency change per second a stiffness drift ``dk_dt`` predicts (``dk_dt / (2 k)``, relative) beside the one the
     recorded periods show at a given amplitude (the frequency signature's time slope and its s.e., relative to the mean
     frequency); ``None`` without a usable signature (fewer than 6 periods, or several latent dimensions, whose modes beat)."""
-    fsig = (res.meta.get("signatures") or {}).get("frequency") or res.meta.get("frequency_signature") or {}
+    fsig = res.meta.get("frequency_signature") or {}  # select_effect's evidence, on both regressions' residuals
     f0 = float(fsig.get("f_mean_hz", float("nan")))
     if res.d != 1 or fsig.get("n_periods", 0) < 6 or not (f0 > 0) or "slope_time" not in fsig or not (k > 0):
         return None
@@ -233,7 +233,7 @@ class MissingDofEffect(Effect):
 
     def refine(self, res, e, best):
         """Frequencies within ``0.25 / T`` and damping ratios around the best ones (``zeta <= 0.05``)."""
-        T = max(len(st.t) for st in res.states) * res.dt
+        T = longest_segment_s(res)
         z0 = best["zeta"]
         # a lightly damped mode (zeta <= 0.05): a residual that dies out within a few cycles is a transient, not a mode
         zs = sorted({min(0.05, max(0.0, z0 * f)) for f in (0.6, 0.8, 1.0, 1.25, 1.5)} | {max(0.0, z0 - 0.0025), min(0.05, z0 + 0.0025)})

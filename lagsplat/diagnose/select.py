@@ -234,7 +234,7 @@ def select_effect(
     rule = {"min_delta_bic": min_delta_bic, "min_r2": min_r2, "min_cv_gain": min_cv_gain}
     # the chart-invariant signatures, read before the fits: a cubic stiffness must also show in the timing
     ev = signatures(res, model_freqs_hz=model_freqs_hz)
-    res.meta["frequency_signature"] = ev["frequency"]
+    res.meta["frequency_signature"] = wide.meta["frequency_signature"] = ev["frequency"]
     res.meta["signatures"] = wide.meta["signatures"] = ev  # read by the candidates' signature_support
     probs, prob_null, prob_model = _regressions(res, wide, n_folds, block_s)
     dirs = {k: directions(p.res) for k, p in probs.items()}

@@ -13,7 +13,12 @@ import numpy as np
 
 from lagsplat.diagnose.residual_data import Residual
 
-__all__ = ["residual_peaks", "excluded_bands", "frequency_allowed"]
+__all__ = ["residual_peaks", "excluded_bands", "frequency_allowed", "longest_segment_s"]
+
+
+def longest_segment_s(res: Residual) -> float:
+    """Duration of the residual's longest segment, s (what a frequency is resolved against)."""
+    return max(len(st.t) for st in res.states) * res.dt
 
 
 def excluded_bands(res: Residual) -> tuple[tuple[float, float], ...]:
@@ -44,7 +49,7 @@ def excluded_bands(res: Residual) -> tuple[tuple[float, float], ...]:
     base = sorted({f for f in [*res.meta.get("model_freqs_hz", []), res.f_dominant_hz] if math.isfinite(f) and f > 0})
     f_max = 0.25 / res.dt
     # harmonics k f (k >= 2) up to the band edge, each +-0.12 f: a distorted chart or force puts power there
-    T = max(len(st.t) for st in res.states) * res.dt
+    T = longest_segment_s(res)
     out = [(f, max(0.1, 1.5 / (T * f))) for f in base] + [(k * f, 0.12 / k) for f in base for k in range(2, int(f_max / f) + 2)]
     out += [(g, 0.12 * min(f, h) / g) for i, f in enumerate(base) for h in base[i + 1 :] for g in (f + h, abs(f - h)) if g > 0]  # combination tones
     for j in range(res.n_u):
@@ -57,7 +62,7 @@ def frequency_allowed(res: Residual, f: float) -> bool:
 
     The searchable band runs from 1.5 cycles of the longest segment to a quarter of the sampling rate.
     """
-    T = max(len(st.t) for st in res.states) * res.dt
+    T = longest_segment_s(res)
     if not (1.5 / T <= f <= 0.25 / res.dt):
         return False
     return all(abs(f - g) > rel * g for g, rel in excluded_bands(res) if math.isfinite(g) and g > 0)
