@@ -142,9 +142,15 @@ def measurable_gap_medians(rows: list[dict], metrics: Sequence[str]) -> dict[str
     measurable, ``n_refit`` effect clips with a reduction, ``n_kept`` of the
     ``n_refit - n`` others whose refit stays at or below the level,
     ``median_vs_control`` (the measurable clips' ``red_ctrl_<metric>``: the
-    refit against the same fine-tune without the term), and ``levels``
+    refit against the same fine-tune without the term), ``levels``
     (system -> no-effect level; systems without controls are left out, and so
-    are their clips).
+    are their clips), and the second reading of the same clips:
+    ``median_excess_removed``, the median share of the gap's excess over the
+    level that the refit removes, ``min(1, (before - after) / (before - level))``
+    (1: the refit brings the gap down to what the pipeline reaches with nothing
+    missing; ``1 - after / before`` cannot exceed ``1 - level / before`` however
+    good the refit, about 0.3 for a gap 1.5x the level), and ``n_at_level``, how
+    many of them the refit brings to the level or below.
     """
     out: dict[str, dict] = {}
     for k in metrics:
@@ -159,8 +165,12 @@ def measurable_gap_medians(rows: list[dict], metrics: Sequence[str]) -> dict[str
         rest = [r for r, a in zip(scored, above) if not a]
         kept = [r for r in rest if r["after"].get(k) is not None and r["after"][k] <= levels[r["system"]]]
         vs_ctrl = [r[f"red_ctrl_{k}"] for r in meas if r.get(f"red_ctrl_{k}") is not None]
+        lv = lambda r: levels[r["system"]]  # noqa: E731
+        excess = [min(1.0, (r["before"][k] - r["after"][k]) / (r["before"][k] - lv(r))) for r in meas if r["after"].get(k) is not None]
         out[k] = {"median": float(np.median([r[f"red_{k}"] for r in meas])) if meas else None, "n": len(meas), "n_refit": len(scored),
-                  "n_kept": len(kept), "median_vs_control": float(np.median(vs_ctrl)) if vs_ctrl else None, "levels": levels}  # fmt: skip
+                  "n_kept": len(kept), "median_vs_control": float(np.median(vs_ctrl)) if vs_ctrl else None, "levels": levels,
+                  "median_excess_removed": float(np.median(excess)) if excess else None,
+                  "n_at_level": sum(r["after"].get(k) is not None and r["after"][k] <= lv(r) for r in meas)}  # fmt: skip
     return out
 
 

@@ -253,6 +253,10 @@ def gather(rows: list[dict], out_md: Path, argv: list[str] | None = None) -> dic
             L += [f"Over the clips with a measurable gap (held-out eps_q above the largest of the same system's controls: {lv}): "
                   f"median eps_q change after the refit {med} ({m['n']} of the {m['n_refit']} refits; of the others, {m['n_kept']} "
                   "stay at or below the no-effect level after it).", ""]  # fmt: skip
+            if m["median_excess_removed"] is not None:
+                L += [f"On the same clips, the share of the gap's excess over the no-effect level that the refit removes "
+                      f"(min(1, (before - after) / (before - level))): median {100 * m['median_excess_removed']:.0f} %; "
+                      f"{m['n_at_level']} of the {m['n']} refits bring eps_q to the level or below.", ""]  # fmt: skip
     L += [f"Wall time per clip: median {summary['wall_s_median']:.0f} s, max {summary['wall_s_max']:.0f} s.", "",
           "| clip | status | gate | attempts | f_truth (Hz) | f_sim (Hz) | eps_freq vs truth | after diagnosis | eps_q | eps_I / eps_AE | continuity | coverage | saturation | verdict | reason |",
           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip

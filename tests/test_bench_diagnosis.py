@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 
+import numpy as np
 import pytest
 
 from lagsplat.diagnose.gap import gap_reduction
@@ -69,5 +70,17 @@ def test_only_gaps_above_the_same_systems_controls_count_towards_the_median(benc
     assert m["levels"] == {"pendulum": 0.002, "cart": 0.004}
     assert (m["n"], m["n_refit"], m["n_kept"]) == (3, 6, 2)
     assert m["median"] == pytest.approx(0.8)
+    # the second reading: (before - after) / (before - level) over the same three, none brought to the level
+    assert m["median_excess_removed"] == pytest.approx((0.05 - 0.01) / (0.05 - 0.004))
+    assert m["n_at_level"] == 0
     empty = bench.measurable_gap_medians([_row("cart", "none", 0.004, None, refit=False)])["eps_freq"]
-    assert empty["median"] is None and empty["n"] == 0
+    assert empty["median"] is None and empty["n"] == 0 and empty["median_excess_removed"] is None
+
+
+def test_the_share_of_the_excess_removed_stops_at_one_where_the_refit_reaches_the_no_effect_level(bench) -> None:
+    """A gap 1.5x the level that the refit takes below it: the plain reduction reads +40 %, the excess is all removed."""
+    rows = [_row("cart", "none", 0.02, None, refit=False), _row("cart", "coulomb", 0.03, 0.018), _row("cart", "end_stop", 0.06, 0.04)]
+    m = bench.measurable_gap_medians(rows)["eps_freq"]
+    assert m["n"] == 2 and m["n_at_level"] == 1
+    assert m["median"] == pytest.approx(np.median([1 - 0.018 / 0.03, 1 - 0.04 / 0.06]))
+    assert m["median_excess_removed"] == pytest.approx(np.median([1.0, 0.02 / 0.04]))
