@@ -21,7 +21,10 @@ axis, the hidden degree of freedom of ``missing_dof`` left out as the video's 1-
 chart leaves it) split where the pipeline's run split it (``n_train`` of its
 committed row in ``results/benchmarks/realistic/``, else
 :func:`lagsplat.prepare.auto_train_fraction`): what the diagnosis could read from a
-chart that is the truth up to a linear map and noise.
+chart that is the truth up to a linear map and noise. With ``--train-periods N`` the
+training part is the first ``N`` true periods instead (the short-clip protocol of
+``benchmarks/realistic.py --train-periods``, which cuts the same clips so): what a
+chart that is the truth could give the diagnosis on so short a record.
 
 The diagnosis (:func:`lagsplat.diagnose.diagnose_chart`, training frames only)
 is run without the label, which is read only to score; a hardening spring
@@ -64,6 +67,7 @@ from lagsplat.prepare import auto_train_fraction
 from lagsplat.synth.effects import simulate_effect
 from lagsplat.synth.effect_clips import blind_suite
 from lagsplat.synth.realistic import motion_of, realistic_suite
+from lagsplat.timeseries import spectral_peak_frequency
 from lagsplat.train.stage2 import Stage2Config, train_stage2
 
 
@@ -91,8 +95,9 @@ def latent_chart(entry: dict, noise: float, seed: int) -> Chart:
     return noisy_chart(z[:, None], run.t, run.split, noise, rng, entry["effect"], run.episode, run.u)
 
 
-def realistic_chart(entry: dict, noise: float, seed: int) -> Chart:
-    """A :class:`Chart` from a realistic-suite clip's true trajectory, split where the pipeline's run split it.
+def realistic_chart(entry: dict, noise: float, seed: int, train_periods: float | None = None) -> Chart:
+    """A :class:`Chart` from a realistic-suite clip's true trajectory, split where the pipeline's run split it
+    (``train_periods``: after that many periods of the true motion's spectral peak, instead).
 
     The first coordinate (both angles of the double pendulum) is linearly mapped, then whitened and given
     noise by :func:`noisy_chart`, as :func:`latent_chart` does.
@@ -102,7 +107,10 @@ def realistic_chart(entry: dict, noise: float, seed: int) -> Chart:
     x = motion.q[:, :d]
     row = REPORTS / "realistic" / f"{entry['name']}.json"
     n_train = json.loads(row.read_text()).get("n_train") if row.exists() else None
-    if not n_train:
+    if train_periods is not None:  # as benchmarks/realistic.py cuts a short clip: periods of the truth's spectral peak
+        f = float(spectral_peak_frequency(motion.q[:, :1], float(np.median(np.diff(motion.t)))))
+        n_train = int(round(train_periods / (f * float(motion.t[-1] - motion.t[0])) * len(x)))
+    elif not n_train:
         fps = 1.0 / float(np.median(np.diff(motion.t)))
         n_train = int(round(auto_train_fraction(len(x), motion.f0_hz, fps) * len(x)))
     split = np.full(len(x), HELD_OUT, np.int8)
@@ -136,16 +144,23 @@ def main() -> None:
     ap.add_argument("--report", type=Path, default=None,
                     help="write the Markdown report here (default: results/benchmarks/diagnosis_latent_<model>.md, none with --only)")  # fmt: skip
     ap.add_argument("--no-report", action="store_true", help="print only, write no report")
+    ap.add_argument("--train-periods", type=float, default=None,
+                    help="realistic suite: train on the first N true periods only (the short-clip protocol)")  # fmt: skip
     args = ap.parse_args()
+    if args.train_periods is not None and args.suite != "realistic":
+        ap.error("--train-periods needs --suite realistic")
     torch.set_num_threads(1)
-    name = f"diagnosis_latent_{'realistic_' if args.suite == 'realistic' else ''}{args.model}"
+    short = "" if args.train_periods is None else f"_short{args.train_periods:g}"
+    name = f"diagnosis_latent_{'realistic_' if args.suite == 'realistic' else ''}{args.model}{short}"
     path = None if args.no_report else args.report or (None if args.only else REPORTS / f"{name}.md")
     title = "Realistic suite's true trajectories" if args.suite == "realistic" else "Blind diagnosis at the latent level"
+    if args.train_periods is not None:
+        title += f", training frames cut to {args.train_periods:g} periods"
     rep = Report(f"{title}: model {args.model}, chart noise {args.noise:g}", path, __file__)
 
     if args.suite == "realistic":
         suite = [e for e in realistic_suite() if (REPORTS / "realistic" / f"{e['name']}.json").exists()]
-        make_chart = realistic_chart
+        make_chart = lambda e, noise, seed: realistic_chart(e, noise, seed, args.train_periods)  # noqa: E731
     else:
         suite = blind_suite(args.n_per_effect)
         make_chart = latent_chart
