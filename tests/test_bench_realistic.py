@@ -85,6 +85,22 @@ def test_the_truth_level_chart_is_split_where_the_pipeline_split_the_clip_and_wh
     assert 0.03 < float(np.std(noisy.q[:, 0] - chart.q[:, 0])) < 0.07
 
 
+def test_the_short_truth_level_chart_trains_on_three_periods_of_the_true_motion(load_benchmark) -> None:
+    import numpy as np
+
+    latent = load_benchmark("diagnosis_latent")
+    entry = next(e for e in latent.realistic_suite() if e["name"] == "spring_cart-none-s0-128")
+    motion = latent.motion_of(entry)
+    chart = latent.realistic_chart(entry, 0.0, 0, train_periods=3.0)
+    tr = chart.split == 0
+    n = int(tr.sum())
+    assert bool(tr[:n].all()) and not bool(tr[n:].any())
+    x = motion.q[:n, 0]  # a free decay from a turning point: three periods hold six turning points, the seventh lies beyond
+    turns = np.flatnonzero(np.sign(np.diff(x[1:])) != np.sign(np.diff(x[:-1])))
+    assert abs(n * float(np.median(np.diff(motion.t))) * motion.f0_hz - 3.0) < 0.1
+    assert len(turns) in (5, 6)
+
+
 def test_the_gap_reduction_is_also_read_over_the_clips_whose_gap_stands_out_of_their_systems_controls(bench, tmp_path) -> None:
     base = {"status": "ok", "f_truth_hz": 1.0, "eps_freq_truth": 0.01, "wall_s": 100.0, "diagnosis_status": "ok", "gate_passed": True}
 
