@@ -163,9 +163,9 @@ def measurable_gap_medians(rows: list[dict], metrics: Sequence[str]) -> dict[str
         above = [r["before"].get(k) is not None and r["before"][k] > levels[r["system"]] for r in scored]
         meas = [r for r, a in zip(scored, above) if a]
         rest = [r for r, a in zip(scored, above) if not a]
-        kept = [r for r in rest if r["after"].get(k) is not None and r["after"][k] <= levels[r["system"]]]
-        vs_ctrl = [r[f"red_ctrl_{k}"] for r in meas if r.get(f"red_ctrl_{k}") is not None]
         lv = lambda r: levels[r["system"]]  # noqa: E731
+        kept = [r for r in rest if r["after"].get(k) is not None and r["after"][k] <= lv(r)]
+        vs_ctrl = [r[f"red_ctrl_{k}"] for r in meas if r.get(f"red_ctrl_{k}") is not None]
         excess = [min(1.0, (r["before"][k] - r["after"][k]) / (r["before"][k] - lv(r))) for r in meas if r["after"].get(k) is not None]
         out[k] = {"median": float(np.median([r[f"red_{k}"] for r in meas])) if meas else None, "n": len(meas), "n_refit": len(scored),
                   "n_kept": len(kept), "median_vs_control": float(np.median(vs_ctrl)) if vs_ctrl else None, "levels": levels,
@@ -181,6 +181,16 @@ def realistic_verdict_ok(effect: str, verdict: str) -> bool:
     (``cubic_stiffness``), also when it reads "nothing significant": a convex potential can absorb it.
     """
     return verdict == effect or (effect == "cubic_stiffness" and verdict == "none")
+
+
+def short_train_fraction(q: np.ndarray, t: np.ndarray, periods: float) -> float:
+    """The training fraction of a realistic clip cut to ``periods`` periods of its true motion: ``periods / (f T)``,
+    ``f`` (Hz) the spectral peak of the first true coordinate ``q [T, d]`` (:func:`lagsplat.timeseries.spectral_peak_frequency`),
+    ``T`` the clip's span ``t[-1] - t[0]`` (s); rounded to 4 decimals (the short-clip protocol of ``realistic.py``)."""
+    from lagsplat.timeseries import spectral_peak_frequency
+
+    f = float(spectral_peak_frequency(q[:, :1], float(np.median(np.diff(t)))))
+    return round(periods / (f * float(t[-1] - t[0])), 4)
 
 
 def score_verdicts(rows: list[dict], file: TextIO | None = None) -> tuple[pd.DataFrame, float, int, int]:

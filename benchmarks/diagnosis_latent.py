@@ -56,7 +56,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import numpy as np
 import torch
-from _common import REPORTS, Report, realistic_verdict_ok, score_verdicts
+from _common import REPORTS, Report, realistic_verdict_ok, score_verdicts, short_train_fraction
 
 import lagsplat  # noqa: F401  (OpenMP wait policy before torch)
 from lagsplat.chart import Chart
@@ -67,7 +67,6 @@ from lagsplat.prepare import auto_train_fraction
 from lagsplat.synth.effects import simulate_effect
 from lagsplat.synth.effect_clips import blind_suite
 from lagsplat.synth.realistic import motion_of, realistic_suite
-from lagsplat.timeseries import spectral_peak_frequency
 from lagsplat.train.stage2 import Stage2Config, train_stage2
 
 
@@ -107,9 +106,8 @@ def realistic_chart(entry: dict, noise: float, seed: int, train_periods: float |
     x = motion.q[:, :d]
     row = REPORTS / "realistic" / f"{entry['name']}.json"
     n_train = json.loads(row.read_text()).get("n_train") if row.exists() else None
-    if train_periods is not None:  # as benchmarks/realistic.py cuts a short clip: periods of the truth's spectral peak
-        f = float(spectral_peak_frequency(motion.q[:, :1], float(np.median(np.diff(motion.t)))))
-        n_train = int(round(train_periods / (f * float(motion.t[-1] - motion.t[0])) * len(x)))
+    if train_periods is not None:  # as benchmarks/realistic.py cuts a short clip
+        n_train = int(round(short_train_fraction(motion.q, motion.t, train_periods) * len(x)))
     elif not n_train:
         fps = 1.0 / float(np.median(np.diff(motion.t)))
         n_train = int(round(auto_train_fraction(len(x), motion.f0_hz, fps) * len(x)))

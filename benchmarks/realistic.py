@@ -43,7 +43,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from _common import Report, measurable_gap_medians, realistic_verdict_ok  # this script's folder
+from _common import Report, measurable_gap_medians, realistic_verdict_ok, short_train_fraction  # this script's folder
 
 from lagsplat.artifacts import Artifacts  # noqa: E402
 from lagsplat.io.atomic import write_json  # noqa: E402
@@ -165,9 +165,7 @@ def short_clip(name: str, clips: Path, source: Path, results: Path, threads: int
     if not src.stage1.exists():
         raise FileNotFoundError(f"{src.stage1}: run the full clip first (--clip {name} --results {source})")
     z = np.load(clips / f"{name}.truth.npz")
-    t = z["t"]
-    f = float(spectral_peak_frequency(z["q"][:, :1], float(np.median(np.diff(t)))))
-    frac = round(periods / (f * float(t[-1] - t[0])), 4)
+    frac = short_train_fraction(z["q"], z["t"], periods)
     dst = Artifacts.for_run(results, name).system_dir
     if dst.exists():
         shutil.rmtree(dst)
