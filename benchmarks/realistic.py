@@ -298,6 +298,9 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if not a.clip or not a.row:
         ap.error("give --clip and --row, or --gather")
+    missing = [p for p in (a.clips / f"{a.clip}.mp4", a.clips / f"{a.clip}.truth.npz") if not p.exists()]
+    if missing:  # before any stage runs: the row needs the clip's ground truth
+        ap.error(f"{', '.join(map(str, missing))}: not found (render it: python -m lagsplat.synth.realistic --clip {a.clip} --out {a.clips})")
     if a.train_periods is not None:
         if a.from_results is None:
             ap.error("--train-periods needs --from-results (the full runs)")

@@ -123,3 +123,12 @@ def test_the_gap_reduction_is_also_read_over_the_clips_whose_gap_stands_out_of_t
     assert m["levels"] == {"pendulum": 0.066} and (m["n"], m["n_refit"], m["n_kept"]) == (2, 4, 1)
     assert m["median"] == pytest.approx(0.5)
     assert "measurable gap (held-out eps_q above the largest of the same system's controls: pendulum 0.066): median eps_q change after the refit +50 %" in (tmp_path / "r.md").read_text()
+
+
+def test_a_clip_not_rendered_stops_before_any_stage_naming_the_missing_files(bench, tmp_path, capsys) -> None:
+    row = tmp_path / "row.json"
+    with pytest.raises(SystemExit) as e:
+        bench.main(["--clip", "spring_cart-none-s0-128", "--clips", str(tmp_path), "--results", str(tmp_path / "res"), "--row", str(row)])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and "spring_cart-none-s0-128.truth.npz" in err and "python -m lagsplat.synth.realistic" in err
+    assert not row.exists() and not (tmp_path / "res").exists()
