@@ -325,3 +325,16 @@ def test_a_hidden_mode_too_small_to_move_the_object_is_not_a_finding() -> None:
     assert mode.interpretation["driven_over_motion"] < 0.01 and not mode.practical
     assert "too small to change what the video shows" in mode.interpretation["below_practical_size"]
     assert diag.winner == "none"
+
+
+def test_a_residual_at_the_motions_own_frequency_is_not_read_as_a_force_the_model_lacks() -> None:
+    """A nonlinear model's mode at rest can sit well off the frequency it moves at (a learned potential: 0.74 Hz at
+    rest, 0.62 Hz on the clip); a stiffness misfit then leaves a residual at the motion's frequency, which the
+    evidence must not list among the peaks the model lacks (where a periodic force or hidden mode is sought)."""
+    chart, _ = _oscillator(1.0, 0.0, 0.005, f_hz=0.62)
+    stiffer, _ = _oscillator(1.0, 0.0, 0.005, f_hz=0.66)
+    model = fit_linear_oscillator([stiffer.q[s] for s in stiffer.segments(TRAIN)], DT)  # 13 % too stiff for this clip
+    spec = diagnose_chart(model, chart, model_freqs_hz=[0.74])[0].evidence["spectrum"]
+    assert any(abs(f - 0.62) < 0.03 for f in spec["residual_peaks_hz"])  # the misfit shows at the motion's frequency
+    assert [round(f, 2) for f in spec["model_freqs_hz"]] == [0.62, 0.74]  # the model's mode and the motion's frequency
+    assert not any(abs(f - 0.62) < 0.03 for f in spec["unexplained_peaks_hz"])

@@ -153,7 +153,7 @@ def evidence_section(rep: Mapping[str, Any]) -> list[str]:
     sp = ev.get("spectrum", {})
     if sp:
         L.append(f"- residual spectral peaks (Hz): {', '.join(fmt_value(f) for f in sp.get('residual_peaks_hz', [])) or 'none'}; "
-                 f"not explained by the model's modes: {', '.join(fmt_value(f) for f in sp.get('unexplained_peaks_hz', [])) or 'none'}")  # fmt: skip
+                 f"away from the model's modes, the motion's frequency and their harmonics: {', '.join(fmt_value(f) for f in sp.get('unexplained_peaks_hz', [])) or 'none'}")  # fmt: skip
     asy = ev.get("asymmetry")
     if asy:
         L.append(f"- excursion asymmetry: {fmt_value(asy['ratio'], '.2f')} (1 = symmetric)")

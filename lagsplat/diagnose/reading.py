@@ -83,7 +83,7 @@ def _spectrum(sp: Mapping[str, Any]) -> str:
     extra = sp.get("unexplained_peaks_hz") or []
     if extra:
         return "residual spectrum: peaks the model lacks at " + ", ".join(f"{f:.3g}" for f in extra) + " Hz (a periodic force or a hidden mode)"
-    return "residual spectrum: no peak outside the model's modes and their harmonics"
+    return "residual spectrum: no peak away from the model's modes, the motion's frequency and their harmonics"
 
 
 def indistinguishable(ranking: list[Mapping[str, Any]], min_evidence: float = 0.0) -> list[str]:

@@ -8,6 +8,7 @@ evidence of :mod:`lagsplat.diagnose.signatures`.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -21,10 +22,10 @@ def longest_segment_s(res: Residual) -> float:
     return max(len(st.t) for st in res.states) * res.dt
 
 
-def excluded_bands(res: Residual) -> tuple[tuple[float, float], ...]:
+def excluded_bands(res: Residual, model_freqs_hz: Sequence[float] | None = None) -> tuple[tuple[float, float], ...]:
     """``(frequency, relative half-width)`` bands where a periodic force or hidden mode is not sought.
 
-    The model's own modes (``res.meta["model_freqs_hz"]``) and the dominant
+    The model's own modes (``model_freqs_hz``, Hz; default ``res.meta["model_freqs_hz"]``) and the dominant
     frequency of the encoded motion itself (+-10 %), their harmonics and, with
     several modes, their sum and difference frequencies (+-12 % of the mode
     frequency): a residual there is a misfit or a distortion (a nonlinear chart
@@ -46,7 +47,8 @@ def excluded_bands(res: Residual) -> tuple[tuple[float, float], ...]:
     motion, 1.465 Hz, sat just outside the band around twice the model's mode
     and was taken for a hidden mode.
     """
-    base = sorted({f for f in [*res.meta.get("model_freqs_hz", []), res.f_dominant_hz] if math.isfinite(f) and f > 0})
+    modes = res.meta.get("model_freqs_hz", []) if model_freqs_hz is None else model_freqs_hz
+    base = sorted({float(f) for f in [*modes, res.f_dominant_hz] if math.isfinite(f) and f > 0})
     f_max = 0.25 / res.dt
     # harmonics k f (k >= 2) up to the band edge, each +-0.12 f: a distorted chart or force puts power there
     T = longest_segment_s(res)
@@ -57,15 +59,16 @@ def excluded_bands(res: Residual) -> tuple[tuple[float, float], ...]:
     return tuple(out)
 
 
-def frequency_allowed(res: Residual, f: float) -> bool:
+def frequency_allowed(res: Residual, f: float, model_freqs_hz: Sequence[float] | None = None) -> bool:
     """Whether a periodic force / hidden mode at ``f`` Hz may be sought: inside the searchable band, outside :func:`excluded_bands`.
 
     The searchable band runs from 1.5 cycles of the longest segment to a quarter of the sampling rate.
+    ``model_freqs_hz``: the model's modes (Hz; default ``res.meta["model_freqs_hz"]``).
     """
     T = longest_segment_s(res)
     if not (1.5 / T <= f <= 0.25 / res.dt):
         return False
-    return all(abs(f - g) > rel * g for g, rel in excluded_bands(res) if math.isfinite(g) and g > 0)
+    return all(abs(f - g) > rel * g for g, rel in excluded_bands(res, model_freqs_hz) if math.isfinite(g) and g > 0)
 
 
 def residual_peaks(
