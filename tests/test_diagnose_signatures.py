@@ -338,3 +338,19 @@ def test_a_residual_at_the_motions_own_frequency_is_not_read_as_a_force_the_mode
     assert any(abs(f - 0.62) < 0.03 for f in spec["residual_peaks_hz"])  # the misfit shows at the motion's frequency
     assert [round(f, 2) for f in spec["model_freqs_hz"]] == [0.62, 0.74]  # the model's mode and the motion's frequency
     assert not any(abs(f - 0.62) < 0.03 for f in spec["unexplained_peaks_hz"])
+
+
+def test_a_frequency_trend_between_weak_and_strong_is_reported_as_not_conclusive_not_as_none() -> None:
+    from lagsplat.diagnose.reading import distinguishing_lines
+
+    def line(z_amp2: float, z_time: float) -> str:
+        fr = {"z_amp2": z_amp2, "z_time": z_time, "relative_shift_at_max_amplitude": -0.06, "relative_change_over_span": -0.02,
+              "corr_amp2_time": -0.5, "support_time": 0.0}  # fmt: skip
+        return next(s for s in distinguishing_lines({"evidence": {"frequency": fr}}) if s.startswith("- frequency"))
+
+    # a realistic spring cart whose stiffness drifts 6.6 % over the training frames: periods -2 % at z = -2.4
+    assert "a weak trend in time (-2.0 % over the recording, z = -2.4: not conclusive)" in line(-0.7, -2.4)
+    assert "frequency independent of the amplitude (z = -0.7)" in line(-0.7, -2.4)
+    assert "no drift in time (z = -1.2)" in line(-0.7, -1.2)
+    assert "it drifts over the recording (-2.0 %, z = -4.0)" in line(-0.7, -4.0)
+    assert "falls a little with the amplitude (-6.0 % at the largest, z = -2.5: not conclusive)" in line(-2.5, 0.0)

@@ -13,13 +13,16 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-__all__ = ["distinguishing_lines", "indistinguishable", "INDISTINGUISHABLE", "STRONG_Z", "CONFOUNDED"]
+__all__ = ["distinguishing_lines", "indistinguishable", "INDISTINGUISHABLE", "STRONG_Z", "WEAK_Z", "CONFOUNDED"]
 
 #: Evidence difference below which two candidates cannot be told apart ("not worth more than a bare mention", Kass & Raftery 1995)
 INDISTINGUISHABLE = 2.0
 
 #: |z| of a frequency slope that counts as a dependence (on amplitude or on time)
 STRONG_Z = 3.0
+
+#: |z| below :data:`STRONG_Z` from which a frequency slope is reported as a trend that is not conclusive (not as "none")
+WEAK_Z = 2.0
 
 #: |corr(A^2, t)| of the periods above which amplitude and time are one variable on the recording
 CONFOUNDED = 0.9
@@ -49,10 +52,15 @@ def _frequency(fr: Mapping[str, Any], min_delta_bic: float = 10.0) -> list[str]:
     if abs(za) >= STRONG_Z:
         amp = (f"frequency {'rises' if za > 0 else 'falls'} with the amplitude ({100 * _num(fr['relative_shift_at_max_amplitude']):+.1f} % at the "
                f"largest, z = {za:.1f}): a {'hardening spring or a stop' if za > 0 else 'softening restoring force'}")  # fmt: skip
+    elif abs(za) >= WEAK_Z:
+        amp = (f"frequency {'rises' if za > 0 else 'falls'} a little with the amplitude ({100 * _num(fr['relative_shift_at_max_amplitude']):+.1f} % "
+               f"at the largest, z = {za:.1f}: not conclusive)")  # fmt: skip
     else:
         amp = f"frequency independent of the amplitude (z = {za:.1f})"
     if abs(zt) >= STRONG_Z:
         time = f"it drifts over the recording ({100 * _num(fr['relative_change_over_span']):+.1f} %, z = {zt:.1f})"
+    elif abs(zt) >= WEAK_Z:
+        time = f"a weak trend in time ({100 * _num(fr['relative_change_over_span']):+.1f} % over the recording, z = {zt:.1f}: not conclusive)"
     else:
         time = f"no drift in time (z = {zt:.1f})"
     lines = [f"{amp}; {time}"]
