@@ -354,3 +354,21 @@ def test_a_frequency_trend_between_weak_and_strong_is_reported_as_not_conclusive
     assert "no drift in time (z = -1.2)" in line(-0.7, -1.2)
     assert "it drifts over the recording (-2.0 %, z = -4.0)" in line(-0.7, -4.0)
     assert "falls a little with the amplitude (-6.0 % at the largest, z = -2.5: not conclusive)" in line(-2.5, 0.0)
+
+
+def test_the_report_says_which_rule_stops_strong_evidence_from_being_a_finding() -> None:
+    from lagsplat.diagnose.reading import not_significant_lines
+
+    st = {"min_delta_bic": 10.0, "min_r2": 0.1, "min_cv_gain": 0.02}
+    small = {"effect": "cubic_stiffness", "evidence": 469.6, "delta_bic": 469.6, "r2": 0.85, "cv_gain": 0.84, "physical": True, "practical": False,
+             "significant": False, "interpretation": {"below_practical_size": "frequency shift 2.9 % at the largest amplitude, below 3 %"}}  # fmt: skip
+    no_cv = {"effect": "missing_dof", "evidence": 15.8, "delta_bic": 15.8, "r2": 0.3, "cv_gain": -2.9, "physical": True, "practical": True,
+             "significant": False, "signature_support": 0.0}  # fmt: skip
+    weak = {"effect": "coulomb", "evidence": 7.9, "delta_bic": 7.9, "r2": 0.5, "cv_gain": 0.3, "physical": True, "practical": True, "significant": False}
+    won = {**small, "effect": "end_stop", "practical": True, "significant": True}
+    lines = not_significant_lines({"settings": st, "ranking": [won, small, no_cv, weak]})
+    assert lines == ["- cubic_stiffness (evidence 469.6): set aside by its physical check: frequency shift 2.9 % at the largest amplitude, below 3 %",
+                     "- missing_dof (evidence 15.8): it does not predict held-back blocks of the training frames (CV gain -2.90, needs 0.02)"]  # fmt: skip
+    # the envelope's or rest's own evidence stands in for the CV gain (as the selection rule reads it)
+    assert not_significant_lines({"settings": st, "ranking": [{**no_cv, "cv_gain": 0.0, "signature_support": 12.0}]}) == []
+    assert "R2 needs 0.1" in not_significant_lines({"settings": st, "ranking": [{**no_cv, "r2": 0.05, "cv_gain": 0.5}]})[0]

@@ -11,7 +11,7 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-from lagsplat.diagnose.reading import distinguishing_lines
+from lagsplat.diagnose.reading import distinguishing_lines, not_significant_lines
 from lagsplat.diagnose.refit import GAP_METRICS
 
 __all__ = ["render_markdown", "fmt_value", "fmt_pct", "GAP_LABELS"]
@@ -132,6 +132,9 @@ def evidence_section(rep: Mapping[str, Any]) -> list[str]:
     if len(dg["ranking"]) > 1:
         a, b = dg["ranking"][0], dg["ranking"][1]
         L += ["", f"Margin of the first over the second: Delta BIC {fmt_value(a['delta_bic'] - b['delta_bic'], '.1f')}, CV gain {fmt_value(a['cv_gain'] - b['cv_gain'], '.2f')}."]
+    why_not = not_significant_lines(dg)
+    if why_not:
+        L += ["", "Strong evidence that is not a finding, and the rule that stops it:", "", *why_not]
     ev = dg["evidence"]
     L += ["", "Signatures (most visible latent direction):", ""]
     env = ev.get("envelope", {})

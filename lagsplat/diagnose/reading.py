@@ -13,7 +13,7 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-__all__ = ["distinguishing_lines", "indistinguishable", "INDISTINGUISHABLE", "STRONG_Z", "WEAK_Z", "CONFOUNDED"]
+__all__ = ["distinguishing_lines", "not_significant_lines", "indistinguishable", "INDISTINGUISHABLE", "STRONG_Z", "WEAK_Z", "CONFOUNDED"]
 
 #: Evidence difference below which two candidates cannot be told apart ("not worth more than a bare mention", Kass & Raftery 1995)
 INDISTINGUISHABLE = 2.0
@@ -135,3 +135,51 @@ def distinguishing_lines(dg: Mapping[str, Any]) -> list[str]:
     if close:
         lines.append(f"the residual cannot tell {', '.join(close[:-1])} and {close[-1]} apart (evidence within {INDISTINGUISHABLE:g} of each other)")
     return ["- " + s for s in lines if s]
+
+
+def _why_not(c: Mapping[str, Any], st: Mapping[str, Any]) -> list[str]:
+    """The rules of :func:`~lagsplat.diagnose.select.decide` that a ranked candidate (``report.json`` record) fails."""
+    why = []
+    if not c.get("physical", True):
+        why.append("its coefficients have an unphysical sign")
+    below = (c.get("interpretation") or {}).get("below_practical_size")
+    if c.get("practical") is False:
+        why.append(f"set aside by its physical check: {below}" if below else "set aside by its physical check (size, or the recorded timing)")
+    if _num(c.get("r2")) < float(st.get("min_r2", 0.1)):
+        why.append(f"it explains {_num(c.get('r2')):.2f} of the residual's variance (R2 needs {float(st.get('min_r2', 0.1)):g})")
+    cv, min_cv = _num(c.get("cv_gain")), float(st.get("min_cv_gain", 0.02))
+    confirmed = _num(c.get("signature_support")) >= float(st.get("min_delta_bic", 10.0)) and not cv < 0
+    if not cv >= min_cv and not confirmed:
+        why.append(f"it does not predict held-back blocks of the training frames (CV gain {cv:.2f}, needs {min_cv:g})")
+    return why
+
+
+def not_significant_lines(dg: Mapping[str, Any], n: int = 3) -> list[str]:
+    """Why the strongest candidates whose evidence passes the threshold are still not findings (markdown bullets).
+
+    A reader who sees ``Delta BIC 470`` beside "significant: no" needs the rule that stopped it: an
+    unphysical sign, the candidate's own physical check (:meth:`~lagsplat.diagnose.effect_base.Effect.practical`,
+    with its reason: e.g. a cubic stiffness whose frequency shift at the largest amplitude is under
+    ``min_cubic_shift``, or that the recorded periods contradict), too little of
+    the residual explained, or no blocked cross-validation gain (:func:`~lagsplat.diagnose.select.decide`).
+
+    Args:
+        dg: ``report.json["diagnosis"]``.
+        n: at most this many candidates, in ranking order.
+
+    Returns:
+        Lines starting with ``"- "`` (empty when no such candidate).
+    """
+    st = dg.get("settings") or {}
+    min_ev = float(st.get("min_delta_bic", 10.0))
+    out = []
+    for c in dg.get("ranking") or []:
+        ev = _num(c.get("evidence", c.get("delta_bic")))
+        if c.get("significant") or not ev >= min_ev:
+            continue
+        why = _why_not(c, st)
+        if why:
+            out.append(f"- {c['effect']} (evidence {ev:.1f}): " + "; ".join(why))
+        if len(out) >= n:
+            break
+    return out
