@@ -85,7 +85,12 @@ class Stage2Config:
             (:meth:`~lagsplat.models.icnn.ICNN.spread_kinks`); 0 keeps the default initialisation (every
             kink at the origin), which smears an end stop's wall over the whole range. Used for d = 1
             charts only (in d > 1 they would need directions; random ones did not help a double
-            pendulum), so there the kinks stay at the origin.
+            pendulum), so there the kinks stay at the origin; and only on clips without a logged input
+            (``n_u = 0``): where an input drives the motion, a potential with sharp kinks over the
+            range fits the input's force as a function of ``q`` and the free rollouts fail (blind
+            suite, 32 px, actuated pendulum with nothing missing: free-rollout NRMSE on the training
+            frames 0.86 at every selection with kinks at 30, 0.77 at 10, 0.20 with none; held-out
+            ``eps_q`` 0.79, where the one-step fit read 0.047).
         select_every: epochs between model-selection rollouts.
         select_from: fraction of the epochs after which a model can be selected: 0 (default) selects over
             the whole run on rollout error (paper §3.3), 1 keeps the last epoch's model (the reference
@@ -335,7 +340,7 @@ def train_stage2(
     model = cfg.build(d, n_u if n_u_model is None else int(n_u_model), inertia)
     with torch.no_grad():
         model.potential_hat.q_rest.copy_(torch.as_tensor(np.concatenate(q_smooth).mean(0), dtype=torch.float32))
-    if cfg.potential_kinks > 0 and d == 1:
+    if cfg.potential_kinks > 0 and d == 1 and n_u == 0:  # see Stage2Config.potential_kinks
         model.potential_hat.g.spread_kinks(torch.as_tensor(np.concatenate(q_smooth), dtype=torch.float32), cfg.potential_kinks, seed)
     model.init_energy_scales(2 * math.pi * f_train, cfg.zeta_floor)
     if augment is not None:
