@@ -125,3 +125,19 @@ def test_spread_kinks_and_shooting_follow_an_end_stop_the_default_smears():
     smooth = held_out_error(**PAPER_FIT)
     sharp = held_out_error(mass="learned", potential_kinks=30.0, rollout_steps=4)
     assert sharp < 0.5 * smooth, (sharp, smooth)
+
+
+def test_kinks_are_spread_only_on_a_chart_without_a_logged_input(monkeypatch):
+    """A kinked potential fits a logged input's force as a function of q (the free rollouts then fail), so a
+    chart with an input keeps the smooth initialisation; one without gets the kinks at the configured sharpness."""
+    import dataclasses
+
+    calls = []
+    monkeypatch.setattr(ICNN, "spread_kinks", lambda self, x, sharpness, seed=0: calls.append(float(sharpness)))
+    chart, _ = _end_stop_chart()
+    cfg = Stage2Config(epochs=1, windows_per_epoch=32)
+    train_stage2(chart, cfg, seed=0, progress=False)
+    assert calls == [cfg.potential_kinks] and cfg.potential_kinks > 0
+    u = np.sin(np.arange(len(chart.q)) * 0.05)[:, None]
+    train_stage2(dataclasses.replace(chart, u=u), cfg, seed=0, progress=False)
+    assert calls == [cfg.potential_kinks]  # not called again
