@@ -372,3 +372,22 @@ def test_the_report_says_which_rule_stops_strong_evidence_from_being_a_finding()
     # the envelope's or rest's own evidence stands in for the CV gain (as the selection rule reads it)
     assert not_significant_lines({"settings": st, "ranking": [{**no_cv, "cv_gain": 0.0, "signature_support": 12.0}]}) == []
     assert "R2 needs 0.1" in not_significant_lines({"settings": st, "ranking": [{**no_cv, "r2": 0.05, "cv_gain": 0.5}]})[0]
+
+
+def test_a_nonlinearity_the_identified_model_already_carries_is_named_under_nothing_significant() -> None:
+    from lagsplat.diagnose.reading import carried_nonlinearity_line
+
+    def dg(shift: float = 0.059, z: float = 52.7, excess: float = 0.654, corr: float = -0.5, support_time: float = 0.0) -> dict:
+        fr = {"z_amp2": z, "relative_shift_at_max_amplitude": shift, "corr_amp2_time": corr, "support_time": support_time}
+        return {"evidence": {"frequency": fr}, "null": {"excess_over_noise": excess}, "settings": {"min_cubic_shift": 0.03, "min_delta_bic": 10.0}}
+
+    # blind suite, cart with a hardening spring that the learned potential absorbed (verdict "nothing significant")
+    line = carried_nonlinearity_line(dg())
+    assert line.startswith("the recorded frequency rises with the amplitude (+5.9 % at the largest, z = 52.7): a hardening restoring force")
+    assert "already carries" in line and "drifting" not in line
+    assert "softening" in carried_nonlinearity_line(dg(shift=-0.08, z=-90.0))
+    assert carried_nonlinearity_line(dg(shift=0.006, z=-18.0)) == ""  # a pendulum's -0.6 %: below the practical size
+    assert carried_nonlinearity_line(dg(z=2.0)) == ""  # not strong evidence
+    assert carried_nonlinearity_line(dg(excess=5.0)) == ""  # the model does not reproduce the clip: not "carried"
+    assert "drifting in time would change the periods alike" in carried_nonlinearity_line(dg(corr=-0.97, support_time=3.0))
+    assert "drifting" not in carried_nonlinearity_line(dg(corr=-0.97, support_time=15.0))  # the timing separates them

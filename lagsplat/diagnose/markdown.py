@@ -11,7 +11,7 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-from lagsplat.diagnose.reading import distinguishing_lines, not_significant_lines
+from lagsplat.diagnose.reading import carried_nonlinearity_line, distinguishing_lines, not_significant_lines
 from lagsplat.diagnose.refit import GAP_METRICS
 
 __all__ = ["render_markdown", "fmt_value", "fmt_pct", "GAP_LABELS"]
@@ -91,6 +91,9 @@ def verdict_section(rep: Mapping[str, Any]) -> list[str]:
             "No candidate effect explains the residual of the identified model significantly beyond the model-class "
             "corrections (rule: physical, Delta BIC plus its signature's support >= {min_delta_bic:g}, R2 >= {min_r2:g}, blocked-CV gain >= {min_cv_gain:g}).".format(**dg["settings"])
         )
+        carried = carried_nonlinearity_line(dg)
+        if carried:
+            L.append(f"- {carried}.")
     else:
         for e in dg["effects"]:
             it = e.get("interpretation", {})

@@ -13,7 +13,7 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-__all__ = ["distinguishing_lines", "not_significant_lines", "indistinguishable", "INDISTINGUISHABLE", "STRONG_Z", "WEAK_Z", "CONFOUNDED"]
+__all__ = ["distinguishing_lines", "not_significant_lines", "carried_nonlinearity_line", "indistinguishable", "INDISTINGUISHABLE", "STRONG_Z", "WEAK_Z", "CONFOUNDED"]
 
 #: Evidence difference below which two candidates cannot be told apart ("not worth more than a bare mention", Kass & Raftery 1995)
 INDISTINGUISHABLE = 2.0
@@ -183,3 +183,35 @@ def not_significant_lines(dg: Mapping[str, Any], n: int = 3) -> list[str]:
         if len(out) >= n:
             break
     return out
+
+
+def carried_nonlinearity_line(dg: Mapping[str, Any], max_excess: float = 2.0) -> str:
+    """For a "nothing significant" verdict: the restoring force's nonlinearity that the identified model already carries.
+
+    A learned potential can absorb a hardening spring (or a pendulum's softening): the model then
+    reproduces the clip, the residual sits at the chart-noise level and no candidate is significant, yet
+    the recorded periods still show the physics. Where the frequency signature moves with the amplitude
+    with strong evidence (``|z| >= STRONG_Z``) and by at least ``min_cubic_shift`` at the largest
+    amplitude, and the residual left is within ``max_excess`` times the chart-noise variance, one line
+    says so (and, on one steady decay whose timing cannot separate them, that a stiffness drifting in
+    time would look the same).
+
+    Args:
+        dg: ``report.json["diagnosis"]``.
+        max_excess: largest residual / chart-noise variance at which the model counts as reproducing the clip.
+
+    Returns:
+        The line (no bullet), or ``""``.
+    """
+    fr = (dg.get("evidence") or {}).get("frequency") or {}
+    st, null = dg.get("settings") or {}, dg.get("null") or {}
+    za, shift = _num(fr.get("z_amp2")), _num(fr.get("relative_shift_at_max_amplitude"))
+    excess = _num(null.get("excess_over_noise"))
+    if not (abs(za) >= STRONG_Z and abs(shift) >= float(st.get("min_cubic_shift", 0.03)) and excess <= max_excess):
+        return ""
+    kind = "hardening" if shift > 0 else "softening"
+    line = (f"the recorded frequency {'rises' if shift > 0 else 'falls'} with the amplitude ({100 * shift:+.1f} % at the largest, z = {za:.1f}): "
+            f"a {kind} restoring force that the identified model already carries (its residual is {excess:.2g} x the chart noise), not a missing effect")  # fmt: skip
+    if abs(_num(fr.get("corr_amp2_time"))) >= CONFOUNDED and not _num(fr.get("support_time")) >= float(st.get("min_delta_bic", 10.0)):
+        line += "; on this steady decay a stiffness drifting in time would change the periods alike"
+    return line
