@@ -13,7 +13,22 @@ import numpy as np
 
 from lagsplat.io.common import jsonable
 
-__all__ = ["CandidateFit", "Diagnosis"]
+__all__ = ["CandidateFit", "Diagnosis", "failed_rules"]
+
+
+def failed_rules(physical: bool, practical: bool, evidence: float, r2: float, cv_gain: float, signature_support: float,
+                 min_delta_bic: float, min_r2: float, min_cv_gain: float) -> list[str]:  # fmt: skip
+    """The significance rules a candidate fails, in order (empty: significant).
+
+    ``"physical"`` (sign), ``"practical"`` (its effect's physical check), ``"evidence"`` (``Delta BIC`` plus
+    the signatures' support below ``min_delta_bic``), ``"r2"`` (below ``min_r2``) and ``"cv_gain"`` (below
+    ``min_cv_gain``, unless the signatures alone reach ``min_delta_bic`` and the cross-validation does not
+    lose: ``cv_gain >= 0`` or undefined). One rule for the selection
+    (:func:`~lagsplat.diagnose.select.decide`) and for the report's reading of a ``report.json`` record.
+    """
+    cv_ok = cv_gain >= min_cv_gain or (signature_support >= min_delta_bic and not cv_gain < 0)
+    checks = (("physical", physical), ("practical", practical), ("evidence", evidence >= min_delta_bic), ("r2", r2 >= min_r2), ("cv_gain", cv_ok))
+    return [name for name, ok in checks if not ok]
 
 
 @dataclass

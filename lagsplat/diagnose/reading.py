@@ -13,6 +13,8 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
+from lagsplat.diagnose.diagnosis import failed_rules
+
 __all__ = ["distinguishing_lines", "not_significant_lines", "carried_nonlinearity_line", "indistinguishable", "INDISTINGUISHABLE", "STRONG_Z", "WEAK_Z", "CONFOUNDED"]
 
 #: Evidence difference below which two candidates cannot be told apart ("not worth more than a bare mention", Kass & Raftery 1995)
@@ -138,20 +140,20 @@ def distinguishing_lines(dg: Mapping[str, Any]) -> list[str]:
 
 
 def _why_not(c: Mapping[str, Any], st: Mapping[str, Any]) -> list[str]:
-    """The rules of :func:`~lagsplat.diagnose.select.decide` that a ranked candidate (``report.json`` record) fails."""
-    why = []
-    if not c.get("physical", True):
-        why.append("its coefficients have an unphysical sign")
+    """The significance rules (:func:`~lagsplat.diagnose.diagnosis.failed_rules`) that a ranked candidate
+    (``report.json`` record) fails, in words."""
+    min_r2, min_cv = float(st.get("min_r2", 0.1)), float(st.get("min_cv_gain", 0.02))
+    failed = failed_rules(bool(c.get("physical", True)), c.get("practical") is not False, _num(c.get("evidence", c.get("delta_bic"))),
+                          _num(c.get("r2")), _num(c.get("cv_gain")), _num(c.get("signature_support", 0.0)),
+                          float(st.get("min_delta_bic", 10.0)), min_r2, min_cv)  # fmt: skip
     below = (c.get("interpretation") or {}).get("below_practical_size")
-    if c.get("practical") is False:
-        why.append(f"set aside by its physical check: {below}" if below else "set aside by its physical check (size, or the recorded timing)")
-    if _num(c.get("r2")) < float(st.get("min_r2", 0.1)):
-        why.append(f"it explains {_num(c.get('r2')):.2f} of the residual's variance (R2 needs {float(st.get('min_r2', 0.1)):g})")
-    cv, min_cv = _num(c.get("cv_gain")), float(st.get("min_cv_gain", 0.02))
-    confirmed = _num(c.get("signature_support")) >= float(st.get("min_delta_bic", 10.0)) and not cv < 0
-    if not cv >= min_cv and not confirmed:
-        why.append(f"it does not predict held-back blocks of the training frames (CV gain {cv:.2f}, needs {min_cv:g})")
-    return why
+    words = {
+        "physical": "its coefficients have an unphysical sign",
+        "practical": f"set aside by its physical check: {below}" if below else "set aside by its physical check (size, or the recorded timing)",
+        "r2": f"it explains {_num(c.get('r2')):.2f} of the residual's variance (R2 needs {min_r2:g})",
+        "cv_gain": f"it does not predict held-back blocks of the training frames (CV gain {_num(c.get('cv_gain')):.2f}, needs {min_cv:g})",
+    }
+    return [words[r] for r in failed if r in words]
 
 
 def not_significant_lines(dg: Mapping[str, Any], n: int = 3) -> list[str]:

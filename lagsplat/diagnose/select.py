@@ -140,7 +140,7 @@ from typing import Any
 import numpy as np
 
 from lagsplat.diagnose.candidates import candidate_design, fit_candidates
-from lagsplat.diagnose.diagnosis import CandidateFit, Diagnosis
+from lagsplat.diagnose.diagnosis import CandidateFit, Diagnosis, failed_rules
 from lagsplat.diagnose.effect_base import Effect
 from lagsplat.diagnose.effects import EFFECTS, get_effect
 from lagsplat.diagnose.reading import CONFOUNDED, INDISTINGUISHABLE
@@ -356,8 +356,8 @@ def decide(fits: Sequence[CandidateFit], min_delta_bic: float, min_r2: float, mi
         The first significant fit, or ``None`` (nothing significant).
     """
     for fit in fits:
-        cv_ok = fit.cv_gain >= min_cv_gain or (signature_confirmed(fit, min_delta_bic) and not fit.cv_gain < 0)
-        fit.significant = fit.physical and fit.practical and fit.evidence >= min_delta_bic and fit.r2 >= min_r2 and cv_ok
+        fit.significant = not failed_rules(fit.physical, fit.practical, fit.evidence, fit.r2, fit.cv_gain, fit.signature_support,
+                                           min_delta_bic, min_r2, min_cv_gain)  # fmt: skip
     return next((f for f in fits if f.significant), None)
 
 

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from lagsplat.diagnose.residual_data import Residual
-from lagsplat.diagnose.spectrum import frequency_allowed, residual_peaks
+from lagsplat.diagnose.spectrum import frequency_allowed, reference_frequencies, residual_peaks
 
 __all__ = ["directions", "signatures"]
 
@@ -312,10 +312,8 @@ def signatures(res: Residual, model_freqs_hz: Sequence[float] | None = None, dir
     segs = _segments(res, p)
     out: dict[str, Any] = {"envelope": _envelope(res, segs), "frequency": _frequency(res, segs)}
     peaks = residual_peaks(res.r @ e_top, res.segment, res.dt, 4)
-    modes = [float(f) for f in (model_freqs_hz if model_freqs_hz is not None else res.meta.get("model_freqs_hz", []))]
-    ref = sorted({f for f in [*modes, res.f_dominant_hz] if math.isfinite(f) and f > 0})
-    unexplained = [f for f in peaks if frequency_allowed(res, f, modes)]
-    out["spectrum"] = {"residual_peaks_hz": peaks, "model_freqs_hz": ref, "unexplained_peaks_hz": unexplained}
+    unexplained = [f for f in peaks if frequency_allowed(res, f, model_freqs_hz)]
+    out["spectrum"] = {"residual_peaks_hz": peaks, "model_freqs_hz": reference_frequencies(res, model_freqs_hz), "unexplained_peaks_hz": unexplained}
     pc = p - np.median(p)
     hi, lo = float(np.quantile(pc, 0.995)), float(-np.quantile(pc, 0.005))
     out["asymmetry"] = {"upper": hi, "lower": lo, "ratio": float(max(hi, lo) / max(min(hi, lo), 1e-300))}

@@ -14,12 +14,19 @@ import numpy as np
 
 from lagsplat.diagnose.residual_data import Residual
 
-__all__ = ["residual_peaks", "excluded_bands", "frequency_allowed", "longest_segment_s"]
+__all__ = ["residual_peaks", "reference_frequencies", "excluded_bands", "frequency_allowed", "longest_segment_s"]
 
 
 def longest_segment_s(res: Residual) -> float:
     """Duration of the residual's longest segment, s (what a frequency is resolved against)."""
     return max(len(st.t) for st in res.states) * res.dt
+
+
+def reference_frequencies(res: Residual, model_freqs_hz: Sequence[float] | None = None) -> list[float]:
+    """The frequencies the model already has, Hz, sorted: its modes (``model_freqs_hz``; default
+    ``res.meta["model_freqs_hz"]``) and the encoded motion's dominant frequency, finite and positive."""
+    modes = res.meta.get("model_freqs_hz", []) if model_freqs_hz is None else model_freqs_hz
+    return sorted({float(f) for f in [*modes, res.f_dominant_hz] if math.isfinite(f) and f > 0})
 
 
 def excluded_bands(res: Residual, model_freqs_hz: Sequence[float] | None = None) -> tuple[tuple[float, float], ...]:
@@ -47,8 +54,7 @@ def excluded_bands(res: Residual, model_freqs_hz: Sequence[float] | None = None)
     motion, 1.465 Hz, sat just outside the band around twice the model's mode
     and was taken for a hidden mode.
     """
-    modes = res.meta.get("model_freqs_hz", []) if model_freqs_hz is None else model_freqs_hz
-    base = sorted({float(f) for f in [*modes, res.f_dominant_hz] if math.isfinite(f) and f > 0})
+    base = reference_frequencies(res, model_freqs_hz)
     f_max = 0.25 / res.dt
     # harmonics k f (k >= 2) up to the band edge, each +-0.12 f: a distorted chart or force puts power there
     T = longest_segment_s(res)
