@@ -45,7 +45,7 @@ def test_every_experiment_delta_composes_validates_and_says_what_it_is(experimen
         ("stage1.steps=-1", "stage1.steps=-1: must be a positive integer"),
         ("stage1.steps=1.5", "stage1.steps=1.5: must be an integer"),
         ("device=gpu", "device=gpu: must be one of cpu, cuda, auto"),
-        ("stage2.mass=heavy", "stage2.mass=heavy: must be one of scalar, constant, learned, decoder"),
+        ("stage2.mass=heavy", "stage2.mass=heavy: must be one of auto, scalar, constant, learned, decoder"),
         ("stage2.potential=concave", "stage2.potential=concave: must be one of convex, invex"),
         ("stage1.backend=opengl", "stage1.backend=opengl: must be one of auto, cpu, torch, dense, gsplat"),
         ("system.d=0", "system.d=0: must be a positive integer"),

@@ -141,3 +141,26 @@ def test_kinks_are_spread_only_on_a_chart_without_a_logged_input(monkeypatch):
     u = np.sin(np.arange(len(chart.q)) * 0.05)[:, None]
     train_stage2(dataclasses.replace(chart, u=u), cfg, seed=0, progress=False)
     assert calls == [cfg.potential_kinks]  # not called again
+
+
+def test_auto_inertia_is_scalar_only_on_a_d1_chart_with_a_logged_input(tmp_path):
+    """``mass="auto"``: the learned M(q) trades off against a logged input's actuation map on a d = 1 chart, so
+    there the model is built with the scalar mass; elsewhere with the learned one. The saved model rebuilds
+    with the same inertia and weights."""
+    import dataclasses
+
+    from lagsplat.train.stage2 import load_stage2, save_stage2
+
+    cfg = Stage2Config(epochs=1, windows_per_epoch=32)
+    assert cfg.mass == "auto"
+    assert [cfg.build(d, n_u).mass_kind for d, n_u in ((1, 0), (1, 2), (2, 1), (3, 0))] == ["learned", "scalar", "learned", "learned"]
+    assert Stage2Config(mass="constant").build(1, 1).mass_kind == "constant"  # an explicit choice is kept
+    chart, _ = _end_stop_chart()
+    u = np.sin(np.arange(len(chart.q)) * 0.05)[:, None]
+    model, hist = train_stage2(dataclasses.replace(chart, u=u), cfg, seed=0, progress=False)
+    assert model.mass_kind == "scalar" and model.mass_field is None
+    save_stage2(tmp_path / "stage2.pt", model, cfg, hist)
+    again, ck = load_stage2(tmp_path / "stage2.pt")
+    assert again.mass_kind == "scalar" and ck["config"]["mass"] == "auto"
+    for (k, a), (_, b) in zip(model.state_dict().items(), again.state_dict().items()):
+        torch.testing.assert_close(a, b, msg=k)
