@@ -38,6 +38,16 @@ def test_a_refit_is_confirmed_only_beyond_the_noise() -> None:
     assert held_out_check(_gap(before, five, None, sd=0.001), ["coulomb"])["confirmed"]  # no control fine-tune: against before only
 
 
+def test_the_held_out_check_names_what_each_change_is_against() -> None:
+    """Two numbers per metric: the change against the identified model and against the control fine-tune (whose own
+    change is not printed), each named, so that neither reads as the other."""
+    before, ctrl, after = {"eps_q": 0.4, "image_excess": 2.0}, {"eps_q": 0.5, "image_excess": 2.0}, {"eps_q": 0.2, "image_excess": 1.0}
+    text = held_out_check(_gap(before, after, ctrl, sd=0.001), ["end_stop"])["text"]
+    assert "eps q +50 % against the identified model, +60 % against the same fine-tune without the term" in text, text
+    text = held_out_check(_gap(before, after, None, sd=0.001), ["end_stop"])["text"]
+    assert "eps q +50 % against the identified model" in text and "without the term" not in text, text
+
+
 def _report(envelope: dict, cautions: list[str] | None = None) -> dict:
     gap = {"eps_q": 0.1, "eps_freq": 0.01, "envelope_decay_error": 0.4, "image_excess": 1.0, "envelope": envelope}
     return {

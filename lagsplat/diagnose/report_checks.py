@@ -146,7 +146,8 @@ def held_out_check(gap: Mapping[str, Any], effects: Sequence[str]) -> dict[str, 
     ok = all(_beyond_floor(gap, k, ref) for k in CHECK_METRICS for ref in refs)
     name = ", ".join(effects)
     nums = "; ".join(
-        f"{k.replace('_', ' ')} {fmt_pct(red[k])}" + (f" (vs the control fine-tune {fmt_pct(red_c[k])})" if gap.get("control") else "")
+        f"{k.replace('_', ' ')} {fmt_pct(red[k])} against the identified model"
+        + (f", {fmt_pct(red_c[k])} against the same fine-tune without the term" if gap.get("control") else "")
         for k in CHECK_METRICS
     )
     text = (
