@@ -251,7 +251,7 @@ def _cpu_model() -> str:
     return platform.processor() or platform.machine()
 
 
-def _git_commit() -> str:
+def git_commit() -> str:
     """``<short hash>`` of the checkout, ``+ uncommitted changes`` when tracked files differ; ``unknown`` outside git.
 
     Read-only: ``GIT_OPTIONAL_LOCKS=0`` keeps ``git status`` from rewriting the index.
@@ -285,7 +285,7 @@ def environment() -> dict[str, str]:
         env["numba"] = f"{numba.__version__}, {_threads(numba.get_num_threads())}"
     except ImportError:
         env["numba"] = "not installed"
-    env["commit"] = _git_commit()
+    env["commit"] = git_commit()
     return env
 
 

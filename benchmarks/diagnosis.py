@@ -90,7 +90,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import lagsplat  # noqa: F401  (sets the OpenMP wait policy before torch)
 import numpy as np
 import torch
-from _common import REPORTS, Report, score_verdicts
+from _common import REPORTS, Report, git_commit, score_verdicts
 from _common import measurable_gap_medians as measurable_gap_medians_of
 
 from lagsplat.artifacts import Artifacts  # noqa: E402
@@ -312,7 +312,7 @@ def summarize(rows: list[dict], timings: dict[str, dict], budget: str, markdown:
     buf = io.StringIO()
     if markdown:
         print(f"# Blind diagnosis suite: budget {budget}, {len(rows)} clips", file=buf)
-    table, acc, flagged, n_controls = score_verdicts([{k: v for k, v in r.items() if k not in ("before", "after")} for r in rows], file=buf)
+    table, acc, flagged, n_controls = score_verdicts([{k: v for k, v in r.items() if k not in ("before", "after", "commit")} for r in rows], file=buf)
     effects = table[(table["truth"] != "none") & table["refit"]]
     def median(col: str) -> float | None:
         return float(np.nanmedian(effects[col].astype(float))) if len(effects) and effects[col].notna().any() else None
@@ -331,6 +331,9 @@ def summarize(rows: list[dict], timings: dict[str, dict], budget: str, markdown:
         lines.append(f"chart-quality gate passed (lagsplat.chart_gate): {len(passed)}/{len(table)}"
                      + (f"; top-1 accuracy on those {float(passed['ok'].mean()):.3f}" if len(passed) else ""))  # fmt: skip
     lines.append(f"effect clips refit: {len(effects)}/{int((table['truth'] != 'none').sum())}")
+    commits = pd.Series([r.get("commit") for r in rows]).dropna().value_counts()
+    if len(commits):  # rows read by --gather (read_rows) say where they were measured
+        lines.append("rows measured at commit: " + ", ".join(f"{c} ({n} rows)" for c, n in sorted(commits.items())))
     pct = lambda v: "n/a" if v is None else f"{100 * v:+.0f} %"  # noqa: E731
     for k in GAP_METRICS:
         lines.append(f"median held-out gap reduction, {k}: {pct(med[k])} (vs the same refit without the term: {pct(med_c[k])})")
@@ -350,7 +353,8 @@ def summarize(rows: list[dict], timings: dict[str, dict], budget: str, markdown:
 
 
 def read_rows(paths: list[str]) -> tuple[list[dict], dict[str, dict], str]:
-    """``(rows, timings, budget)`` from the files written by ``--clip ... --row`` (in the order given).
+    """``(rows, timings, budget)`` from the files written by ``--clip ... --row`` (in the order given); each row
+    carries the ``commit`` its file was written at (``"not recorded"`` in a file from before the rows held it).
 
     Raises:
         ValueError: if the files are of different budgets, or two are of the same clip.
@@ -362,7 +366,7 @@ def read_rows(paths: list[str]) -> tuple[list[dict], dict[str, dict], str]:
     names = [d["row"]["clip"] for d in docs]
     if len(set(names)) != len(names):
         raise ValueError(f"--gather: a clip given twice: {sorted({n for n in names if names.count(n) > 1})}")
-    return [d["row"] for d in docs], {d["row"]["clip"]: d["timing"] for d in docs}, budgets[0]
+    return [{**d["row"], "commit": d.get("commit", "not recorded")} for d in docs], {d["row"]["clip"]: d["timing"] for d in docs}, budgets[0]
 
 
 def main() -> None:
@@ -433,7 +437,7 @@ def main() -> None:
         print("no clip selected")
         return
     if args.row:
-        write_json(args.row, {"budget": args.budget, "row": rows[0], "timing": timings[rows[0]["clip"]]})
+        write_json(args.row, {"budget": args.budget, "commit": git_commit(), "row": rows[0], "timing": timings[rows[0]["clip"]]})
     report(rows, timings, args.budget, args, rep)
 
 

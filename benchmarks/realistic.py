@@ -43,7 +43,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from _common import Report, measurable_gap_medians, realistic_verdict_ok, short_train_fraction  # this script's folder
+from _common import Report, git_commit, measurable_gap_medians, realistic_verdict_ok, short_train_fraction  # this script's folder
 
 from lagsplat.artifacts import Artifacts  # noqa: E402
 from lagsplat.io.atomic import write_json  # noqa: E402
@@ -74,19 +74,12 @@ def run_clip(name: str, clips: Path, results: Path, threads: int, extra: list[st
     return r.returncode, (lines[-1] if lines else (r.stderr.strip().splitlines() or [""])[-1]), time.perf_counter() - t0
 
 
-def _commit() -> str:
-    """The repository's commit (short hash, ``+dirty`` when the tree has changes), or ``unknown``."""
-    git = lambda *a: subprocess.run(["git", *a], cwd=ROOT, capture_output=True, text=True, check=False).stdout.strip()  # noqa: E731
-    head = git("rev-parse", "--short", "HEAD")
-    return (head + ("+dirty" if git("status", "--porcelain", "--untracked-files=no") else "")) if head else "unknown"
-
-
 def row_of(name: str, clips: Path, results: Path, code: int, reason: str, wall_s: float) -> dict:
     """One scored row of the suite (see the module docstring)."""
     spec = clip_spec(name)
     art = Artifacts.for_run(results, name)
     n_train = art.load_clip().meta["split"]["n_train"] if art.clip.exists() else None  # the split the run chose
-    row = {**spec, "exit_code": code, "wall_s": round(wall_s, 1), "commit": _commit(), "load_1min": round(os.getloadavg()[0], 2), "f_truth_hz": truth_frequency(clips / f"{name}.truth.npz", n_train), "n_train": n_train}
+    row = {**spec, "exit_code": code, "wall_s": round(wall_s, 1), "commit": git_commit(), "load_1min": round(os.getloadavg()[0], 2), "f_truth_hz": truth_frequency(clips / f"{name}.truth.npz", n_train), "n_train": n_train}
     if art.chart.exists():  # the chart-quality gate, also for a run that stopped at it
         gate = art.load_chart().meta.get("gate") or {}
         row.update(gate_passed=gate.get("passed"), gate={k: round(v["value"], 4) for k, v in gate.get("checks", {}).items()})
@@ -180,7 +173,7 @@ def short_clip(name: str, clips: Path, source: Path, results: Path, threads: int
     row = {**row_of(name, clips, results, code, reason, wall), "train_periods": periods, "train_fraction": frac}
     if code == 0:
         code, reason, w = run_clip(name, clips, results, threads, over, stage="diagnose")
-        row.update(diagnosis_of(name, results, code, reason, w), diagnosis_commit=_commit())
+        row.update(diagnosis_of(name, results, code, reason, w), diagnosis_commit=git_commit())
     return row
 
 
@@ -327,7 +320,7 @@ def main(argv: list[str] | None = None) -> int:
         write_json(a.row, row)
     if a.diagnose and Artifacts.for_run(a.results, a.clip).chart.exists():
         code, reason, wall = run_clip(a.clip, a.clips, a.results, a.threads, a.extra, stage="diagnose")
-        row.update(diagnosis_of(a.clip, a.results, code, reason, wall), diagnosis_commit=_commit())
+        row.update(diagnosis_of(a.clip, a.results, code, reason, wall), diagnosis_commit=git_commit())
         write_json(a.row, row)
     print(json.dumps(row))
     return 0

@@ -84,3 +84,26 @@ def test_the_share_of_the_excess_removed_stops_at_one_where_the_refit_reaches_th
     assert m["n"] == 2 and m["n_at_level"] == 1
     assert m["median"] == pytest.approx(np.median([1 - 0.018 / 0.03, 1 - 0.04 / 0.06]))
     assert m["median_excess_removed"] == pytest.approx(np.median([1.0, 0.02 / 0.04]))
+
+
+def test_gathered_rows_say_the_commit_they_were_measured_at(bench, tmp_path) -> None:
+    """``--clip ... --row`` files carry the commit; ``--gather`` lists each commit with its count, and a row file
+    written before rows held one as "not recorded", never as the current checkout."""
+    import json
+    from pathlib import Path
+
+    src = Path(__file__).resolve().parents[1] / "results" / "benchmarks" / "diagnosis" / "cheap"
+    paths = []
+    for name, commit in (("pendulum-none-0", "abc1234"), ("cart-coulomb-0", None)):
+        doc = json.loads((src / f"{name}.json").read_text())
+        doc.pop("commit", None)
+        if commit:
+            doc["commit"] = commit
+        paths.append(tmp_path / f"{name}.json")
+        paths[-1].write_text(json.dumps(doc))
+    rows, timings, budget = bench.read_rows([str(p) for p in paths])
+    assert [r["commit"] for r in rows] == ["abc1234", "not recorded"] and budget == "cheap"
+    text, record = bench.summarize(rows, timings, budget, markdown=True)
+    assert "rows measured at commit: abc1234 (1 rows), not recorded (1 rows)" in text
+    header = next(ln for ln in text.splitlines() if ln.startswith("| clip"))
+    assert "commit" not in header  # not a column of the per-clip table
