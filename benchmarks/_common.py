@@ -24,6 +24,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections import Counter
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from datetime import datetime, timezone
@@ -191,6 +192,11 @@ def short_train_fraction(q: np.ndarray, t: np.ndarray, periods: float) -> float:
 
     f = float(spectral_peak_frequency(q[:, :1], float(np.median(np.diff(t)))))
     return round(periods / (f * float(t[-1] - t[0])), 4)
+
+
+def commit_counts(commits: Sequence[str]) -> str:
+    """``"<commit> (<n> rows), ..."``: each commit the rows of a suite were measured at, with its count, sorted."""
+    return ", ".join(f"{c} ({n} rows)" for c, n in sorted(Counter(commits).items()))
 
 
 def score_verdicts(rows: list[dict], file: TextIO | None = None) -> tuple[pd.DataFrame, float, int, int]:

@@ -90,7 +90,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import lagsplat  # noqa: F401  (sets the OpenMP wait policy before torch)
 import numpy as np
 import torch
-from _common import REPORTS, Report, git_commit, score_verdicts
+from _common import REPORTS, Report, commit_counts, git_commit, score_verdicts
 from _common import measurable_gap_medians as measurable_gap_medians_of
 
 from lagsplat.artifacts import Artifacts  # noqa: E402
@@ -331,9 +331,9 @@ def summarize(rows: list[dict], timings: dict[str, dict], budget: str, markdown:
         lines.append(f"chart-quality gate passed (lagsplat.chart_gate): {len(passed)}/{len(table)}"
                      + (f"; top-1 accuracy on those {float(passed['ok'].mean()):.3f}" if len(passed) else ""))  # fmt: skip
     lines.append(f"effect clips refit: {len(effects)}/{int((table['truth'] != 'none').sum())}")
-    commits = pd.Series([r.get("commit") for r in rows]).dropna().value_counts()
-    if len(commits):  # rows read by --gather (read_rows) say where they were measured
-        lines.append("rows measured at commit: " + ", ".join(f"{c} ({n} rows)" for c, n in sorted(commits.items())))
+    commits = [r["commit"] for r in rows if r.get("commit")]
+    if commits:  # rows read by --gather (read_rows) say where they were measured
+        lines.append("rows measured at commit: " + commit_counts(commits))
     pct = lambda v: "n/a" if v is None else f"{100 * v:+.0f} %"  # noqa: E731
     for k in GAP_METRICS:
         lines.append(f"median held-out gap reduction, {k}: {pct(med[k])} (vs the same refit without the term: {pct(med_c[k])})")

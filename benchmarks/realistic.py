@@ -43,7 +43,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from _common import Report, git_commit, measurable_gap_medians, realistic_verdict_ok, short_train_fraction  # this script's folder
+from _common import Report, commit_counts, git_commit, measurable_gap_medians, realistic_verdict_ok, short_train_fraction  # this script's folder
 
 from lagsplat.artifacts import Artifacts  # noqa: E402
 from lagsplat.io.atomic import write_json  # noqa: E402
@@ -218,7 +218,7 @@ def gather(rows: list[dict], out_md: Path, argv: list[str] | None = None) -> dic
     summary["commits"] = commits
     L = [f"{summary['n_clips']} clips over {len(summary['systems'])} systems: {summary['n_ok']} with metrics, "
          f"{summary['n_stopped']} stopped with a reason, {summary['n_crashed']} crashed; the chart passed the quality gate "
-         f"on {summary['n_gate_passed']}. Rows measured at commit {', '.join(commits)}.", ""]  # fmt: skip
+         f"on {summary['n_gate_passed']}. Rows measured at commit {commit_counts([r.get('commit', 'unknown') for r in rows])}.", ""]  # fmt: skip
     if summary["share_within_5pct_of_gate_passed"] is not None:
         L += [f"Of the clips whose chart passed the gate and that have metrics, {100 * summary['share_within_5pct_of_gate_passed']:.0f} % "
               "are within 5 % of the true frequency.", ""]  # fmt: skip

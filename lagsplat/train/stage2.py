@@ -143,6 +143,17 @@ class Stage2Config:
             return self.mass
         return "scalar" if d == 1 and n_u > 0 else "learned"
 
+    def effective_rollout_steps(self, d: int) -> int:
+        """Verlet steps per training window on a chart of dimension ``d``: ``rollout_steps`` for ``d == 1``,
+        else 1 (Eq. 8's one-step fit; see ``rollout_steps``)."""
+        return int(self.rollout_steps) if d == 1 else 1
+
+    def effective_kinks(self, d: int, n_u: int = 0) -> float:
+        """Sharpness of the potential's spread kinks on a chart of dimension ``d`` with ``n_u`` logged input
+        channels: ``potential_kinks`` for ``d == 1`` without an input, else 0 (kinks at the origin; see
+        ``potential_kinks``)."""
+        return float(self.potential_kinks) if d == 1 and n_u == 0 else 0.0
+
     def build(self, d: int, n_u: int = 0, inertia: DecoderInertia | None = None) -> Lagrangian:
         """The (untrained) :class:`Lagrangian` these settings describe.
 
@@ -273,7 +284,7 @@ def training_windows(chart: Chart, cfg: Stage2Config, seed: int = 0, what: str =
     u_segs = [chart.u[s] for s in segs]
     wins = [one_step_windows(qs, dt, cfg.stride, us) for qs, us in zip(q_smooth, u_segs)]
     Q0, V0, Q1, V1, U0, U1 = (torch.as_tensor(np.concatenate([w[i] for w in wins]), dtype=torch.float32) for i in range(6))
-    K = int(cfg.rollout_steps) if chart.d == 1 else 1
+    K = cfg.effective_rollout_steps(chart.d)
     multi = [multi_step_windows(qs, dt, cfg.stride, K, us) for qs, us in zip(q_smooth, u_segs)]
     shooting = tuple(torch.as_tensor(np.concatenate([w[i] for w in multi]), dtype=torch.float32) for i in range(5))
     if len(shooting[0]) == 0:
@@ -354,8 +365,8 @@ def train_stage2(
     model = cfg.build(d, n_u if n_u_model is None else int(n_u_model), inertia)
     with torch.no_grad():
         model.potential_hat.q_rest.copy_(torch.as_tensor(np.concatenate(q_smooth).mean(0), dtype=torch.float32))
-    if cfg.potential_kinks > 0 and d == 1 and n_u == 0:  # see Stage2Config.potential_kinks
-        model.potential_hat.g.spread_kinks(torch.as_tensor(np.concatenate(q_smooth), dtype=torch.float32), cfg.potential_kinks, seed)
+    if (kinks := cfg.effective_kinks(d, n_u)) > 0:
+        model.potential_hat.g.spread_kinks(torch.as_tensor(np.concatenate(q_smooth), dtype=torch.float32), kinks, seed)
     model.init_energy_scales(2 * math.pi * f_train, cfg.zeta_floor)
     if augment is not None:
         model = augment(model)
