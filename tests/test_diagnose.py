@@ -449,6 +449,39 @@ def test_a_periodic_force_too_small_to_move_the_object_is_not_a_finding() -> Non
     assert not rejected.practical and "below" in rejected.interpretation["below_practical_size"]
 
 
+def _bilinear_spring_chart(ratio: float, kink: float) -> Chart:
+    """12 s of a spring ``ratio`` times stiffer beyond ``x = kink`` (rest at 0, released from ``x = -1``), as a whitened chart."""
+    from scipy.integrate import solve_ivp
+
+    w0, zeta = 2 * math.pi * 0.7, 0.01
+    t = np.arange(int(12 / DT)) * DT
+
+    def rhs(_t, y):
+        return [y[1], -w0 * w0 * y[0] - (ratio - 1) * w0 * w0 * max(y[0] - kink, 0.0) - 2 * zeta * w0 * y[1]]
+
+    x = solve_ivp(rhs, (0, t[-1]), [-1.0, 0.0], t_eval=t, rtol=1e-10, atol=1e-12, method="LSODA", max_step=DT / 4).y[0]
+    q = (x - x.mean()) / x.std() + 0.01 * np.random.default_rng(0).standard_normal(len(x))
+    n, I = len(q), np.eye(1)
+    return Chart(mean=np.zeros(1), W=I, W_inv=I, q=q[:, None], t=t, split=np.full(n, TRAIN, np.int8), G_bar=I,
+                 A=I, ae_mse=np.zeros(n), ae_floor_train=0.0, ae_floor_held_out=0.0, height=64, width=64)  # fmt: skip
+
+
+def test_a_kink_inside_the_range_of_motion_is_a_bilinear_spring_not_an_end_stop() -> None:
+    # a stop limits the range from a gap beyond rest; a spring 10x stiffer past a point on the near side of rest
+    # is touched on ~30 % of the samples: the one-sided feature fits it overwhelmingly, but it is not a stop
+    bilinear = _bilinear_spring_chart(10.0, -0.2)
+    diag, _ = diagnose_chart(_linear(bilinear), bilinear)
+    stop = next(f for f in diag.ranking if f.effect == "end_stop")
+    assert stop.delta_bic > 100 and stop.interpretation["fraction_in_contact"] > 0.25 and stop.interpretation["stiffness_ratio"] > 2
+    assert diag.winner != "end_stop" and not stop.practical and "inside the range" in stop.interpretation["below_practical_size"]
+    loose, _ = diagnose_chart(_linear(bilinear), bilinear, max_stop_contact_fraction=1.0)
+    assert loose.winner == "end_stop"  # without the contact rule it would be reported as a stop
+    # the same spring with its kink at a gap beyond rest, as a stop sits: touched briefly, and named
+    gap = _bilinear_spring_chart(20.0, 0.6)
+    diag, _ = diagnose_chart(_linear(gap), gap)
+    assert diag.winner == "end_stop" and diag.effects[0].interpretation["fraction_in_contact"] < 0.15
+
+
 def _first_periods(chart: Chart, periods: float) -> Chart:
     """The first ``periods`` periods of ``chart``'s first training episode, all training frames (a short clip)."""
     from lagsplat.timeseries import spectral_peak_frequency

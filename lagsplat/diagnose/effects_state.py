@@ -120,7 +120,12 @@ class EndStopEffect(Effect):
     In class. The stop position ``s_stop`` (grid on quantiles of ``s``, then refined) and
     the side are profiled; position, stiffness and the share of samples in contact are read on
     the chart's own, unsmoothed positions (:attr:`~lagsplat.diagnose.residual_data.SegmentState.q_raw`).
-    Practical only when ``k_stop`` is at least ``min_stop_stiffness_ratio`` times the spring's.
+    Practical only when ``k_stop`` is at least ``min_stop_stiffness_ratio`` times the spring's and
+    the stop is touched on at most ``max_stop_contact_fraction`` of the samples: a stop limits the
+    range of motion from a gap beyond the rest position, so the object spends a minority of its time
+    on it (a true stop on the suites' clips: 1-10 % of the samples). A kink touched on a quarter of
+    the samples or more lies inside the range: a spring that is stiffer on one side (a bilinear
+    spring; at the rest position it takes ``1 / (1 + sqrt(ratio))`` of the time, 34 % at 3.7x).
     """
 
     def grid(self, res, e, r0):
@@ -144,11 +149,17 @@ class EndStopEffect(Effect):
         return (lambda st: -side * _relu(side * (st.q_raw @ e - a))), ["k_stop"]
 
     def practical(self, interpretation, thresholds):
-        """A stop only when its stiffness is at least ``min_stop_stiffness_ratio`` times the spring's."""
+        """A stop only when it is at least ``min_stop_stiffness_ratio`` times as stiff as the spring and touched on at
+        most ``max_stop_contact_fraction`` of the samples (class docstring)."""
         ratio = interpretation.get("stiffness_ratio", float("nan"))
         lo = thresholds.get("min_stop_stiffness_ratio", 2.0)
         if not (ratio >= lo):
             return False, f"stop stiffness {ratio:.2g}x the spring's, below {lo:g}x: a gentle asymmetry of the spring, not a stop"
+        frac = interpretation.get("fraction_in_contact", float("nan"))
+        hi = thresholds.get("max_stop_contact_fraction", 0.25)
+        if not (frac <= hi):
+            return False, (f"{100 * frac:.0f} % of the samples past the kink, more than {100 * hi:g} %: the kink lies inside the range of "
+                           f"motion, a spring {ratio:.2g}x stiffer on one side, not a stop at the end of the range")  # fmt: skip
         return True, ""
 
     def interpret(self, coef, se, params, res, e, scale):
