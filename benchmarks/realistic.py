@@ -218,7 +218,9 @@ def gather(rows: list[dict], out_md: Path, argv: list[str] | None = None) -> dic
     summary["commits"] = commits
     L = [f"{summary['n_clips']} clips over {len(summary['systems'])} systems: {summary['n_ok']} with metrics, "
          f"{summary['n_stopped']} stopped with a reason, {summary['n_crashed']} crashed; the chart passed the quality gate "
-         f"on {summary['n_gate_passed']}. Rows measured at commit {commit_counts([r.get('commit', 'unknown') for r in rows])}.", ""]  # fmt: skip
+         f"on {summary['n_gate_passed']}. Rows measured at commit {commit_counts([r.get('commit', 'unknown') for r in rows])}"
+         + (f"; diagnoses at commit {commit_counts([r['diagnosis_commit'] for r in rows if r.get('diagnosis_commit')])}"
+            if any(r.get("diagnosis_commit") for r in rows) else "") + ".", ""]  # fmt: skip
     if summary["share_within_5pct_of_gate_passed"] is not None:
         L += [f"Of the clips whose chart passed the gate and that have metrics, {100 * summary['share_within_5pct_of_gate_passed']:.0f} % "
               "are within 5 % of the true frequency.", ""]  # fmt: skip

@@ -47,6 +47,11 @@ def test_the_summary_counts_controls_gate_failures_and_names_short_clips(bench, 
     md = (tmp_path / "short.md").read_text()
     assert md.startswith("# Realistic suite (MuJoCo-rendered clips) against the ground truth, training frames cut to 3 periods")
     assert json.loads((tmp_path / "short.json").read_text())["summary"]["n_clips"] == 3
+    assert "Rows measured at commit unknown (3 rows)." in md  # rows without a recorded commit say so
+    rows[0].update(commit="aaa", diagnosis_commit="bbb")  # a row whose diagnosis alone was rerun at a later commit
+    rows[1].update(commit="aaa", diagnosis_commit="aaa")
+    md = (bench.gather(rows, tmp_path / "short.md", []), (tmp_path / "short.md").read_text())[1]
+    assert "Rows measured at commit aaa (2 rows), unknown (1 rows); diagnoses at commit aaa (1 rows), bbb (1 rows)." in md
 
 
 def test_the_reading_after_the_diagnosis_takes_the_refit_only_where_its_held_out_check_confirmed(bench, tmp_path) -> None:
