@@ -122,6 +122,20 @@ class Effect:
         recording (``evidence``: :func:`~lagsplat.diagnose.signatures.signatures`). Default: always."""
         return True
 
+    def image_support(self, fit: Any, res: Any, thresholds: dict[str, float]) -> tuple[float, str]:
+        """Evidence for this fitted effect in the image itself, beside the regression and the signatures: ``(support, reading)``.
+
+        On the ``Delta BIC`` scale, added to the fit's :attr:`~lagsplat.diagnose.diagnosis.CandidateFit.signature_support`
+        once its ``delta_bic`` is known. Only a hidden mode has one
+        (:meth:`~lagsplat.diagnose.effects_time.MissingDofEffect.image_support`); default ``(0, "")``.
+
+        Args:
+            fit: the :class:`~lagsplat.diagnose.diagnosis.CandidateFit`, ``delta_bic`` set.
+            res: the :class:`~lagsplat.diagnose.residual_data.Residual` it was fitted on.
+            thresholds: the selection's thresholds (``min_delta_bic``).
+        """
+        return 0.0, ""
+
     def signature_support(self, evidence: dict[str, Any]) -> tuple[float, str]:
         """Evidence for this effect in the chart-invariant signatures, beside the regression: ``(support, reading)``.
 

@@ -12,6 +12,7 @@ import math
 import numpy as np
 
 from lagsplat.diagnose.effect_base import Effect, ratio
+from lagsplat.diagnose.image_signature import unencoded_oscillation
 from lagsplat.diagnose.signatures import timing_drifts
 from lagsplat.diagnose.spectrum import excluded_bands, frequency_allowed, longest_segment_s, residual_peaks
 
@@ -254,6 +255,26 @@ class MissingDofEffect(Effect):
             return out
 
         return phi, [f"seg{k}_{c}" for k in range(n_seg) for c in ("cos", "sin")]
+
+    def image_support(self, fit, res, thresholds):
+        """The autoencoder's error oscillating at the mode's frequency beyond what the encoded state explains
+        (:func:`~lagsplat.diagnose.image_signature.unencoded_oscillation`): part of the scene moves in a way the chart
+        does not carry, which a periodic force on the encoded coordinate does not do.
+
+        It tells a hidden mode from a force at the same frequency; it does not find one: counted only where the
+        regression itself finds the mode (``delta_bic >= min_delta_bic``) and the image's evidence alone is very strong
+        (``>= min_delta_bic``). Always recorded as ``interpretation["image_error_support"]`` where the chart has the error.
+        """
+        img = res.meta.get("image_error")
+        if img is None:
+            return 0.0, ""
+        sup = unencoded_oscillation(img, float(fit.params["f_hz"]), res.f_dominant_hz)["support"]
+        fit.interpretation["image_error_support"] = sup
+        lo = thresholds.get("min_delta_bic", 10.0)
+        if not (fit.delta_bic >= lo and sup >= lo):
+            return 0.0, ""
+        return sup, (f"the autoencoder's per-frame error oscillates at the mode's frequency beyond what the encoded state explains "
+                     f"(evidence {sup:.0f}): part of the scene moves in a way the chart does not carry, which a force would not do")  # fmt: skip
 
     def practical(self, interpretation, thresholds):
         """A mode only when its motion in the chart reaches ``min_periodic_response`` of the recorded one (as a periodic force's)."""

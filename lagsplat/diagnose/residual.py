@@ -302,8 +302,11 @@ def residual_from_chart(
             (see :func:`residual_force`).
 
     Returns:
-        The :class:`~lagsplat.diagnose.residual_data.Residual` (``meta["split"]`` records ``which``).
+        The :class:`~lagsplat.diagnose.residual_data.Residual` (``meta["split"]`` records ``which``;
+        ``meta["image_error"]`` the chart's per-frame autoencoder error on the same frames,
+        :func:`~lagsplat.diagnose.image_signature.image_error_from_chart`, or ``None``).
     """
+    from lagsplat.diagnose.image_signature import image_error_from_chart
     from lagsplat.io.clip import segments as split_segments
 
     if which is None:
@@ -317,5 +320,5 @@ def residual_from_chart(
     return residual_force(
         model, [chart.q[s] for s in segs], dt, [chart.t[s] for s in segs],
         None if u is None else [u[s] for s in segs], [int(chart.episode[s[0]]) for s in segs],
-        chart.G_bar, sigma, {"split": which}, wide_factor,
+        chart.G_bar, sigma, {"split": which, "image_error": image_error_from_chart(chart, which)}, wide_factor,
     )  # fmt: skip
