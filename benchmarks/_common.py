@@ -175,13 +175,22 @@ def measurable_gap_medians(rows: list[dict], metrics: Sequence[str]) -> dict[str
     return out
 
 
-def realistic_verdict_ok(effect: str, verdict: str) -> bool:
-    """Whether a diagnosis ``verdict`` is right for a realistic-suite clip whose effect is ``effect``.
+def realistic_verdict_ok(name: str, verdict: str) -> bool:
+    """Whether a diagnosis ``verdict`` is right for the realistic-suite clip ``name`` (its effect: :func:`lagsplat.synth.realistic.clip_spec`).
 
     Right when it names the effect (``"none"`` for a clip without one), or, for a hardening spring
-    (``cubic_stiffness``), also when it reads "nothing significant": a convex potential can absorb it.
+    (``cubic_stiffness`` whose ground truth, :func:`lagsplat.synth.realistic.motion_of`, is ``"hardening"``),
+    also when it reads "nothing significant": a convex potential can absorb it. A softening spring must be named.
+
+    Raises:
+        KeyError: on an unknown clip name.
     """
-    return verdict == effect or (effect == "cubic_stiffness" and verdict == "none")
+    from lagsplat.synth.realistic import clip_spec, motion_of
+
+    spec = clip_spec(name)
+    if verdict == spec["effect"]:
+        return True
+    return spec["effect"] == "cubic_stiffness" and verdict == "none" and motion_of(spec).truth["effect_params"]["kind"] == "hardening"
 
 
 def short_train_fraction(q: np.ndarray, t: np.ndarray, periods: float) -> float:

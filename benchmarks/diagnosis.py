@@ -287,6 +287,14 @@ def score(entry: dict, budget: str, root: Path, timing: dict) -> dict:
     return row
 
 
+def _hardening(system: str, clip: str) -> bool:
+    """Whether the blind clip ``clip`` (``<system>-cubic_stiffness-<seed>``) holds a hardening spring (its ground truth,
+    :func:`lagsplat.synth.effect_truth.sample_truth`)."""
+    from lagsplat.synth.effect_truth import sample_truth
+
+    return sample_truth(system, "cubic_stiffness", int(clip.rsplit("-", 1)[1]), actuated=False)["effect_params"]["kind"] == "hardening"
+
+
 def measurable_gap_medians(rows: list[dict]) -> dict[str, dict]:
     """:func:`_common.measurable_gap_medians` over every metric of ``GAP_METRICS``."""
     return measurable_gap_medians_of(rows, GAP_METRICS)
@@ -323,6 +331,11 @@ def summarize(rows: list[dict], timings: dict[str, dict], budget: str, markdown:
     item, sub = ("- ", "  - ") if markdown else ("", "  ")
     lines = [f"budget: {budget}, clips {len(table)}", f"top-1 accuracy: {acc:.3f} ({int(table['ok'].sum())}/{len(table)})",
              f"controls flagged: {flagged}/{n_controls}"]  # fmt: skip
+    hard = [r.clip for r in table.itertuples() if r.truth == "cubic_stiffness" and r.verdict == "none" and _hardening(r.system, r.clip)]
+    if hard:  # the realistic suite's reading, beside the strict one
+        n_ok = int(table["ok"].sum()) + len(hard)
+        lines.append(f"top-1 accuracy with a hardening spring read as nothing significant also counted right (a convex potential can "
+                     f"absorb it; the realistic suite's reading): {n_ok / len(table):.3f} ({n_ok}/{len(table)}; {', '.join(hard)})")  # fmt: skip
     rel = table[table["reliable"]]
     lines.append(f"reliable upstream (chart continuous, decoder shows motion; lagsplat.diagnose.report.reliability): {len(rel)}/{len(table)}"
                  + (f"; top-1 accuracy on those {float(rel['ok'].mean()):.3f}" if len(rel) else ""))  # fmt: skip

@@ -175,7 +175,7 @@ def main() -> None:
         top = diag.ranking[:3]
         rows.append({
             "clip": entry["name"], "truth": truth, "verdict": diag.winner,
-            "ok": realistic_verdict_ok(truth, diag.winner) if args.suite == "realistic" else diag.winner == truth,
+            "ok": realistic_verdict_ok(entry["name"], diag.winner) if args.suite == "realistic" else diag.winner == truth,
             "dBIC": round(diag.effects[0].delta_bic, 1) if diag.effects else None,
             "R2": round(diag.effects[0].r2, 2) if diag.effects else None,
             "runner-up": " ".join(f"{f.effect}:{f.delta_bic:.0f}" for f in top),

@@ -123,7 +123,7 @@ def diagnosis_of(name: str, results: Path, code: int, reason: str, wall_s: float
     confirmed = bool((gap.get("held_out_check") or {}).get("confirmed"))
     f_refit = (gap.get("after") or {}).get("f_sim_hz") if confirmed else None
     exact = rep["verdict"] == spec["effect"]
-    ok = realistic_verdict_ok(spec["effect"], rep["verdict"])
+    ok = realistic_verdict_ok(name, rep["verdict"])
     return {"diagnosis_status": "ok", "truth_effect": spec["effect"], "verdict": rep["verdict"], "verdict_text": rep["verdict_text"],
             "diagnosis_ok": ok, "diagnosis_exact": exact, "gap_reduction_eps_q": red, "refit_confirmed": confirmed,
             "f_sim_refit_hz": f_refit, "diagnosis_wall_s": round(wall_s, 1)}  # fmt: skip

@@ -23,7 +23,8 @@ def _report(results: Path, name: str, verdict: str, reduction: float | None = No
 def test_a_hardening_spring_read_as_nothing_significant_counts_and_the_strict_reading_is_kept(bench, tmp_path) -> None:
     cases = {"spring_cart-cubic_stiffness-s0-128": ("none", True, False), "pendulum-cubic_stiffness-s1-128": ("cubic_stiffness", True, True),
              "spring_cart-coulomb-s0-128": ("none", False, False), "pendulum-none-s0-128": ("none", True, True),
-             "pendulum-drift-s0-128": ("periodic_force", False, False)}  # fmt: skip
+             "pendulum-drift-s0-128": ("periodic_force", False, False),
+             "spring_cart-cubic_stiffness-s1-128": ("none", False, False)}  # a softening spring must be named  # fmt: skip
     for name, (verdict, ok, exact) in cases.items():
         _report(tmp_path, name, verdict, 0.4)
         row = bench.diagnosis_of(name, tmp_path, 0, "", 1.0)
