@@ -202,3 +202,19 @@ def test_a_rival_far_behind_the_winner_is_not_refit(monkeypatch) -> None:
     close = Diagnosis("end_stop", [stop], [stop, _fit("drift", 85.0)], {}, {}, {}, {"min_delta_bic": 10.0})
     chosen, rows, _ = refit_choice.choose_by_refit(None, None, None, close, 0.2)
     assert seen == ["end_stop", "drift"] and [r["effect"] for r in rows] == ["end_stop", "drift"]
+
+
+def test_the_image_line_says_whether_the_scene_moves_beyond_the_chart() -> None:
+    from lagsplat.diagnose.reading import distinguishing_lines
+
+    def dg(sup, dbic=33.0):
+        mode = {"effect": "missing_dof", "delta_bic": dbic, "evidence": dbic, "physical": True, "params": {"f_hz": 1.216},
+                "interpretation": {"image_error_support": sup}}  # fmt: skip
+        return {"evidence": {}, "settings": {"min_delta_bic": 10.0}, "ranking": [mode]}
+
+    seen = [ln for ln in distinguishing_lines(dg(106.0)) if ln.startswith("- image:")]
+    assert seen == ["- image: the autoencoder's per-frame error oscillates at the hidden mode's 1.22 Hz beyond what the encoded state "
+                    "explains (evidence 106): part of the scene moves in a way the chart does not carry, a mode rather than a force"]  # fmt: skip
+    unseen = [ln for ln in distinguishing_lines(dg(-23.0)) if ln.startswith("- image:")]
+    assert len(unseen) == 1 and "differ here only in their decay" in unseen[0]
+    assert not [ln for ln in distinguishing_lines(dg(106.0, dbic=4.0)) if ln.startswith("- image:")]  # no mode found: no question

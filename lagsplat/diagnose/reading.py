@@ -96,6 +96,22 @@ def _spectrum(sp: Mapping[str, Any]) -> str:
     return "residual spectrum: no peak away from the model's modes, the motion's frequency and their harmonics"
 
 
+def _image(ranking: list[Mapping[str, Any]], min_delta_bic: float) -> str:
+    """The autoencoder's per-frame error at a hidden mode's frequency, where the residual finds the mode
+    (:meth:`~lagsplat.diagnose.effects_time.MissingDofEffect.image_support`)."""
+    mode = next((r for r in ranking if r.get("effect") == "missing_dof"), None)
+    it = (mode or {}).get("interpretation") or {}
+    sup = _num(it.get("image_error_support"))
+    if mode is None or not math.isfinite(sup) or not _num(mode.get("delta_bic")) >= min_delta_bic:
+        return ""
+    f = _num((mode.get("params") or {}).get("f_hz"))
+    if sup >= min_delta_bic:
+        return (f"image: the autoencoder's per-frame error oscillates at the hidden mode's {f:.3g} Hz beyond what the encoded state "
+                f"explains (evidence {sup:.0f}): part of the scene moves in a way the chart does not carry, a mode rather than a force")
+    return (f"image: the autoencoder's per-frame error shows no motion at {f:.3g} Hz that the chart does not carry (evidence {sup:.0f}): "
+            "a hidden mode that moves the encoded body and a periodic force differ here only in their decay")
+
+
 def indistinguishable(ranking: list[Mapping[str, Any]], min_evidence: float = 0.0) -> list[str]:
     """Names of the physical candidates whose evidence is within :data:`INDISTINGUISHABLE` of the best one's.
 
@@ -126,13 +142,15 @@ def distinguishing_lines(dg: Mapping[str, Any]) -> list[str]:
     Returns:
         Lines starting with ``"- "``: the decay shape, the frequency against amplitude and time (and, on a
         recording whose amplitude falls steadily in time, whether the timing can still tell an
-        amplitude-dependent stiffness from a drifting one), the rest, the residual spectrum, and the
-        candidates the data cannot tell apart (if any).
+        amplitude-dependent stiffness from a drifting one), the rest, the residual spectrum, the image's
+        error at a hidden mode's frequency (where the residual finds one), and the candidates the data
+        cannot tell apart (if any).
     """
     ev = dg.get("evidence") or {}
     st = dg.get("settings") or {}
     lines = [_decay(ev.get("envelope") or {}), *_frequency(ev.get("frequency") or {}, float(st.get("min_delta_bic", 10.0))),
-             _rest(ev.get("rest") or {}), _spectrum(ev.get("spectrum") or {})]  # fmt: skip
+             _rest(ev.get("rest") or {}), _spectrum(ev.get("spectrum") or {}),
+             _image(dg.get("ranking") or [], float(st.get("min_delta_bic", 10.0)))]  # fmt: skip
     close = indistinguishable(dg.get("ranking") or [], 0.5 * float(st.get("min_delta_bic", 10.0)))
     if close:
         lines.append(f"the residual cannot tell {', '.join(close[:-1])} and {close[-1]} apart (evidence within {INDISTINGUISHABLE:g} of each other)")
