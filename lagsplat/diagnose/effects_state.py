@@ -121,11 +121,12 @@ class EndStopEffect(Effect):
     the side are profiled; position, stiffness and the share of samples in contact are read on
     the chart's own, unsmoothed positions (:attr:`~lagsplat.diagnose.residual_data.SegmentState.q_raw`).
     Practical only when ``k_stop`` is at least ``min_stop_stiffness_ratio`` times the spring's and
-    the stop is touched on at most ``max_stop_contact_fraction`` of the samples: a stop limits the
-    range of motion from a gap beyond the rest position, so the object spends a minority of its time
-    on it (a true stop on the suites' clips: 1-10 % of the samples). A kink touched on a quarter of
-    the samples or more lies inside the range: a spring that is stiffer on one side (a bilinear
-    spring; at the rest position it takes ``1 / (1 + sqrt(ratio))`` of the time, 34 % at 3.7x).
+    the stop is touched on at most ``max_stop_contact_fraction`` of the samples. A stop limits the
+    range of motion and is far stiffer than the spring, so the object spends a minority of its time
+    on it, whether it sits at a gap beyond the rest position or at rest itself (a bouncing contact
+    takes ``1 / (1 + sqrt(ratio))`` of the time at zero gap: under a quarter from about 9x; true
+    stops on the suites' clips and the real bouncing cart: 1-18 % of the samples). A kink touched on
+    more of the samples lies inside the range: a spring that is stiffer on one side (34 % at 3.7x).
     """
 
     def grid(self, res, e, r0):
