@@ -391,3 +391,32 @@ def test_a_nonlinearity_the_identified_model_already_carries_is_named_under_noth
     assert carried_nonlinearity_line(dg(excess=5.0)) == ""  # the model does not reproduce the clip: not "carried"
     assert "drifting in time would change the periods alike" in carried_nonlinearity_line(dg(corr=-0.97, support_time=3.0))
     assert "drifting" not in carried_nonlinearity_line(dg(corr=-0.97, support_time=15.0))  # the timing separates them
+
+
+def test_a_stop_turns_the_motion_around_sharply_on_one_side_and_a_cubic_alike_on_both() -> None:
+    from test_diagnose import _bilinear_spring_chart, _chart, _linear
+
+    stop = _bilinear_spring_chart(20.0, 0.6)  # 20x stiffer past x = 0.6 of the release amplitude
+    diag, _ = diagnose_chart(_linear(stop), stop, candidates=["cubic_stiffness"])
+    turn = diag.evidence["turning"]
+    assert turn["sharper_side"] == "upper" and turn["ratio"] > 2 and turn["support"] > 10 and min(turn["n_upper"], turn["n_lower"]) >= 8
+    cubic = _chart("cart", "cubic_stiffness", 0)
+    diag, _ = diagnose_chart(_linear(cubic), cubic, candidates=["cubic_stiffness"])
+    assert diag.evidence["turning"]["ratio"] < 1.2 and diag.evidence["turning"]["support"] < 0
+    assert diag.winner == "cubic_stiffness"
+
+
+def test_a_cubic_is_not_claimed_where_one_side_turns_far_sharper() -> None:
+    # three periods of a cart against a stop: too few periods to check a cubic's timing, so only its shape tells
+    from test_diagnose import _chart, _first_periods, _linear
+
+    stop = _first_periods(_chart("cart", "end_stop", 0), 3.0)
+    loose, _ = diagnose_chart(_linear(stop), stop, candidates=["cubic_stiffness"], min_one_sided_turning=1e9)
+    assert loose.ranking[0].practical  # without the shape rule the cubic would stand
+    diag, _ = diagnose_chart(_linear(stop), stop, candidates=["cubic_stiffness"])
+    cubic = diag.ranking[0]
+    assert not cubic.practical and "as sharply on the upper side" in cubic.interpretation["below_practical_size"]
+    genuine = _first_periods(_chart("cart", "cubic_stiffness", 1), 3.0)  # a softening spring over three periods keeps its claim
+    diag, _ = diagnose_chart(_linear(genuine), genuine, candidates=["cubic_stiffness"])
+    assert diag.winner == "cubic_stiffness"
+    assert diagnose_chart(_linear(stop), stop, candidates=["cubic_stiffness"], min_one_sided_turning=1e9)[0].settings["min_one_sided_turning"] == 1e9

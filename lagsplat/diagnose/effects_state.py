@@ -184,7 +184,11 @@ class CubicStiffnessEffect(Effect):
     recorded zero-crossing periods shift the same way by at least half of that (a chart
     that stretches large excursions changes the waveform in ``q``, not the period), and
     only when those periods do not also change in time at a given amplitude (a drifting
-    stiffness on a decaying oscillation ties frequency to amplitude as well).
+    stiffness on a decaying oscillation ties frequency to amplitude as well). Like any odd
+    force it turns the motion around alike on both sides: where one side turns at least
+    ``min_one_sided_turning`` times as sharply as the other with very strong evidence
+    (:func:`~lagsplat.diagnose.signatures.signatures`, ``turning``), the nonlinearity is
+    one-sided (a stop), and a cubic is not claimed.
     """
 
     def feature(self, res, e, params):
@@ -216,6 +220,13 @@ class CubicStiffnessEffect(Effect):
                 f"the recorded periods change by {100 * fsig['relative_change_over_span']:+.1f} % in time beyond any dependence on the "
                 f"amplitude (evidence {fsig['support_time']:.1f}): the stiffness changes with time, not with the excursion"
             )
+        # a cubic, like any odd force, turns the motion around alike on both sides; one side turning far sharper is one-sided
+        turn = interpretation.get("turning") or {}
+        if turn.get("ratio", 1.0) >= thresholds.get("min_one_sided_turning", 2.0) and turn.get("support", 0.0) >= thresholds.get("min_delta_bic", 10.0):
+            return False, (
+                f"the motion turns around {turn['ratio']:.1f}x as sharply on the {turn['sharper_side']} side as on the other "
+                f"(evidence {turn['support']:.0f}): a one-sided nonlinearity such as a stop, not a cubic stiffness, which acts alike on both"
+            )
         return True, ""
 
     def interpret(self, coef, se, params, res, e, scale):
@@ -235,6 +246,7 @@ class CubicStiffnessEffect(Effect):
             "measured_frequency_shift": None if meas is None else float(meas),
             "measured_frequency_z": None if meas is None else float(fsig["z_amp2"]),
             "timing": {k: fsig[k] for k in ("support_time", "relative_change_over_span") if k in fsig},
+            "turning": {k: v for k, v in ((res.meta.get("signatures") or {}).get("turning") or {}).items() if k in ("ratio", "sharper_side", "support")},
             "text": f"{'hardening' if k3 > 0 else 'softening'} cubic stiffness k3 = {k3:.3g} +- {se[0]:.2g}: "
             f"frequency {'+' if shift >= 0 else ''}{100 * shift:.1f} % at amplitude {A:.3g} (Duffing, 3 k3 A^2 / 8 k); "
             "in the latent coordinate, where a chart that stretches or compresses large excursions looks the same",

@@ -161,6 +161,7 @@ def select_effect(
     min_cubic_shift: float = 0.03,
     min_stop_stiffness_ratio: float = 2.0,
     max_stop_contact_fraction: float = 0.25,
+    min_one_sided_turning: float = 2.0,
     min_periodic_response: float = 0.01,
     max_effects: int = 1,
     n_folds: int = 5,
@@ -188,7 +189,9 @@ def select_effect(
       frequency shift at the largest amplitude; ``min_stop_stiffness_ratio``:
       stop stiffness over the spring's; ``max_stop_contact_fraction``: share of
       the samples in contact, since a stop limits the range and a kink inside it
-      is a bilinear spring). A cubic stiffness must moreover show in
+      is a bilinear spring; ``min_one_sided_turning``: a cubic stiffness is not
+      claimed where one side turns around that many times as sharply as the
+      other, a one-sided nonlinearity). A cubic stiffness must moreover show in
       the recorded *timing*: the frequency-vs-amplitude^2 shift of the evidence
       (zero-crossing periods, which no monotone chart changes) must have the
       sign of ``k3`` and at least half the practical size, since a chart that
@@ -206,7 +209,8 @@ def select_effect(
         candidates: names to test (default: every applicable one of
             :data:`~lagsplat.diagnose.effects.EFFECTS`).
         min_delta_bic, min_r2, min_cv_gain: the statistical significance rule.
-        min_cubic_shift, min_stop_stiffness_ratio, max_stop_contact_fraction: physical size of in-class effects.
+        min_cubic_shift, min_stop_stiffness_ratio, max_stop_contact_fraction, min_one_sided_turning: physical size
+            and shape of in-class effects.
         min_periodic_response: physical size of a periodic force or a hidden mode: the rms motion it drives
             off resonance (``amplitude / (k |1 - (f / f_motion)^2|) / sqrt 2``) over the rms of
             the recorded motion along its direction.
@@ -233,7 +237,7 @@ def select_effect(
     effs = [get_effect(c) for c in candidates] if candidates is not None else list(EFFECTS)
     effs = [e for e in effs if e.applicable(res)]
     thresholds = {"min_cubic_shift": min_cubic_shift, "min_stop_stiffness_ratio": min_stop_stiffness_ratio,
-                  "max_stop_contact_fraction": max_stop_contact_fraction,
+                  "max_stop_contact_fraction": max_stop_contact_fraction, "min_one_sided_turning": min_one_sided_turning,
                   "min_periodic_response": min_periodic_response, "min_delta_bic": min_delta_bic}  # fmt: skip
     rule = {"min_delta_bic": min_delta_bic, "min_r2": min_r2, "min_cv_gain": min_cv_gain}
     # the chart-invariant signatures, read before the fits: a cubic stiffness must also show in the timing

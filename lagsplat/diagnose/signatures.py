@@ -253,6 +253,47 @@ def _time_support(F: np.ndarray, A2: np.ndarray, TT: np.ndarray, alt: np.ndarray
     return {"support_time": float(sup)}
 
 
+def _turning(res: Residual, e: np.ndarray) -> dict[str, Any]:
+    """How sharply the motion turns around on either side, on the chart's own (unsmoothed) positions along ``e``.
+
+    At each turning point (an extremum at least 0.35 dominant periods from its neighbours) a parabola through
+    the five samples around it gives the curvature towards the centre; the log-curvatures of the upper and of
+    the lower turning points are compared. A cubic stiffness, like any odd restoring force, turns the motion
+    around alike on both sides; a stop far stiffer than the spring reverses it within a few frames on its
+    side. ``support``: the information criterion of two mean log-curvatures over one (``Delta BIC`` scale);
+    ``ratio``: the sharper side's median curvature over the other's (>= 1). Empty on a chart with ``d > 1``
+    (the modes beat along any one direction) or with fewer than two turning points on a side.
+    """
+    if res.d != 1:
+        return {}
+    f = res.f_dominant_hz
+    gap = int(0.35 / (f * res.dt)) if math.isfinite(f) and f > 0 else 5
+    from scipy.signal import find_peaks
+
+    curv: dict[str, list[float]] = {"upper": [], "lower": []}
+    x = res.q_raw @ np.asarray(e, np.float64)
+    tt = np.arange(-2.0, 3.0)
+    for idx in res.segment_slices():
+        p = x[idx]
+        for side, sgn in (("upper", 1.0), ("lower", -1.0)):
+            for i in find_peaks(sgn * p, distance=max(1, gap))[0]:
+                if 2 <= i < len(p) - 2:
+                    c = -sgn * 2.0 * np.polyfit(tt, p[i - 2 : i + 3], 2)[0]
+                    if c > 0:
+                        curv[side].append(float(c))
+    if min(len(curv["upper"]), len(curv["lower"])) < 2:
+        return {}
+    lu, ll = np.log(curv["upper"]), np.log(curv["lower"])
+    y = np.concatenate([lu, ll])
+    n = len(y)
+    ssr0 = float(np.sum((y - y.mean()) ** 2))
+    ssr1 = float(np.sum((lu - lu.mean()) ** 2) + np.sum((ll - ll.mean()) ** 2))
+    support = n * math.log(max(ssr0, 1e-300) / max(ssr1, 1e-300)) - math.log(n)
+    up, lo = float(np.median(curv["upper"])), float(np.median(curv["lower"]))
+    return {"upper": up, "lower": lo, "n_upper": len(lu), "n_lower": len(ll), "ratio": max(up, lo) / min(up, lo),
+            "sharper_side": "upper" if up > lo else "lower", "support": float(support), "direction": [float(v) for v in e]}  # fmt: skip
+
+
 def timing_drifts(frequency: dict[str, Any], thresholds: dict[str, float]) -> bool:
     """Whether the recorded periods drift in time, at a given amplitude, with very strong evidence and by a physical
     amount: the frequency signature's ``support_time`` at least ``min_delta_bic`` (10) and its change over the
@@ -291,6 +332,8 @@ def signatures(res: Residual, model_freqs_hz: Sequence[float] | None = None, dir
       median (a one-sided stop clips one side).
     * ``rest``: where the motion comes to rest and its offset from the centre of the
       oscillation (dry friction sticks off-centre).
+    * ``turning``: how sharply the motion turns around on either side (:func:`_turning`;
+      a stop reverses it within a few frames on its side, an odd force alike on both).
 
     The envelope's ``support`` and the rest's ``support`` are evidence on the ``Delta BIC``
     scale that the candidates read (:meth:`~lagsplat.diagnose.effect_base.Effect.signature_support`).
@@ -318,4 +361,5 @@ def signatures(res: Residual, model_freqs_hz: Sequence[float] | None = None, dir
     hi, lo = float(np.quantile(pc, 0.995)), float(-np.quantile(pc, 0.005))
     out["asymmetry"] = {"upper": hi, "lower": lo, "ratio": float(max(hi, lo) / max(min(hi, lo), 1e-300))}
     out["rest"] = _rest(res, p)
+    out["turning"] = _turning(res, e_top)
     return out
