@@ -420,3 +420,19 @@ def test_a_cubic_is_not_claimed_where_one_side_turns_far_sharper() -> None:
     diag, _ = diagnose_chart(_linear(genuine), genuine, candidates=["cubic_stiffness"])
     assert diag.winner == "cubic_stiffness"
     assert diagnose_chart(_linear(stop), stop, candidates=["cubic_stiffness"], min_one_sided_turning=1e9)[0].settings["min_one_sided_turning"] == 1e9
+
+
+def test_the_sharp_turns_on_a_stops_side_support_the_stop_on_either_chart_orientation() -> None:
+    import dataclasses
+
+    from test_diagnose import _chart, _first_periods, _linear
+
+    stop = _first_periods(_chart("cart", "end_stop", 0), 3.0)
+    mirrored = dataclasses.replace(stop, q=-stop.q)  # the same motion read through a chart of the opposite sign
+    for ch in (stop, mirrored):
+        diag, _ = diagnose_chart(_linear(ch), ch, candidates=["end_stop"])
+        fit = diag.ranking[0]
+        assert fit.signature_support == diag.evidence["turning"]["support"] > 10
+        assert "as sharply on the stop's side" in fit.interpretation["text"]
+    diag, _ = diagnose_chart(_linear(stop), stop, candidates=["end_stop"], min_one_sided_turning=1e9)
+    assert diag.ranking[0].signature_support == 0.0

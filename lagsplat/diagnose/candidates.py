@@ -136,8 +136,8 @@ def fit_candidates(
         extra_k, thresholds: see :func:`fit_candidate`.
 
     Returns:
-        The fits, in the order of ``remaining``, with ``delta_bic`` and ``r2`` set, and the image's support
-        (:meth:`~lagsplat.diagnose.effect_base.Effect.image_support`) added to ``signature_support``.
+        The fits, in the order of ``remaining``, with ``delta_bic`` and ``r2`` set, and the support for each as
+        fitted (:meth:`~lagsplat.diagnose.effect_base.Effect.fitted_support`) added to ``signature_support``.
     """
     ref = {k: (float(p.r0 @ p.r0), p.bic(float(p.r0 @ p.r0), p.pn)) for k, p in probs.items()}
     fits = []
@@ -157,7 +157,7 @@ def fit_candidates(
                 fit = f
         if fit is None:
             continue
-        extra, reading = eff.image_support(fit, probs[fit.against_linearisation].res, thresholds)
+        extra, reading = eff.fitted_support(fit, probs[fit.against_linearisation].res, thresholds)
         if reading:
             fit.signature_support += extra
             fit.interpretation["signature"] = "; ".join(filter(None, (fit.interpretation.get("signature"), reading)))

@@ -122,17 +122,18 @@ class Effect:
         recording (``evidence``: :func:`~lagsplat.diagnose.signatures.signatures`). Default: always."""
         return True
 
-    def image_support(self, fit: Any, res: Any, thresholds: dict[str, float]) -> tuple[float, str]:
-        """Evidence for this fitted effect in the image itself, beside the regression and the signatures: ``(support, reading)``.
+    def fitted_support(self, fit: Any, res: Any, thresholds: dict[str, float]) -> tuple[float, str]:
+        """Evidence for this effect *as fitted* (its parameters, side, frequency), beside the regression: ``(support, reading)``.
 
         On the ``Delta BIC`` scale, added to the fit's :attr:`~lagsplat.diagnose.diagnosis.CandidateFit.signature_support`
-        once its ``delta_bic`` is known. Only a hidden mode has one
-        (:meth:`~lagsplat.diagnose.effects_time.MissingDofEffect.image_support`); default ``(0, "")``.
+        once its ``delta_bic`` is known. A hidden mode reads the image
+        (:meth:`~lagsplat.diagnose.effects_time.MissingDofEffect.fitted_support`), an end stop how sharply the motion
+        turns around on its side (:meth:`~lagsplat.diagnose.effects_state.EndStopEffect.fitted_support`); default ``(0, "")``.
 
         Args:
             fit: the :class:`~lagsplat.diagnose.diagnosis.CandidateFit`, ``delta_bic`` set.
-            res: the :class:`~lagsplat.diagnose.residual_data.Residual` it was fitted on.
-            thresholds: the selection's thresholds (``min_delta_bic``).
+            res: the :class:`~lagsplat.diagnose.residual_data.Residual` it was fitted on (``meta["signatures"]`` set).
+            thresholds: the selection's thresholds (``min_delta_bic`` and the effects' own).
         """
         return 0.0, ""
 

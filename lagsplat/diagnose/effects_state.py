@@ -149,6 +149,21 @@ class EndStopEffect(Effect):
         side, a = params["side"], params["s_stop"]
         return (lambda st: -side * _relu(side * (st.q_raw @ e - a))), ["k_stop"]
 
+    def fitted_support(self, fit, res, thresholds):
+        """The motion turning around far more sharply on the stop's side than on the other (the signatures' ``turning``,
+        :func:`~lagsplat.diagnose.signatures.signatures`): at least ``min_one_sided_turning`` times, with very strong
+        evidence (``>= min_delta_bic``), where the residual's own fit prefers the stop to none (``delta_bic > 0``).
+        The same observation sets a cubic stiffness aside (:class:`CubicStiffnessEffect`)."""
+        turn = (res.meta.get("signatures") or {}).get("turning") or {}
+        if not turn or not fit.delta_bic > 0:
+            return 0.0, ""
+        side = fit.params["side"] * math.copysign(1.0, float(np.dot(fit.direction, turn["direction"])))
+        on_its_side = side == (1.0 if turn["sharper_side"] == "upper" else -1.0)
+        lo, sup = thresholds.get("min_one_sided_turning", 2.0), float(turn["support"])
+        if not (on_its_side and turn["ratio"] >= lo and sup >= thresholds.get("min_delta_bic", 10.0)):
+            return 0.0, ""
+        return sup, f"the motion turns around {turn['ratio']:.1f}x as sharply on the stop's side as on the other (evidence {sup:.0f})"
+
     def practical(self, interpretation, thresholds):
         """A stop only when it is at least ``min_stop_stiffness_ratio`` times as stiff as the spring and touched on at
         most ``max_stop_contact_fraction`` of the samples (class docstring)."""

@@ -256,7 +256,7 @@ class MissingDofEffect(Effect):
 
         return phi, [f"seg{k}_{c}" for k in range(n_seg) for c in ("cos", "sin")]
 
-    def image_support(self, fit, res, thresholds):
+    def fitted_support(self, fit, res, thresholds):
         """The autoencoder's error oscillating at the mode's frequency beyond what the encoded state explains
         (:func:`~lagsplat.diagnose.image_signature.unencoded_oscillation`): part of the scene moves in a way the chart
         does not carry, which a periodic force on the encoded coordinate does not do.

@@ -98,7 +98,7 @@ def _spectrum(sp: Mapping[str, Any]) -> str:
 
 def _image(ranking: list[Mapping[str, Any]], min_delta_bic: float) -> str:
     """The autoencoder's per-frame error at a hidden mode's frequency, where the residual finds the mode
-    (:meth:`~lagsplat.diagnose.effects_time.MissingDofEffect.image_support`)."""
+    (:meth:`~lagsplat.diagnose.effects_time.MissingDofEffect.fitted_support`)."""
     mode = next((r for r in ranking if r.get("effect") == "missing_dof"), None)
     it = (mode or {}).get("interpretation") or {}
     sup = _num(it.get("image_error_support"))
