@@ -126,7 +126,7 @@ def evidence_section(rep: Mapping[str, Any]) -> list[str]:
         smooth = (f"; in-class candidates (end stop, cubic stiffness) on the residual smoothed over {fmt_value(st['sigma_frames'], '.2f')} frames, "
                   f"the other candidates over {fmt_value(st['sigma_frames_out_of_class'], '.2f')}")  # fmt: skip
     L += ["", "## Evidence", "", f"Ranking (first round; Delta BIC against the nuisance-only fit, plus the support of the candidate's own signature "
-          f"(envelope, rest position), higher is better{smooth}):", "",
+          f"(envelope, rest position, timing, how sharply a stop turns the motion, a hidden mode in the image), higher is better{smooth}):", "",
           "| effect | Delta BIC | signature | R2 | CV gain | physical | significant | coefficients (value +- s.e.) |", "|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for c in dg["ranking"]:
         coefs = "; ".join(f"{n} = {fmt_value(v['value'])} +- {fmt_value(v['se'], '.2g')}" for n, v in c["coefficients"].items())
