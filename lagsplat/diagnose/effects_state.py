@@ -12,7 +12,7 @@ import math
 import numpy as np
 
 from lagsplat.diagnose.effect_base import Effect, ratio
-from lagsplat.diagnose.signatures import timing_drifts
+from lagsplat.diagnose.signatures import timing_drifts, turns_one_sided
 
 __all__ = ["CoulombEffect", "QuadraticDragEffect", "EndStopEffect", "CubicStiffnessEffect"]
 
@@ -158,10 +158,9 @@ class EndStopEffect(Effect):
         if not turn or not fit.delta_bic > 0:
             return 0.0, ""
         side = fit.params["side"] * math.copysign(1.0, float(np.dot(fit.direction, turn["direction"])))
-        on_its_side = side == (1.0 if turn["sharper_side"] == "upper" else -1.0)
-        lo, sup = thresholds.get("min_one_sided_turning", 2.0), float(turn["support"])
-        if not (on_its_side and turn["ratio"] >= lo and sup >= thresholds.get("min_delta_bic", 10.0)):
+        if side != (1.0 if turn["sharper_side"] == "upper" else -1.0) or not turns_one_sided(turn, thresholds):
             return 0.0, ""
+        sup = float(turn["support"])
         return sup, f"the motion turns around {turn['ratio']:.1f}x as sharply on the stop's side as on the other (evidence {sup:.0f})"
 
     def practical(self, interpretation, thresholds):
@@ -237,7 +236,7 @@ class CubicStiffnessEffect(Effect):
             )
         # a cubic, like any odd force, turns the motion around alike on both sides; one side turning far sharper is one-sided
         turn = interpretation.get("turning") or {}
-        if turn.get("ratio", 1.0) >= thresholds.get("min_one_sided_turning", 2.0) and turn.get("support", 0.0) >= thresholds.get("min_delta_bic", 10.0):
+        if turns_one_sided(turn, thresholds):
             return False, (
                 f"the motion turns around {turn['ratio']:.1f}x as sharply on the {turn['sharper_side']} side as on the other "
                 f"(evidence {turn['support']:.0f}): a one-sided nonlinearity such as a stop, not a cubic stiffness, which acts alike on both"

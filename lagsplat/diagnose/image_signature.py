@@ -67,13 +67,9 @@ def image_error_from_chart(chart: Any, which: int | None = 0) -> ImageError | No
     ae = np.asarray(ae, np.float64).reshape(-1)
     if len(ae) != len(chart.t) or not np.all(np.isfinite(ae)) or float(np.ptp(ae)) <= 0.0:
         return None
-    if which is None:
-        from lagsplat.io.clip import segments as split_segments
+    from lagsplat.diagnose.residual import chart_segments
 
-        segs = split_segments(np.zeros(len(chart.t), np.int8), 0, chart.episode)
-    else:
-        segs = chart.segments(int(which))
-    segs = [s for s in segs if len(np.arange(len(chart.t))[s]) >= 8]
+    segs = [s for s in chart_segments(chart, which) if len(s) >= 8]
     if not segs:
         return None
     q = np.asarray(chart.q, np.float64)
@@ -102,9 +98,9 @@ def unencoded_oscillation(img: ImageError, f_hz: float, f_motion_hz: float) -> d
     """
     T = max(float(t[-1] - t[0]) for t in img.t)
     sep = 0.5 / max(T, 1e-9)  # half a spectral bin of the longest segment
+    harmonics = [k * f_motion_hz for k in range(1, 7)]
     fs: list[float] = []
     for f in (f_hz, 2.0 * f_hz, f_hz + f_motion_hz, abs(f_hz - f_motion_hz)):
-        harmonics = [k * f_motion_hz for k in range(1, 7)]
         if f > 1.0 / T and all(abs(f - h) > sep for h in harmonics) and all(abs(f - g) > sep for g in fs):
             fs.append(float(f))
     d = img.q[0].shape[1]

@@ -98,6 +98,7 @@ WIDE_FACTOR = 1.5
 __all__ = [
     "SIGMA_PER_PERIOD",
     "WIDE_FACTOR",
+    "chart_segments",
     "residual_force",
     "residual_from_chart",
 ]
@@ -287,6 +288,16 @@ def residual_force(
     return out
 
 
+def chart_segments(chart: Any, which: int | None) -> list[np.ndarray]:
+    """Index arrays of the chart's contiguous segments with split ``which`` (``0`` training, ``1`` held-out), or of
+    every frame split by episode only (``None``)."""
+    from lagsplat.io.clip import segments as split_segments
+
+    if which is None:
+        return split_segments(np.zeros(len(chart.t), np.int8), 0, chart.episode)
+    return chart.segments(int(which))
+
+
 def residual_from_chart(
     model: AccelerationModel, chart: Any, which: int | None = 0, sigma: float | None = None, wide_factor: float | None = WIDE_FACTOR
 ) -> Residual:
@@ -307,12 +318,8 @@ def residual_from_chart(
         :func:`~lagsplat.diagnose.image_signature.image_error_from_chart`, or ``None``).
     """
     from lagsplat.diagnose.image_signature import image_error_from_chart
-    from lagsplat.io.clip import segments as split_segments
 
-    if which is None:
-        segs = split_segments(np.zeros(len(chart.t), np.int8), 0, chart.episode)
-    else:
-        segs = chart.segments(int(which))
+    segs = chart_segments(chart, which)
     if not segs:
         raise ValueError(f"the chart has no segment with split {which!r}")
     dt = float(np.median(np.diff(chart.t)))

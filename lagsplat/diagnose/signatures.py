@@ -42,12 +42,17 @@ def _extrema(p: np.ndarray, t: np.ndarray, min_gap: int) -> tuple[np.ndarray, np
     return t[idx], np.abs(p[idx])
 
 
+def _turning_gap(res: Residual) -> int:
+    """Samples between neighbouring turning points of the same kind: 0.35 dominant periods (5 without a frequency)."""
+    f = res.f_dominant_hz
+    return int(0.35 / (f * res.dt)) if math.isfinite(f) and f > 0 else 5
+
+
 def _segments(res: Residual, p: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
     """Per segment of the residual: ``(pk, tk, te, ae)``, the trajectory ``p`` about its median and its times, and
-    the times and absolute values of its turning points (:func:`_extrema`, at least 0.35 dominant periods apart).
+    the times and absolute values of its turning points (:func:`_extrema`, :func:`_turning_gap` apart).
     Read once by both the envelope and the timing."""
-    f = res.f_dominant_hz
-    gap = int(0.35 / (f * res.dt)) if math.isfinite(f) and f > 0 else 5
+    gap = _turning_gap(res)
     out = []
     for idx in res.segment_slices():
         pk, tk = p[idx] - np.median(p[idx]), res.t[idx]
@@ -266,8 +271,7 @@ def _turning(res: Residual, e: np.ndarray) -> dict[str, Any]:
     """
     if res.d != 1:
         return {}
-    f = res.f_dominant_hz
-    gap = int(0.35 / (f * res.dt)) if math.isfinite(f) and f > 0 else 5
+    gap = _turning_gap(res)
     from scipy.signal import find_peaks
 
     curv: dict[str, list[float]] = {"upper": [], "lower": []}
@@ -292,6 +296,14 @@ def _turning(res: Residual, e: np.ndarray) -> dict[str, Any]:
     up, lo = float(np.median(curv["upper"])), float(np.median(curv["lower"]))
     return {"upper": up, "lower": lo, "n_upper": len(lu), "n_lower": len(ll), "ratio": max(up, lo) / min(up, lo),
             "sharper_side": "upper" if up > lo else "lower", "support": float(support), "direction": [float(v) for v in e]}  # fmt: skip
+
+
+def turns_one_sided(turning: dict[str, Any], thresholds: dict[str, float]) -> bool:
+    """Whether one side turns the motion around at least ``min_one_sided_turning`` (2) times as sharply as the other,
+    with very strong evidence (``support >= min_delta_bic``, 10): the :func:`_turning` signature's reading, shared by
+    the cubic stiffness it sets aside and the end stop it supports."""
+    return (turning.get("ratio", 1.0) >= thresholds.get("min_one_sided_turning", 2.0)
+            and turning.get("support", 0.0) >= thresholds.get("min_delta_bic", 10.0))  # fmt: skip
 
 
 def timing_drifts(frequency: dict[str, Any], thresholds: dict[str, float]) -> bool:
