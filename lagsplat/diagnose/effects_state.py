@@ -21,6 +21,14 @@ def _relu(x: np.ndarray) -> np.ndarray:
     return np.maximum(x, 0.0)
 
 
+def _law_support(evidence: dict, law: str) -> float:
+    """The decay law's evidence for ``law`` (``"dry"`` or ``"drag"``) over a viscous decay, ``>= 0``
+    (:func:`~lagsplat.diagnose.decay_law.decay_law`; 0 where it was not read)."""
+    rec = (evidence.get("decay_law") or {}).get(law) or {}
+    v = float(rec.get("evidence", 0.0))
+    return v if rec.get("sign_ok") and math.isfinite(v) and v > 0 else 0.0
+
+
 class CoulombEffect(Effect):
     """Dry (Coulomb) friction: ``phi = -tanh(sdot / v_s)``, coefficient ``mu >= 0`` (generalized-force units).
 
@@ -55,14 +63,20 @@ class CoulombEffect(Effect):
     def signature_support(self, evidence):
         """A linear envelope (the amplitude falls by ``4 mu / k`` per cycle) and a rest off the centre of the oscillation.
 
-        The two are read from different parts of the recording (the turning points while it moves,
-        the position once it has stopped), so their evidence adds.
+        The decay is read once: by the turning points or, where its evidence is the larger, by the whole
+        trajectory (:func:`~lagsplat.diagnose.decay_law.decay_law`, dry friction over viscous damping).
+        The decay and the rest are read from different parts of the recording (while it moves, once it
+        has stopped), so their evidence adds.
         """
         env = (evidence.get("envelope") or {}).get("support") or {}
         rest = evidence.get("rest") or {}
         lin, off = max(0.0, float(env.get("linear", 0.0))), float(rest.get("support", 0.0))
+        law = _law_support(evidence, "dry")
         parts = []
-        if lin > 0:
+        if law > lin:  # one reading of the decay: the whole trajectory's, where it is the sharper
+            lin = law
+            parts.append(f"the whole trajectory decays as dry friction makes it (evidence {law:.1f} over a viscous decay)")
+        elif lin > 0:
             parts.append(f"the turning points fall linearly (evidence {lin:.1f} over an exponential decay)")
         if off > 0:
             parts.append(f"the motion stops {abs(rest['offset_over_noise']):.1f} noise levels off the centre of its oscillation "
@@ -98,8 +112,13 @@ class QuadraticDragEffect(Effect):
         return phi, ["c2"]
 
     def signature_support(self, evidence):
-        """A hyperbolic envelope: the decay rate grows with the amplitude (``1 / A`` falls linearly in time)."""
+        """A hyperbolic envelope: the decay rate grows with the amplitude (``1 / A`` falls linearly in time); read by the
+        turning points or, where its evidence is the larger, by the whole trajectory
+        (:func:`~lagsplat.diagnose.decay_law.decay_law`, quadratic drag over viscous damping)."""
         hyp = max(0.0, float(((evidence.get("envelope") or {}).get("support") or {}).get("hyperbolic", 0.0)))
+        law = _law_support(evidence, "drag")
+        if law > hyp:
+            return law, f"the whole trajectory decays as quadratic drag makes it (evidence {law:.1f} over a viscous decay)"
         return hyp, (f"the turning points fall hyperbolically (evidence {hyp:.1f} over an exponential decay)" if hyp > 0 else "")
 
     def interpret(self, coef, se, params, res, e, scale):

@@ -47,6 +47,18 @@ def _decay(env: Mapping[str, Any]) -> str:
     return f"decay shape: {_FORM[best]}, evidence {_num(sup.get(best)):.1f} over an exponential decay ({n} turning points)"
 
 
+def _law(law: Mapping[str, Any], min_delta_bic: float = 10.0) -> str:
+    """The whole trajectory's decay law (:func:`~lagsplat.diagnose.decay_law.decay_law`), where it was read."""
+    if not law:
+        return ""
+    ev = {k: _num((law.get(k) or {}).get("evidence")) if (law.get(k) or {}).get("sign_ok") else -math.inf for k in ("dry", "drag")}
+    best = max(ev, key=lambda k: ev[k] if math.isfinite(ev[k]) else -math.inf)
+    if not ev[best] >= min_delta_bic:  # also where neither coefficient took its sign
+        return f"decay over the whole trajectory: no law reads it better than viscous damping does (evidence below {min_delta_bic:g})"
+    name = "dry friction (faster, relative to the amplitude, as it shrinks)" if best == "dry" else "quadratic drag (faster at large amplitude)"
+    return f"decay over the whole trajectory: {name}, evidence {ev[best]:.1f} over viscous damping"
+
+
 def _frequency(fr: Mapping[str, Any], min_delta_bic: float = 10.0) -> list[str]:
     if "z_amp2" not in fr:
         return [f"frequency: {fr.get('n_periods', 0)} periods are too few to read it against amplitude and time"]
@@ -140,7 +152,7 @@ def distinguishing_lines(dg: Mapping[str, Any]) -> list[str]:
         dg: ``report.json["diagnosis"]``.
 
     Returns:
-        Lines starting with ``"- "``: the decay shape, the frequency against amplitude and time (and, on a
+        Lines starting with ``"- "``: the decay shape (turning points, whole trajectory), the frequency against amplitude and time (and, on a
         recording whose amplitude falls steadily in time, whether the timing can still tell an
         amplitude-dependent stiffness from a drifting one), the rest, the residual spectrum, the image's
         error at a hidden mode's frequency (where the residual finds one), and the candidates the data
@@ -148,7 +160,7 @@ def distinguishing_lines(dg: Mapping[str, Any]) -> list[str]:
     """
     ev = dg.get("evidence") or {}
     st = dg.get("settings") or {}
-    lines = [_decay(ev.get("envelope") or {}), *_frequency(ev.get("frequency") or {}, float(st.get("min_delta_bic", 10.0))),
+    lines = [_decay(ev.get("envelope") or {}), _law(ev.get("decay_law") or {}, float(st.get("min_delta_bic", 10.0))), *_frequency(ev.get("frequency") or {}, float(st.get("min_delta_bic", 10.0))),
              _rest(ev.get("rest") or {}), _spectrum(ev.get("spectrum") or {}),
              _image(dg.get("ranking") or [], float(st.get("min_delta_bic", 10.0)))]  # fmt: skip
     close = indistinguishable(dg.get("ranking") or [], 0.5 * float(st.get("min_delta_bic", 10.0)))

@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from lagsplat.diagnose.decay_law import decay_law
 from lagsplat.diagnose.residual_data import Residual
 from lagsplat.diagnose.spectrum import frequency_allowed, reference_frequencies, residual_peaks
 
@@ -346,8 +347,11 @@ def signatures(res: Residual, model_freqs_hz: Sequence[float] | None = None, dir
       oscillation (dry friction sticks off-centre).
     * ``turning``: how sharply the motion turns around on either side (:func:`_turning`;
       a stop reverses it within a few frames on its side, an odd force alike on both).
+    * ``decay_law``: the whole training trajectory's evidence for a dry-friction or a quadratic-drag
+      decay over a viscous one (:func:`~lagsplat.diagnose.decay_law.decay_law`; unactuated ``d = 1``
+      charts with a segment of at least three periods, else empty).
 
-    The envelope's ``support`` and the rest's ``support`` are evidence on the ``Delta BIC``
+    The envelope's ``support``, the decay law's and the rest's ``support`` are evidence on the ``Delta BIC``
     scale that the candidates read (:meth:`~lagsplat.diagnose.effect_base.Effect.signature_support`).
 
     Args:
@@ -374,4 +378,5 @@ def signatures(res: Residual, model_freqs_hz: Sequence[float] | None = None, dir
     out["asymmetry"] = {"upper": hi, "lower": lo, "ratio": float(max(hi, lo) / max(min(hi, lo), 1e-300))}
     out["rest"] = _rest(res, p)
     out["turning"] = _turning(res, e_top)
+    out["decay_law"] = decay_law(res, e_top)
     return out

@@ -1,0 +1,162 @@
+"""The decay law of the whole training trajectory: dry friction, quadratic drag or viscous damping.
+
+The envelope signature (:func:`lagsplat.diagnose.signatures.signatures`) reads the decay from the
+turning points alone, a dozen numbers on a clip of a few periods. The same question asked of every
+sample is far sharper: fit the chart's own positions along the effect's direction, segment by
+segment, with a free oscillator whose state is integrated over the whole segment (single shooting),
+
+``s'' = -k s - k2 s^2 - k3 s^3 - c s' - kappa s'^2 [- mu tanh(s' / v_s) | - c2 |s'| s']``,
+
+with the initial state and an offset per segment. The in-class terms (``k2``, ``k3``: an anharmonic,
+asymmetric potential; ``kappa``: the Christoffel term of a position-dependent mass, what a smooth
+distortion of the chart adds) are free in every fit, so the only thing the added term can buy is a
+decay that is not exponential: dry friction (paper §3.3: the amplitude falls by a constant step per
+cycle, so the motion loses its amplitude faster, relative to it, as it shrinks) or quadratic drag
+(faster at large amplitude). A term that takes the wrong sign buys the opposite law and is no
+evidence for the effect.
+
+Evidence is on the ``Delta BIC`` scale of the regressions, with the sample count reduced for the
+serial correlation of the oscillator's misfit: ``n_eff log(SSR_viscous / SSR_law) - log n_eff``,
+``n_eff = n (1 - rho) / (1 + rho)`` (``rho`` the lag-one autocorrelation of the viscous fit's
+residual; Bartlett's effective sample size of an AR(1) series). Read on unactuated charts with
+``d = 1`` only (an input or a second mode makes the free oscillator the wrong null).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from numba import njit
+
+__all__ = ["decay_law", "LAWS"]
+
+#: The non-viscous decay laws tested, and the sign their coefficient must take.
+LAWS = ("dry", "drag")
+
+_BASE = 5  # k, c, k2, k3, kappa
+_MIN_PERIODS = 3.0
+
+
+_KIND = {"viscous": 0, "dry": 1, "drag": 2}
+
+
+@njit(cache=True)
+def _accel(kind: int, s: float, v: float, p: np.ndarray, v_s: float) -> float:  # pragma: no cover - compiled
+    a = -p[0] * s - p[2] * s * s - p[3] * s**3 - p[1] * v - p[4] * v * v
+    if kind == 1:
+        a -= p[5] * math.tanh(v / v_s)
+    elif kind == 2:
+        a -= p[5] * abs(v) * v
+    return a
+
+
+@njit(cache=True)
+def _rk4(kind: int, t: np.ndarray, p: np.ndarray, s: float, v: float, v_s: float, substeps: int) -> np.ndarray:  # pragma: no cover
+    ys = np.empty(len(t))
+    ys[0] = s
+    for i in range(1, len(t)):
+        h = (t[i] - t[i - 1]) / substeps
+        for _ in range(substeps):
+            a1 = _accel(kind, s, v, p, v_s)
+            s2, v2 = s + 0.5 * h * v, v + 0.5 * h * a1
+            a2 = _accel(kind, s2, v2, p, v_s)
+            s3, v3 = s + 0.5 * h * v2, v + 0.5 * h * a2
+            a3 = _accel(kind, s3, v3, p, v_s)
+            s4, v4 = s + h * v3, v + h * a3
+            a4 = _accel(kind, s4, v4, p, v_s)
+            s, v = s + h / 6.0 * (v + 2.0 * v2 + 2.0 * v3 + v4), v + h / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
+        ys[i] = s
+    return ys
+
+
+def _simulate(kind: str, P: np.ndarray, segs: list[tuple[np.ndarray, np.ndarray]], v_s: float, substeps: int) -> np.ndarray:
+    """Positions of every segment under ``P = [phys..., (s0, v0, offset) per segment]``, RK4 on the frame grid."""
+    n_phys = _BASE + (kind != "viscous")
+    phys = np.zeros(_BASE + 1)
+    phys[:n_phys] = P[:n_phys]
+    out = []
+    for j, (t, _) in enumerate(segs):
+        s, v, off = P[n_phys + 3 * j : n_phys + 3 * j + 3]
+        out.append(_rk4(_KIND[kind], t, phys, float(s), float(v), float(v_s), int(substeps)) + off)
+    return np.concatenate(out)
+
+
+def _fit(kind: str, starts: list[np.ndarray], segs, y: np.ndarray, v_s: float, substeps: int, max_nfev: int):
+    from scipy.optimize import least_squares
+
+    def resid(P: np.ndarray) -> np.ndarray:
+        with np.errstate(all="ignore"):
+            r = _simulate(kind, P, segs, v_s, substeps) - y
+        return np.where(np.isfinite(r), np.clip(r, -1e6, 1e6), 1e6)
+
+    best = None
+    for P0 in starts:
+        o = least_squares(resid, P0, x_scale="jac", max_nfev=max_nfev)
+        if best is None or o.cost < best.cost:
+            best = o
+    return 2.0 * float(best.cost), best.x, resid(best.x)
+
+
+def _whole_segments(res: Any, e: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Each segment's times and unsmoothed chart positions along ``e``, edges included (the residual drops
+    ``ceil(3 sigma)`` frames at either end, the largest amplitudes of a decay among them)."""
+    states = getattr(res, "states", None) or []
+    if states:
+        trim = int(math.ceil(3 * res.sigma))
+        return [(st.t[st.keep.start - trim : st.keep.stop + trim].astype(np.float64),
+                 st.q_raw[st.keep.start - trim : st.keep.stop + trim] @ e) for st in states]  # fmt: skip
+    return [(res.t[idx].astype(np.float64), res.q_raw[idx] @ e) for idx in res.segment_slices()]
+
+
+def decay_law(res: Any, e: np.ndarray, substeps: int = 2, max_nfev: int = 200) -> dict[str, Any]:
+    """Evidence of the whole training trajectory for a dry-friction or a quadratic-drag decay over a viscous one.
+
+    Args:
+        res: the :class:`~lagsplat.diagnose.residual_data.Residual` (its segments, times and the chart's
+            unsmoothed positions ``q_raw``).
+        e: ``[d]`` unit direction the positions are read along.
+        substeps: RK4 steps per frame interval.
+        max_nfev: residual evaluations per least-squares start.
+
+    Returns:
+        ``{}`` where the law is not read (``d > 1``, a varying input, or no segment of at least three
+        periods); else ``{"n": samples, "n_eff": effective samples, "rho": lag-one autocorrelation,
+        "rms_viscous": rms misfit of the viscous fit (latent units), "dry": {"evidence", "coef", "sign_ok"},
+        "drag": {...}}``; ``evidence`` on the ``Delta BIC`` scale, ``coef`` the law's coefficient (``mu``,
+        ``c2``; latent units), ``sign_ok`` whether it is positive: a negative one buys the opposite law
+        and is no evidence for this one (see the module docstring).
+    """
+    if res.d != 1 or (res.u.size and float(np.ptp(res.u, axis=0).max()) > 0):
+        return {}
+    f = float(res.f_dominant_hz)
+    if not (f > 0):
+        return {}
+    segs = []
+    for t, s in _whole_segments(res, np.asarray(e, np.float64)):
+        if len(t) > 8 and (t[-1] - t[0]) * f >= _MIN_PERIODS:
+            segs.append((t, s))
+    if not segs:
+        return {}
+    y = np.concatenate([s for _, s in segs])
+    w = 2.0 * math.pi * f
+    amp = float(max(np.ptp(s) for _, s in segs)) / 2.0
+    v_s = 0.02 * w * amp
+    seg_state = []
+    for t, s in segs:
+        seg_state += [s[0] - float(np.median(s)), float(np.gradient(s, t)[0]), float(np.median(s))]
+    starts = [np.r_[w * w, z * w, 0.0, 0.0, 0.0, seg_state] for z in (0.01, 0.05)]
+    ssr0, P0, r0 = _fit("viscous", starts, segs, y, v_s, substeps, max_nfev)
+    n = len(y)
+    rho = float(np.clip(np.corrcoef(r0[1:], r0[:-1])[0, 1], 0.0, 0.95)) if n > 3 and r0.std() > 0 else 0.0
+    n_eff = n * (1.0 - rho) / (1.0 + rho)
+    out: dict[str, Any] = {"n": n, "n_eff": n_eff, "rho": rho, "rms_viscous": math.sqrt(ssr0 / n)}
+    scale = {"dry": 0.01 * w * w * amp, "drag": 0.1 * w / max(amp, 1e-12)}
+    for law in LAWS:
+        phys, st = P0[:_BASE], P0[_BASE:]
+        ssr, P, _ = _fit(law, [np.r_[phys, g * scale[law], st] for g in (0.0, 1.0)], segs, y, v_s, substeps, max_nfev)
+        ev = n_eff * math.log(max(ssr0, 1e-300) / max(ssr, 1e-300)) - math.log(max(n_eff, 1.0))
+        coef = float(P[_BASE])
+        out[law] = {"evidence": float(ev), "coef": coef, "sign_ok": coef > 0}
+    return out

@@ -1,0 +1,79 @@
+"""The whole trajectory's decay law (lagsplat.diagnose.decay_law) on oscillators with a known dissipation."""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from lagsplat.diagnose.decay_law import decay_law
+from lagsplat.diagnose.effects import get_effect
+
+F_HZ, FPS, SECONDS, NOISE = 0.8, 30.0, 8.0, 0.004
+
+
+def _res(law: str, seed: int = 0, d: int = 1, actuated: bool = False) -> SimpleNamespace:
+    """One free decay (amplitude 1) of a 0.8 Hz oscillator with viscous damping plus ``law``, seen with white noise."""
+    w = 2 * math.pi * F_HZ
+
+    def rhs(_t, y):
+        x, v = y
+        a = -w * w * x - 2 * 0.01 * w * v
+        if law == "dry":
+            a -= 0.015 * w * w * math.tanh(v / (0.01 * w))
+        elif law == "drag":
+            a -= 0.25 * abs(v) * v
+        return [v, a]
+
+    t = np.arange(int(SECONDS * FPS)) / FPS
+    x = solve_ivp(rhs, (0, t[-1]), [1.0, 0.0], t_eval=t, method="LSODA", rtol=1e-9, atol=1e-11, max_step=0.01).y[0]
+    x = x + np.random.default_rng(seed).normal(0.0, NOISE, x.shape)
+    q = np.column_stack([x] + [0.1 * x] * (d - 1))
+    u = np.column_stack([np.sin(t)]) if actuated else np.zeros((len(t), 0))
+    return SimpleNamespace(d=d, u=u, q_raw=q, t=t, f_dominant_hz=F_HZ, states=[], segment_slices=lambda: [np.arange(len(t))])
+
+
+def test_dry_friction_reads_dry_and_not_drag():
+    out = decay_law(_res("dry"), np.ones(1))
+    assert out["dry"]["sign_ok"] and out["dry"]["evidence"] > 10
+    assert not (out["drag"]["sign_ok"] and out["drag"]["evidence"] > 0)
+
+
+def test_quadratic_drag_reads_drag_and_not_dry():
+    out = decay_law(_res("drag"), np.ones(1))
+    assert out["drag"]["sign_ok"] and out["drag"]["evidence"] > 10
+    assert not (out["dry"]["sign_ok"] and out["dry"]["evidence"] > 0)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_viscous_decay_reads_no_law(seed):
+    out = decay_law(_res("viscous", seed), np.ones(1))
+    assert out["n"] == int(SECONDS * FPS)
+    for law in ("dry", "drag"):
+        assert not (out[law]["sign_ok"] and out[law]["evidence"] >= 10), out
+
+
+def test_not_read_with_an_input_or_two_dimensions():
+    assert decay_law(_res("dry", actuated=True), np.ones(1)) == {}
+    assert decay_law(_res("dry", d=2), np.array([1.0, 0.0])) == {}
+
+
+def test_too_short_a_segment_is_not_read():
+    res = _res("dry")
+    res.f_dominant_hz = 0.3  # 8 s are 2.4 periods
+    assert decay_law(res, np.ones(1)) == {}
+
+
+def test_the_candidates_take_the_sharper_reading_of_the_decay():
+    law = {"dry": {"evidence": 25.0, "coef": 0.4, "sign_ok": True}, "drag": {"evidence": 24.0, "coef": -0.01, "sign_ok": False}}
+    ev = {"envelope": {"support": {"linear": 3.0, "hyperbolic": 0.0}}, "rest": {"support": 0.0}, "decay_law": law}
+    sup, text = get_effect("coulomb").signature_support(ev)
+    assert sup == pytest.approx(25.0) and "whole trajectory" in text
+    sup, text = get_effect("quadratic_drag").signature_support(ev)
+    assert sup == 0.0 and text == ""  # its coefficient took the sign of dry friction
+    ev["envelope"]["support"]["linear"] = 30.0
+    sup, text = get_effect("coulomb").signature_support(ev)
+    assert sup == pytest.approx(30.0) and "turning points" in text
