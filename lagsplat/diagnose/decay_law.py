@@ -5,11 +5,12 @@ turning points alone, a dozen numbers on a clip of a few periods. The same quest
 sample is far sharper: fit the chart's own positions along the effect's direction, segment by
 segment, with a free oscillator whose state is integrated over the whole segment (single shooting),
 
-``s'' = -k s - k2 s^2 - k3 s^3 - c s' - kappa s'^2 [- mu tanh(s' / v_s) | - c2 |s'| s']``,
+``s'' = -k s - k2 s^2 - k3 s^3 - k4 s^4 - c s' - (kappa + kappa1 s) s'^2 [- mu tanh(s' / v_s) | - c2 |s'| s']``,
 
-with the initial state and an offset per segment. The in-class terms (``k2``, ``k3``: an anharmonic,
-asymmetric potential; ``kappa``: the Christoffel term of a position-dependent mass, what a smooth
-distortion of the chart adds) are free in every fit, so the only thing the added term can buy is a
+with the initial state and an offset per segment. The in-class terms (``k2..k4``: an anharmonic,
+asymmetric potential; ``kappa + kappa1 s``: the Christoffel term of a position-dependent mass, what a
+smooth distortion of the chart adds: with ``x = h(s)`` a viscous oscillator in ``x`` reads
+``s'' = -(h''/h') s'^2 - V'(h) / (m h') - (c/m) s'`` in ``s``, its damping unchanged) are free in every fit, so the only thing the added term can buy is a
 decay that is not exponential: dry friction (paper §3.3: the amplitude falls by a constant step per
 cycle, so the motion loses its amplitude faster, relative to it, as it shrinks) or quadratic drag
 (faster at large amplitude). A term that takes the wrong sign buys the opposite law and is no
@@ -35,7 +36,7 @@ __all__ = ["decay_law", "LAWS"]
 #: The non-viscous decay laws tested, and the sign their coefficient must take.
 LAWS = ("dry", "drag")
 
-_BASE = 5  # k, c, k2, k3, kappa
+_BASE = 7  # k, c, k2, k3, kappa, k4, kappa1
 _MIN_PERIODS = 3.0
 
 
@@ -44,11 +45,11 @@ _KIND = {"viscous": 0, "dry": 1, "drag": 2}
 
 @njit(cache=True)
 def _accel(kind: int, s: float, v: float, p: np.ndarray, v_s: float) -> float:  # pragma: no cover - compiled
-    a = -p[0] * s - p[2] * s * s - p[3] * s**3 - p[1] * v - p[4] * v * v
+    a = -p[0] * s - p[2] * s * s - p[3] * s**3 - p[5] * s**4 - p[1] * v - (p[4] + p[6] * s) * v * v
     if kind == 1:
-        a -= p[5] * math.tanh(v / v_s)
+        a -= p[7] * math.tanh(v / v_s)
     elif kind == 2:
-        a -= p[5] * abs(v) * v
+        a -= p[7] * abs(v) * v
     return a
 
 
@@ -146,16 +147,21 @@ def decay_law(res: Any, e: np.ndarray, substeps: int = 2, max_nfev: int = 200) -
     seg_state = []
     for t, s in segs:
         seg_state += [s[0] - float(np.median(s)), float(np.gradient(s, t)[0]), float(np.median(s))]
-    starts = [np.r_[w * w, z * w, 0.0, 0.0, 0.0, seg_state] for z in (0.01, 0.05)]
+    starts = [np.r_[w * w, z * w, np.zeros(_BASE - 2), seg_state] for z in (0.01, 0.05)]
     ssr0, P0, r0 = _fit("viscous", starts, segs, y, v_s, substeps, max_nfev)
+    scale = {"dry": 0.01 * w * w * amp, "drag": 0.1 * w / max(amp, 1e-12)}
+    fits = {law: _fit(law, [np.r_[P0[:_BASE], g * scale[law], P0[_BASE:]] for g in (0.0, 1.0)], segs, y, v_s, substeps, max_nfev)
+            for law in LAWS}  # fmt: skip
+    # the viscous fit once more from each law's optimum without its term, so that nested fits are compared at their optima
+    again = _fit("viscous", [np.r_[P[:_BASE], P[_BASE + 1 :]] for _, P, _ in fits.values()], segs, y, v_s, substeps, max_nfev)
+    if again[0] < ssr0:
+        ssr0, P0, r0 = again
     n = len(y)
     rho = float(np.clip(np.corrcoef(r0[1:], r0[:-1])[0, 1], 0.0, 0.95)) if n > 3 and r0.std() > 0 else 0.0
     n_eff = n * (1.0 - rho) / (1.0 + rho)
     out: dict[str, Any] = {"n": n, "n_eff": n_eff, "rho": rho, "rms_viscous": math.sqrt(ssr0 / n)}
-    scale = {"dry": 0.01 * w * w * amp, "drag": 0.1 * w / max(amp, 1e-12)}
     for law in LAWS:
-        phys, st = P0[:_BASE], P0[_BASE:]
-        ssr, P, _ = _fit(law, [np.r_[phys, g * scale[law], st] for g in (0.0, 1.0)], segs, y, v_s, substeps, max_nfev)
+        ssr, P, _ = fits[law]
         ev = n_eff * math.log(max(ssr0, 1e-300) / max(ssr, 1e-300)) - math.log(max(n_eff, 1.0))
         coef = float(P[_BASE])
         out[law] = {"evidence": float(ev), "coef": coef, "sign_ok": coef > 0}
