@@ -218,3 +218,21 @@ def test_the_image_line_says_whether_the_scene_moves_beyond_the_chart() -> None:
     unseen = [ln for ln in distinguishing_lines(dg(-23.0)) if ln.startswith("- image:")]
     assert len(unseen) == 1 and "differ here only in their decay" in unseen[0]
     assert not [ln for ln in distinguishing_lines(dg(106.0, dbic=4.0)) if ln.startswith("- image:")]  # no mode found: no question
+
+
+def test_the_decay_law_line_names_the_law_whose_coefficient_takes_its_sign() -> None:
+    from lagsplat.diagnose.reading import distinguishing_lines
+
+    def lines(dry, drag, dry_ok=True, drag_ok=False):
+        law = {"dry": {"evidence": dry, "coef": 0.4, "sign_ok": dry_ok}, "drag": {"evidence": drag, "coef": -0.01, "sign_ok": drag_ok}}
+        dg = {"evidence": {"decay_law": law}, "settings": {"min_delta_bic": 10.0}, "ranking": []}
+        return [ln for ln in distinguishing_lines(dg) if ln.startswith("- decay over the whole trajectory")]
+
+    assert lines(37.1, 36.1) == ["- decay over the whole trajectory: dry friction (faster, relative to the amplitude, as it shrinks), "
+                                 "evidence 37.1 over viscous damping"]  # fmt: skip
+    # the drag fit's larger gain came with the wrong sign: it is dry friction's evidence, not drag's
+    assert "dry friction" in lines(20.0, 25.0)[0]
+    assert "no law reads it better" in lines(20.0, 25.0, dry_ok=False)[0]
+    assert "no law reads it better" in lines(4.0, -3.0)[0]
+    dg = {"evidence": {}, "settings": {}, "ranking": []}
+    assert not [ln for ln in distinguishing_lines(dg) if "whole trajectory" in ln]  # not read: no line
