@@ -251,10 +251,13 @@ def test_quadratic_drag_is_found_on_the_wide_residual_and_the_control_stays_clea
     assert diag.effects[0].delta_bic >= 10  # the wide residual's regression finds it on its own
     sharp = select_effect(residual_from_chart(model, chart, wide_factor=None))
     assert sharp.settings["sigma_frames_out_of_class"] == pytest.approx(res.sigma)
-    # on the sharp residual the regression alone misses it; the hyperbolic envelope of the turning points carries it
+    # on the sharp residual the regression alone misses it; the decay of the whole trajectory carries it (more sharply
+    # than the hyperbolic envelope of the turning points, which also favours it)
     drag = next(f for f in sharp.ranking if f.effect == "quadratic_drag")
     assert drag.delta_bic < 10 <= drag.evidence and drag.signature_support > 0
-    assert "hyperbolically" in drag.interpretation["signature"]
+    assert sharp.evidence["envelope"]["support"]["hyperbolic"] > 0
+    assert drag.signature_support == pytest.approx(sharp.evidence["decay_law"]["drag"]["evidence"])
+    assert "whole trajectory decays as quadratic drag" in drag.interpretation["signature"]
     # the reported null is the sharp residual's either way
     assert diag.null["excess_over_noise"] == pytest.approx(sharp.null["excess_over_noise"])
     control = _chart("pendulum", "none", seed=1, noise=0.02)

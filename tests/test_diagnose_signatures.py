@@ -66,10 +66,13 @@ def test_dry_friction_shows_a_linear_envelope_and_an_off_centre_rest() -> None:
     assert rest["at_rest"] and abs(rest["offset_over_noise"]) > 5 and rest["support"] > 10
     assert 7.0 < rest["rest_time_s"] < 9.0
     assert rest["rest_position"] == pytest.approx(x[-1] / x.std(), abs=0.01)  # chart units
+    law = diag.evidence["decay_law"]["dry"]  # the whole trajectory reads the decay more sharply than the turning points
+    assert law["sign_ok"] and law["evidence"] > env["support"]["linear"]
+    assert not (diag.evidence["decay_law"]["drag"]["sign_ok"] and diag.evidence["decay_law"]["drag"]["evidence"] > 0)
     coulomb = next(f for f in diag.ranking if f.effect == "coulomb")
-    assert coulomb.signature_support == pytest.approx(env["support"]["linear"] + rest["support"])
+    assert coulomb.signature_support == pytest.approx(law["evidence"] + rest["support"])  # the decay read once, plus the rest
     assert coulomb.evidence == pytest.approx(coulomb.delta_bic + coulomb.signature_support)
-    assert "fall linearly" in coulomb.interpretation["signature"] and "off the centre" in coulomb.interpretation["signature"]
+    assert "whole trajectory" in coulomb.interpretation["signature"] and "off the centre" in coulomb.interpretation["signature"]
     assert diag.winner == "coulomb" and signature_confirmed(coulomb)
     record = coulomb.to_dict()
     assert record["signature_support"] == pytest.approx(coulomb.signature_support) and record["evidence"] == pytest.approx(coulomb.evidence)

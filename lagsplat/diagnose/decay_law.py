@@ -7,11 +7,11 @@ segment, with a free oscillator whose state is integrated over the whole segment
 
 ``s'' = -k s - k2 s^2 - k3 s^3 - k4 s^4 - c s' - (kappa + kappa1 s) s'^2 [- mu tanh(s' / v_s) | - c2 |s'| s']``,
 
-with the initial state and an offset per segment. The in-class terms (``k2..k4``: an anharmonic,
-asymmetric potential; ``kappa + kappa1 s``: the Christoffel term of a position-dependent mass, what a
-smooth distortion of the chart adds: with ``x = h(s)`` a viscous oscillator in ``x`` reads
-``s'' = -(h''/h') s'^2 - V'(h) / (m h') - (c/m) s'`` in ``s``, its damping unchanged) are free in every fit, so the only thing the added term can buy is a
-decay that is not exponential: dry friction (paper §3.3: the amplitude falls by a constant step per
+with the initial state and an offset per segment. The in-class terms are free in every fit:
+``k2..k4`` an anharmonic, asymmetric potential, and ``kappa + kappa1 s`` the Christoffel term of a
+position-dependent mass, which is what a smooth distortion of the chart adds (with ``x = h(s)``, a
+viscous oscillator in ``x`` reads ``s'' = -(h''/h') s'^2 - V'(h) / (m h') - (c/m) s'`` in ``s``: its
+damping is unchanged). So the only thing the added term can buy is a decay that is not exponential: dry friction (paper §3.3: the amplitude falls by a constant step per
 cycle, so the motion loses its amplitude faster, relative to it, as it shrinks) or quadratic drag
 (faster at large amplitude). A term that takes the wrong sign buys the opposite law and is no
 evidence for the effect.
@@ -33,18 +33,16 @@ from numba import njit
 
 __all__ = ["decay_law", "LAWS"]
 
-#: The non-viscous decay laws tested, and the sign their coefficient must take.
+#: The non-viscous decay laws tested; each coefficient must be positive to count.
 LAWS = ("dry", "drag")
 
 _BASE = 7  # k, c, k2, k3, kappa, k4, kappa1
-_MIN_PERIODS = 3.0
-
-
+_MIN_PERIODS = 3.0  # a segment shorter than this cannot tell the laws apart
 _KIND = {"viscous": 0, "dry": 1, "drag": 2}
 
 
 @njit(cache=True)
-def _accel(kind: int, s: float, v: float, p: np.ndarray, v_s: float) -> float:  # pragma: no cover - compiled
+def _accel(kind: int, s: float, v: float, p: np.ndarray, v_s: float) -> float:
     a = -p[0] * s - p[2] * s * s - p[3] * s**3 - p[5] * s**4 - p[1] * v - (p[4] + p[6] * s) * v * v
     if kind == 1:
         a -= p[7] * math.tanh(v / v_s)
@@ -54,7 +52,7 @@ def _accel(kind: int, s: float, v: float, p: np.ndarray, v_s: float) -> float:  
 
 
 @njit(cache=True)
-def _rk4(kind: int, t: np.ndarray, p: np.ndarray, s: float, v: float, v_s: float, substeps: int) -> np.ndarray:  # pragma: no cover
+def _rk4(kind: int, t: np.ndarray, p: np.ndarray, s: float, v: float, v_s: float, substeps: int) -> np.ndarray:
     ys = np.empty(len(t))
     ys[0] = s
     for i in range(1, len(t)):
