@@ -195,7 +195,7 @@ def main() -> None:
     )
     rep.write()
     if args.json:
-        write_json(args.json, {"args": vars(args), "accuracy": acc, "controls_flagged": flagged, "clips": records})
+        write_json(args.json, {"args": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()}, "accuracy": acc, "controls_flagged": flagged, "clips": records})
 
 
 if __name__ == "__main__":
