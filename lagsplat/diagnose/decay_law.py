@@ -26,12 +26,13 @@ residual; Bartlett's effective sample size of an AR(1) series). Read on unactuat
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 from numba import njit
 
-__all__ = ["decay_law", "LAWS"]
+__all__ = ["decay_law", "law_evidence", "LAWS"]
 
 #: The non-viscous decay laws tested; each coefficient must be positive to count.
 LAWS = ("dry", "drag")
@@ -95,18 +96,26 @@ def _fit(kind: str, starts: list[np.ndarray], segs, y: np.ndarray, v_s: float, s
         o = least_squares(resid, P0, x_scale="jac", max_nfev=max_nfev)
         if best is None or o.cost < best.cost:
             best = o
-    return 2.0 * float(best.cost), best.x, resid(best.x)
+    return 2.0 * float(best.cost), best.x, best.fun
 
 
 def _whole_segments(res: Any, e: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Each segment's times and unsmoothed chart positions along ``e``, edges included (the residual drops
-    ``ceil(3 sigma)`` frames at either end, the largest amplitudes of a decay among them)."""
+    """Each segment's times and unsmoothed chart positions along ``e``, edges included (the residual's samples stop
+    short of them, and a decay's largest amplitudes are at its start): the segment states'
+    :attr:`~lagsplat.diagnose.residual_data.SegmentState.whole` samples, or the residual's own without states."""
     states = getattr(res, "states", None) or []
     if states:
-        trim = int(math.ceil(3 * res.sigma))
-        return [(st.t[st.keep.start - trim : st.keep.stop + trim].astype(np.float64),
-                 st.q_raw[st.keep.start - trim : st.keep.stop + trim] @ e) for st in states]  # fmt: skip
+        return [(st.t[st.whole].astype(np.float64), st.q_raw[st.whole] @ e) for st in states]
     return [(res.t[idx].astype(np.float64), res.q_raw[idx] @ e) for idx in res.segment_slices()]
+
+
+def law_evidence(record: Mapping[str, Any] | None, law: str) -> float:
+    """The evidence a :func:`decay_law` record gives ``law`` (``"dry"`` or ``"drag"``) over a viscous decay; ``-inf``
+    where the law was not read or its coefficient took the opposite law's sign. One reading for the candidates'
+    support and the report's line."""
+    rec = (record or {}).get(law) or {}
+    v = float(rec.get("evidence", -math.inf))
+    return v if rec.get("sign_ok") and math.isfinite(v) else -math.inf
 
 
 def decay_law(res: Any, e: np.ndarray, substeps: int = 2, max_nfev: int = 200) -> dict[str, Any]:

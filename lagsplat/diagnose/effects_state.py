@@ -11,6 +11,7 @@ import math
 
 import numpy as np
 
+from lagsplat.diagnose.decay_law import law_evidence
 from lagsplat.diagnose.effect_base import Effect, ratio
 from lagsplat.diagnose.signatures import timing_drifts, turns_one_sided
 
@@ -21,12 +22,14 @@ def _relu(x: np.ndarray) -> np.ndarray:
     return np.maximum(x, 0.0)
 
 
-def _law_support(evidence: dict, law: str) -> float:
-    """The decay law's evidence for ``law`` (``"dry"`` or ``"drag"``) over a viscous decay, ``>= 0``
-    (:func:`~lagsplat.diagnose.decay_law.decay_law`; 0 where it was not read)."""
-    rec = (evidence.get("decay_law") or {}).get(law) or {}
-    v = float(rec.get("evidence", 0.0))
-    return v if rec.get("sign_ok") and math.isfinite(v) and v > 0 else 0.0
+def _decay_support(evidence: dict, law: str, envelope: float, envelope_text: str) -> tuple[float, str]:
+    """The decay read once: the turning points' envelope support (``envelope >= 0``, with its reading) or, where its
+    evidence is the larger, the whole trajectory's decay law ``law`` (:func:`~lagsplat.diagnose.decay_law.decay_law`)."""
+    whole = law_evidence(evidence.get("decay_law"), law)
+    if whole > envelope:
+        name = "dry friction" if law == "dry" else "quadratic drag"
+        return whole, f"the whole trajectory decays as {name} makes it (evidence {whole:.1f} over a viscous decay)"
+    return envelope, envelope_text if envelope > 0 else ""
 
 
 class CoulombEffect(Effect):
@@ -71,13 +74,8 @@ class CoulombEffect(Effect):
         env = (evidence.get("envelope") or {}).get("support") or {}
         rest = evidence.get("rest") or {}
         lin, off = max(0.0, float(env.get("linear", 0.0))), float(rest.get("support", 0.0))
-        law = _law_support(evidence, "dry")
-        parts = []
-        if law > lin:  # one reading of the decay: the whole trajectory's, where it is the sharper
-            lin = law
-            parts.append(f"the whole trajectory decays as dry friction makes it (evidence {law:.1f} over a viscous decay)")
-        elif lin > 0:
-            parts.append(f"the turning points fall linearly (evidence {lin:.1f} over an exponential decay)")
+        lin, decay = _decay_support(evidence, "dry", lin, f"the turning points fall linearly (evidence {lin:.1f} over an exponential decay)")
+        parts = [decay] if decay else []
         if off > 0:
             parts.append(f"the motion stops {abs(rest['offset_over_noise']):.1f} noise levels off the centre of its oscillation "
                          f"at t = {rest['rest_time_s']:.2f} s (evidence {off:.1f})")
@@ -116,10 +114,7 @@ class QuadraticDragEffect(Effect):
         turning points or, where its evidence is the larger, by the whole trajectory
         (:func:`~lagsplat.diagnose.decay_law.decay_law`, quadratic drag over viscous damping)."""
         hyp = max(0.0, float(((evidence.get("envelope") or {}).get("support") or {}).get("hyperbolic", 0.0)))
-        law = _law_support(evidence, "drag")
-        if law > hyp:
-            return law, f"the whole trajectory decays as quadratic drag makes it (evidence {law:.1f} over a viscous decay)"
-        return hyp, (f"the turning points fall hyperbolically (evidence {hyp:.1f} over an exponential decay)" if hyp > 0 else "")
+        return _decay_support(evidence, "drag", hyp, f"the turning points fall hyperbolically (evidence {hyp:.1f} over an exponential decay)")
 
     def interpret(self, coef, se, params, res, e, scale):
         """``c2`` and its equivalent viscous damping at the speed amplitude, relative to the model's."""

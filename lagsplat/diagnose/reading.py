@@ -13,6 +13,7 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
+from lagsplat.diagnose.decay_law import LAWS, law_evidence
 from lagsplat.diagnose.diagnosis import failed_rules
 
 __all__ = ["distinguishing_lines", "not_significant_lines", "carried_nonlinearity_line", "indistinguishable", "INDISTINGUISHABLE", "STRONG_Z", "WEAK_Z", "CONFOUNDED"]
@@ -51,8 +52,8 @@ def _law(law: Mapping[str, Any], min_delta_bic: float = 10.0) -> str:
     """The whole trajectory's decay law (:func:`~lagsplat.diagnose.decay_law.decay_law`), where it was read."""
     if not law:
         return ""
-    ev = {k: _num((law.get(k) or {}).get("evidence")) if (law.get(k) or {}).get("sign_ok") else -math.inf for k in ("dry", "drag")}
-    best = max(ev, key=lambda k: ev[k] if math.isfinite(ev[k]) else -math.inf)
+    ev = {k: law_evidence(law, k) for k in LAWS}
+    best = max(ev, key=ev.get)
     if not ev[best] >= min_delta_bic:  # also where neither coefficient took its sign
         return f"decay over the whole trajectory: no law reads it better than viscous damping does (evidence below {min_delta_bic:g})"
     name = "dry friction (faster, relative to the amplitude, as it shrinks)" if best == "dry" else "quadratic drag (faster at large amplitude)"

@@ -181,7 +181,7 @@ def _segment_residual(
     keep = slice(Pk + trim, Pk + len(q_raw) - trim)
     a_s = smoothed_model_acceleration(model, q_t, qd_t, up if n_u else None, q_s, qd_s, u_s if n_u else None, keep, sigma)
     _, M = model_acceleration(model, q_s[keep], qd_s[keep], u_s[keep] if n_u else None)
-    state = SegmentState(index, ep, tp, q_t, qd_t, up, _interpolator(t_raw, u_raw), keep, qp)
+    state = SegmentState(index, ep, tp, q_t, qd_t, up, _interpolator(t_raw, u_raw), keep, qp, slice(Pk, Pk + len(q_raw)))
     cols = {"t": tp[keep], "q": q_s[keep], "qd": qd_s[keep], "qdd": qdd_s[keep], "a": a_s, "M": M, "u": u_s[keep],
             "seg": np.full(len(M), index), "ep": np.full(len(M), ep)}  # fmt: skip
     return state, cols

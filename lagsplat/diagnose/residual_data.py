@@ -38,6 +38,8 @@ class SegmentState:
         q_raw: float64 ``[m,d]`` the chart's position itself, unsmoothed (padded by odd
             reflection): what a sharp position-dependent feature reads (an end stop,
             whose bounce the de-blurring cannot restore).
+        whole: ``slice`` of the padded samples that are the segment's own frames (no padding,
+            the edges ``keep`` trims included).
     """
 
     index: int
@@ -49,6 +51,7 @@ class SegmentState:
     u_at: Callable[[np.ndarray], np.ndarray]
     keep: slice
     q_raw: np.ndarray
+    whole: slice
 
 
 @dataclass
