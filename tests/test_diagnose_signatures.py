@@ -299,6 +299,60 @@ def test_a_drift_whose_stiffness_change_the_periods_contradict_is_not_practical(
     assert drift.practical({"timing_check": None}, th)[0] and drift.practical({}, th)[0]
 
 
+def test_a_drift_that_takes_the_stiffness_or_the_damping_through_zero_is_not_practical() -> None:
+    from lagsplat.diagnose.effects import get_effect
+
+    drift = get_effect("drift")
+    th = {"min_cubic_shift": 0.03}
+    # a double pendulum without any effect, three periods, d = 2 (no timing check): -1093 % stiffness, +4985 % damping
+    absurd = {"dk_dt": -1634.0, "dk_dt_se": 447.0, "dc_dt": 154.0, "dc_dt_se": 37.8, "k_model": 468.5, "c_model": 9.69, "span_s": 3.13}
+    ok, why = drift.practical(absurd, th)
+    assert not ok and "through zero" in why and "stiffness" in why
+    ok, why = drift.practical({**absurd, "dk_dt": -100.0}, th)  # the stiffness stays positive; the damping does not
+    assert not ok and "damping" in why
+    # a damping that rises from near zero to nearly twice its mean (a blind cart, +186 % over the clip) is a drift
+    rising = {"dk_dt": 0.0, "dk_dt_se": 0.1, "dc_dt": 0.0465, "dc_dt_se": 0.002, "k_model": 25.0, "c_model": 0.5, "span_s": 20.0}
+    assert drift.practical(rising, th)[0]
+    # past zero by less than two standard errors of the rate: not ruled out
+    assert drift.practical({**rising, "dc_dt": 0.055, "dc_dt_se": 0.004}, th)[0]
+    assert not drift.practical({**rising, "dc_dt": 0.07, "dc_dt_se": 0.004}, th)[0]
+
+
+def test_a_signature_confirmed_candidate_is_judged_by_its_own_cross_validation() -> None:
+    from lagsplat.diagnose.diagnosis import failed_rules
+
+    rule = (10.0, 0.1, 0.02)
+    # the realistic pendulum with dry friction: decay-law support 41, CV gain -0.25 with the quintic refitted per fold
+    assert failed_rules(True, True, 62.7, 0.59, -0.25, 41.0, *rule, cv_gain_own=0.69) == []
+    assert failed_rules(True, True, 62.7, 0.59, -0.25, 41.0, *rule, cv_gain_own=-0.05) == ["cv_gain"]
+    assert failed_rules(True, True, 62.7, 0.59, -0.25, 41.0, *rule) == ["cv_gain"]  # not computed: the plain gain
+    assert failed_rules(True, True, 62.7, 0.59, -0.25, 5.0, *rule, cv_gain_own=0.69) == ["cv_gain"]  # no strong signature
+
+
+def test_the_own_cross_validation_holds_the_in_class_corrections_at_their_whole_take_fit() -> None:
+    from lagsplat.diagnose.regression import Regression, blocked_folds, linear_features, poly_features
+
+    chart, _ = _oscillator(1.0, 0.01, 0.01)
+    res = diagnose_chart(fit_linear_oscillator([chart.q], DT), chart)[1]
+    rng = np.random.default_rng(5)
+    folds = blocked_folds(res, 5, None)
+    P = poly_features(res, ("potential", "inertia"))
+    v = res.qdot[:, 0]
+    friction = np.tanh(v / (0.05 * np.abs(v).max()))[:, None]
+    # a target that is a large in-class polynomial, a constant dry friction and white noise (noise units)
+    curve = (P / np.maximum(P.std(0), 1e-12)) @ rng.normal(0.0, 1.0, P.shape[1])
+    target = (curve[:, None] + 3.0 * friction + rng.standard_normal((res.n, 1))) * res.noise_r[None]
+    reg = Regression(res, folds, target, linear_features(res), ("potential", "inertia"))
+    design = reg.stack(friction, np.ones(1))
+    w, ssr, _ = reg.fit(design, True)
+    r2 = 1.0 - ssr / float(reg.r0 @ reg.r0)
+    own = 1.0 - reg.cv_sse_own(design, True) / reg.cv_sse_own(None, False)
+    assert w[0] > 0 and r2 > 0.5
+    assert abs(own - r2) < 0.1  # one constant coefficient: what it explains in sample it predicts on held-back blocks
+    # without folds to hold back there is no cross-validation at all
+    assert math.isnan(Regression(res, np.zeros(res.n, int), target, linear_features(res), ("potential",)).cv_sse_own(design, True))
+
+
 def test_a_force_that_beats_with_the_oscillation_slower_than_the_record_is_not_sought() -> None:
     from types import SimpleNamespace
 

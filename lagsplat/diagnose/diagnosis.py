@@ -6,6 +6,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -17,16 +18,19 @@ __all__ = ["CandidateFit", "Diagnosis", "failed_rules"]
 
 
 def failed_rules(physical: bool, practical: bool, evidence: float, r2: float, cv_gain: float, signature_support: float,
-                 min_delta_bic: float, min_r2: float, min_cv_gain: float) -> list[str]:  # fmt: skip
+                 min_delta_bic: float, min_r2: float, min_cv_gain: float, cv_gain_own: float = math.nan) -> list[str]:  # fmt: skip
     """The significance rules a candidate fails, in order (empty: significant).
 
     ``"physical"`` (sign), ``"practical"`` (its effect's physical check), ``"evidence"`` (``Delta BIC`` plus
     the signatures' support below ``min_delta_bic``), ``"r2"`` (below ``min_r2``) and ``"cv_gain"`` (below
-    ``min_cv_gain``, unless the signatures alone reach ``min_delta_bic`` and the cross-validation does not
-    lose: ``cv_gain >= 0`` or undefined). One rule for the selection
-    (:func:`~lagsplat.diagnose.select.decide`) and for the report's reading of a ``report.json`` record.
+    ``min_cv_gain``, unless the signatures alone reach ``min_delta_bic`` and the candidate's own cross-validation
+    does not lose: ``cv_gain_own >= 0``, the gain with the in-class corrections held at their fit on the whole take,
+    :meth:`~lagsplat.diagnose.regression.Regression.cv_sse_own`; ``cv_gain`` where that is not computed; undefined
+    passes). One rule for the selection (:func:`~lagsplat.diagnose.select.decide`) and for the report's reading of a
+    ``report.json`` record.
     """
-    cv_ok = cv_gain >= min_cv_gain or (signature_support >= min_delta_bic and not cv_gain < 0)
+    own = cv_gain_own if math.isfinite(cv_gain_own) else cv_gain
+    cv_ok = cv_gain >= min_cv_gain or (signature_support >= min_delta_bic and not own < 0)
     checks = (("physical", physical), ("practical", practical), ("evidence", evidence >= min_delta_bic), ("r2", r2 >= min_r2), ("cv_gain", cv_ok))
     return [name for name, ok in checks if not ok]
 
@@ -43,7 +47,9 @@ class CandidateFit:
             (generalized-force units of the model).
         ssr: weighted sum of squared residuals (noise units); ``k``: parameter count.
         bic: information criterion; ``delta_bic``: ``BIC_null - bic`` (higher is better).
-        r2: share of the null residual explained; ``cv_gain``: blocked-CV gain over the null.
+        r2: share of the null residual explained; ``cv_gain``: blocked-CV gain over the null; ``cv_gain_own``: the
+            same with the in-class corrections held at their fit on the whole take (computed where the signatures
+            alone reach ``min_delta_bic``, else ``nan``; :func:`failed_rules`).
         signature_support: evidence of the chart-invariant signatures for this effect, on the ``Delta BIC``
             scale (:meth:`~lagsplat.diagnose.effect_base.Effect.signature_support`); ``evidence``:
             ``delta_bic`` plus it (what the ranking and the decision read).
@@ -70,6 +76,7 @@ class CandidateFit:
     delta_bic: float = 0.0
     r2: float = 0.0
     cv_gain: float = 0.0
+    cv_gain_own: float = math.nan
     signature_support: float = 0.0
     physical: bool = True
     significant: bool = False
@@ -97,6 +104,7 @@ class CandidateFit:
             "delta_bic": float(self.delta_bic),
             "r2": float(self.r2),
             "cv_gain": float(self.cv_gain),
+            "cv_gain_own": float(self.cv_gain_own) if math.isfinite(self.cv_gain_own) else None,
             "signature_support": float(self.signature_support),
             "evidence": self.evidence,
             "physical": bool(self.physical),

@@ -148,7 +148,17 @@ class DriftEffect(Effect):
         slope, while the measured slope is not at least half of it with the same sign, the stiffness
         trend is the fitted model's own misfit on this take (e.g. a frequency that depends on the
         amplitude a little differently from the recording's), not a change of the recording.
+
+        Nor where the fitted trend, linear about the middle of the span, takes the stiffness or the damping
+        through zero within the recording by more than two standard errors of its rate
+        (:func:`_through_zero`): a stiffness changing sign or a damping turning negative is no slow change of a
+        stable oscillator but a misfit the time trend happens to follow (a realistic double pendulum without
+        any effect, on three periods: stiffness -1093 %, damping +4985 % over 3 s). This check needs no timing
+        signature, so it also holds on short clips and on several latent dimensions.
         """
+        through_zero = _through_zero(interpretation)
+        if through_zero:
+            return False, through_zero
         chk = interpretation.get("timing_check")
         if not chk:
             return True, ""
@@ -172,11 +182,27 @@ class DriftEffect(Effect):
         return {
             "dk_dt": float(coef[0]), "dk_dt_se": float(se[0]), "dc_dt": float(coef[1]), "dc_dt_se": float(se[1]),
             "stiffness_change_over_clip": rk, "damping_change_over_clip": rc, "dominant": which,
-            "t_bar": float(np.mean(res.t)), "s_bar": float(np.mean(res.q @ e)), "k_model": scale["k"], "c_model": scale["c"],
+            "t_bar": float(np.mean(res.t)), "s_bar": float(np.mean(res.q @ e)), "k_model": scale["k"], "c_model": scale["c"], "span_s": span,
             "timing_check": _timing_check(coef[0], scale["k"], span, res),
             "text": f"slow drift, mainly of the {which}: over the {span:.0f} s recorded the stiffness changes by "
             f"{100 * rk:+.1f} % (z = {zk:.1f}) and the damping by {100 * rc:+.0f} % (z = {zc:.1f})",
         }  # fmt: skip
+
+
+def _through_zero(interpretation) -> str:
+    """Why a drift's fitted trend takes the stiffness or the damping through zero within the span (``""`` if it does not).
+
+    The trend ``k(t) = k + dk/dt (t - t_bar)`` is linear about the span's middle, so it reaches ``k - |dk/dt| span / 2``
+    at one end; that end is below zero, with the rate shrunk by two standard errors, when
+    ``(|dk/dt| - 2 se) span / 2 > k`` (the same for the damping ``c``).
+    """
+    span = float(interpretation.get("span_s", 0.0))
+    for name, rate, se, base in (("stiffness", "dk_dt", "dk_dt_se", "k_model"), ("damping", "dc_dt", "dc_dt_se", "c_model")):
+        r, e, b = float(interpretation.get(rate, 0.0)), float(interpretation.get(se, 0.0)), float(interpretation.get(base, 0.0))
+        if b > 0 and (abs(r) - 2.0 * e) * span / 2.0 > b:
+            return (f"this trend takes the {name} through zero within the {span:.1f} s recorded ({100 * r * span / b:+.0f} % over "
+                    f"the span, linear about its middle): no slow change of a stable oscillator, the model's misfit")  # fmt: skip
+    return ""
 
 
 def _timing_check(dk_dt: float, k: float, span: float, res) -> dict[str, float] | None:

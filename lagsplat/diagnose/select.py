@@ -118,7 +118,10 @@ the ranking and the significance rule. The turning points are a few numbers
 read off the trajectory, not the residual force the regression fits, so a
 near-resonant periodic force that mimics a linear decay in the residual gains
 nothing from them. A signature that alone reaches ``min_delta_bic`` replaces
-the cross-validation's positive gain (it must merely not lose), and its effect
+the cross-validation's positive gain (it must merely not lose, judged with the in-class
+corrections held at their fit on the whole take, so that what is judged is the candidate's own
+coefficients and not a quintic refitted on smaller amplitudes and extrapolated:
+:meth:`~lagsplat.diagnose.regression.Regression.cv_sse_own`), and its effect
 is not overruled by a rival's refit (:func:`~lagsplat.diagnose.refit_choice.choose_by_refit`).
 
 Steps
@@ -302,7 +305,7 @@ def rank_candidates(fits: list[CandidateFit], probs: dict[bool, Regression], min
         cannot tell from a law of the state is behind it (:func:`state_laws_first`).
     """
     fits.sort(key=lambda f: f.evidence, reverse=True)
-    cv_ref: dict[bool, float] = {}
+    cv_ref: dict[Any, float] = {}
     for i, fit in enumerate(fits):
         if not (i < 3 or (fit.physical and fit.evidence >= min_delta_bic and fit.r2 >= min_r2)):
             continue
@@ -312,6 +315,10 @@ def rank_candidates(fits: list[CandidateFit], probs: dict[bool, Regression], min
         if lin not in cv_ref:
             cv_ref[lin] = prob.cv_sse(None, False)
         fit.cv_gain = 1.0 - prob.cv_sse(fit.design, eff.positive) / max(cv_ref[lin], 1e-300)
+        if fit.signature_support >= min_delta_bic:
+            if ("own", lin) not in cv_ref:
+                cv_ref["own", lin] = prob.cv_sse_own(None, False)
+            fit.cv_gain_own = 1.0 - prob.cv_sse_own(fit.design, eff.positive) / max(cv_ref["own", lin], 1e-300)
     return state_laws_first(fits, probs[True].res.meta.get("frequency_signature") or {})
 
 
@@ -354,8 +361,8 @@ def decide(fits: Sequence[CandidateFit], min_delta_bic: float, min_r2: float, mi
     (``Delta BIC`` plus the signatures' support), ``R2 >= min_r2`` and ``cv_gain >= min_cv_gain``
     (module docstring, "Ranking and significance"). A fit whose signatures alone reach
     ``min_delta_bic`` (:func:`signature_confirmed`) has been checked on evidence the regression did
-    not use: its cross-validation need only not lose (``cv_gain >= 0``, or undefined on a clip too
-    short for two folds).
+    not use: its own cross-validation need only not lose (``cv_gain_own >= 0``, the in-class corrections
+    held at their fit on the whole take, or undefined on a clip too short for two folds).
 
     Args:
         fits: ranked fits (:func:`rank_candidates`); their ``significant`` flag is set.
@@ -365,7 +372,7 @@ def decide(fits: Sequence[CandidateFit], min_delta_bic: float, min_r2: float, mi
     """
     for fit in fits:
         fit.significant = not failed_rules(fit.physical, fit.practical, fit.evidence, fit.r2, fit.cv_gain, fit.signature_support,
-                                           min_delta_bic, min_r2, min_cv_gain)  # fmt: skip
+                                           min_delta_bic, min_r2, min_cv_gain, fit.cv_gain_own)  # fmt: skip
     return next((f for f in fits if f.significant), None)
 
 
