@@ -15,7 +15,7 @@ from lagsplat.diagnose.effects import get_effect
 F_HZ, FPS, SECONDS, NOISE = 0.8, 30.0, 8.0, 0.004
 
 
-def _res(law: str, seed: int = 0, d: int = 1, actuated: bool = False) -> SimpleNamespace:
+def _res(law: str, seed: int = 0, d: int = 1, actuated: bool = False, seconds: float = SECONDS) -> SimpleNamespace:
     """One free decay (amplitude 1) of a 0.8 Hz oscillator with viscous damping plus ``law``, seen with white noise."""
     w = 2 * math.pi * F_HZ
 
@@ -28,7 +28,7 @@ def _res(law: str, seed: int = 0, d: int = 1, actuated: bool = False) -> SimpleN
             a -= 0.25 * abs(v) * v
         return [v, a]
 
-    t = np.arange(int(SECONDS * FPS)) / FPS
+    t = np.arange(int(seconds * FPS)) / FPS
     x = solve_ivp(rhs, (0, t[-1]), [1.0, 0.0], t_eval=t, method="LSODA", rtol=1e-9, atol=1e-11, max_step=0.01).y[0]
     x = x + np.random.default_rng(seed).normal(0.0, NOISE, x.shape)
     q = np.column_stack([x] + [0.1 * x] * (d - 1))
@@ -63,8 +63,20 @@ def test_not_read_with_an_input_or_two_dimensions():
 
 def test_too_short_a_segment_is_not_read():
     res = _res("dry")
-    res.f_dominant_hz = 0.3  # 8 s are 2.4 periods
+    res.f_dominant_hz = 0.2  # 8 s are 1.6 periods
     assert decay_law(res, np.ones(1)) == {}
+
+
+@pytest.mark.parametrize("law", ["dry", "drag", "viscous"])
+def test_a_training_part_of_three_periods_is_read(law):
+    # a clip cut to three periods of training frames leaves a segment a little shorter than three periods
+    out = decay_law(_res(law, seconds=2.9 / F_HZ), np.ones(1))
+    assert out["n"] == int(2.9 / F_HZ * FPS)
+    for other in ("dry", "drag"):
+        if other == law:
+            assert out[law]["sign_ok"] and out[law]["evidence"] > 10, out
+        else:
+            assert not (out[other]["sign_ok"] and out[other]["evidence"] >= 10), out
 
 
 def test_the_candidates_take_the_sharper_reading_of_the_decay():

@@ -349,7 +349,7 @@ def signatures(res: Residual, model_freqs_hz: Sequence[float] | None = None, dir
       a stop reverses it within a few frames on its side, an odd force alike on both).
     * ``decay_law``: the whole training trajectory's evidence for a dry-friction or a quadratic-drag
       decay over a viscous one (:func:`~lagsplat.diagnose.decay_law.decay_law`; unactuated ``d = 1``
-      charts with a segment of at least three periods, else empty).
+      charts with a segment of at least two periods, else empty).
 
     The envelope's ``support``, the decay law's and the rest's ``support`` are evidence on the ``Delta BIC``
     scale that the candidates read (:meth:`~lagsplat.diagnose.effect_base.Effect.signature_support`).
