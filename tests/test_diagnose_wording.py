@@ -236,3 +236,20 @@ def test_the_decay_law_line_names_the_law_whose_coefficient_takes_its_sign() -> 
     assert "no law reads it better" in lines(4.0, -3.0)[0]
     dg = {"evidence": {}, "settings": {}, "ranking": []}
     assert not [ln for ln in distinguishing_lines(dg) if "whole trajectory" in ln]  # not read: no line
+
+
+def test_a_signature_confirmed_candidate_shows_its_own_cross_validation_and_why_it_stands() -> None:
+    from lagsplat.diagnose.markdown import evidence_section
+    from lagsplat.diagnose.reading import not_significant_lines
+
+    def row(effect, cv, own, significant, support=41.0):
+        return {"effect": effect, "delta_bic": 21.6, "signature_support": support, "evidence": 21.6 + support, "r2": 0.59, "cv_gain": cv,
+                "cv_gain_own": own, "physical": True, "practical": True, "significant": significant, "coefficients": {}, "interpretation": {}}  # fmt: skip
+
+    settings = {"min_delta_bic": 10.0, "min_r2": 0.1, "min_cv_gain": 0.02}
+    dg = {"ranking": [row("coulomb", -0.25, 0.69, True), row("drift", 0.31, None, False, 1.6)], "settings": settings, "evidence": {}}
+    text = "\n".join(evidence_section({"diagnosis": dg}))
+    assert "| -0.25 (own 0.69) |" in text and "| 0.31 |" in text and "CV gain (own)" in text
+    assert not any("coulomb" in ln for ln in not_significant_lines(dg))  # it stands: no rule stops it
+    dg["ranking"][0].update(cv_gain_own=-0.05, significant=False)
+    assert any("coulomb" in ln and "held-back blocks" in ln for ln in not_significant_lines(dg))

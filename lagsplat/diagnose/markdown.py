@@ -27,6 +27,12 @@ GAP_LABELS = {
 """Row labels of the held-out gap metrics in the report."""
 
 
+def _cv_cell(c: Mapping[str, Any]) -> str:
+    """A ranking row's CV gain, with the candidate's own beside it where it was computed (a signature-confirmed candidate)."""
+    own = c.get("cv_gain_own")
+    return fmt_value(c["cv_gain"], ".2f") + ("" if own is None else f" (own {fmt_value(own, '.2f')})")
+
+
 def fmt_value(x: Any, fmt: str = ".3g") -> str:
     """A report cell: ``n/a`` for None or non-finite, ``yes``/``no`` for booleans, numbers with ``fmt``."""
     if x is None:
@@ -128,10 +134,13 @@ def evidence_section(rep: Mapping[str, Any]) -> list[str]:
     L += ["", "## Evidence", "", f"Ranking (first round; Delta BIC against the nuisance-only fit, plus the support of the candidate's own signature "
           f"(envelope, rest position, timing, how sharply a stop turns the motion, a hidden mode in the image), higher is better{smooth}):", "",
           "| effect | Delta BIC | signature | R2 | CV gain | physical | significant | coefficients (value +- s.e.) |", "|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    if any(c.get("cv_gain_own") is not None for c in dg["ranking"]):
+        L[-2:-2] = ["CV gain (own): where the signature alone passes, the candidate's own cross-validation, with the in-class "
+                    "polynomials held at their fit on the whole take; it must not lose.", ""]  # fmt: skip
     for c in dg["ranking"]:
         coefs = "; ".join(f"{n} = {fmt_value(v['value'])} +- {fmt_value(v['se'], '.2g')}" for n, v in c["coefficients"].items())
         L.append(f"| {c['effect']} | {fmt_value(c['delta_bic'], '.1f')} | {fmt_value(c.get('signature_support', 0.0), '.1f')} | {fmt_value(c['r2'], '.2f')} | "
-                 f"{fmt_value(c['cv_gain'], '.2f')} | {fmt_value(c['physical'])} | {fmt_value(c['significant'])} | {coefs} |")  # fmt: skip
+                 f"{_cv_cell(c)} | {fmt_value(c['physical'])} | {fmt_value(c['significant'])} | {coefs} |")  # fmt: skip
     if len(dg["ranking"]) > 1:
         a, b = dg["ranking"][0], dg["ranking"][1]
         L += ["", f"Margin of the first over the second: Delta BIC {fmt_value(a['delta_bic'] - b['delta_bic'], '.1f')}, CV gain {fmt_value(a['cv_gain'] - b['cv_gain'], '.2f')}."]

@@ -305,7 +305,8 @@ def rank_candidates(fits: list[CandidateFit], probs: dict[bool, Regression], min
         cannot tell from a law of the state is behind it (:func:`state_laws_first`).
     """
     fits.sort(key=lambda f: f.evidence, reverse=True)
-    cv_ref: dict[Any, float] = {}
+    cv_ref: dict[bool, float] = {}
+    cv_own_ref: dict[bool, float] = {}
     for i, fit in enumerate(fits):
         if not (i < 3 or (fit.physical and fit.evidence >= min_delta_bic and fit.r2 >= min_r2)):
             continue
@@ -316,9 +317,9 @@ def rank_candidates(fits: list[CandidateFit], probs: dict[bool, Regression], min
             cv_ref[lin] = prob.cv_sse(None, False)
         fit.cv_gain = 1.0 - prob.cv_sse(fit.design, eff.positive) / max(cv_ref[lin], 1e-300)
         if fit.signature_support >= min_delta_bic:
-            if ("own", lin) not in cv_ref:
-                cv_ref["own", lin] = prob.cv_sse_own(None, False)
-            fit.cv_gain_own = 1.0 - prob.cv_sse_own(fit.design, eff.positive) / max(cv_ref["own", lin], 1e-300)
+            if lin not in cv_own_ref:
+                cv_own_ref[lin] = prob.cv_sse_own(None, False)
+            fit.cv_gain_own = 1.0 - prob.cv_sse_own(fit.design, eff.positive) / max(cv_own_ref[lin], 1e-300)
     return state_laws_first(fits, probs[True].res.meta.get("frequency_signature") or {})
 
 
