@@ -182,7 +182,9 @@ def _why_not(c: Mapping[str, Any], st: Mapping[str, Any]) -> list[str]:
         "physical": "its coefficients have an unphysical sign",
         "practical": f"set aside by its physical check: {below}" if below else "set aside by its physical check (size, or the recorded timing)",
         "r2": f"it explains {_num(c.get('r2')):.2f} of the residual's variance (R2 needs {min_r2:g})",
-        "cv_gain": f"it does not predict held-back blocks of the training frames (CV gain {_num(c.get('cv_gain')):.2f}, needs {min_cv:g})",
+        "cv_gain": f"it does not predict held-back blocks of the training frames (CV gain {_num(c.get('cv_gain')):.2f}, needs {min_cv:g}"
+        + ("" if c.get("cv_gain_own") is None else f"; its own, with the in-class corrections held, {_num(c.get('cv_gain_own')):.2f}, must not lose")
+        + ")",
     }
     return [words[r] for r in failed if r in words]
 
