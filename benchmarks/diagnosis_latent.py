@@ -63,6 +63,7 @@ from lagsplat.chart import Chart
 from lagsplat.diagnose import diagnose_chart, fit_linear_oscillator
 from lagsplat.io.atomic import write_json
 from lagsplat.io.clip import HELD_OUT, TRAIN
+from lagsplat.io.common import jsonable
 from lagsplat.prepare import auto_train_fraction
 from lagsplat.synth.effects import simulate_effect
 from lagsplat.synth.effect_clips import blind_suite
@@ -195,7 +196,7 @@ def main() -> None:
     )
     rep.write()
     if args.json:
-        write_json(args.json, {"args": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()}, "accuracy": acc, "controls_flagged": flagged, "clips": records})
+        write_json(args.json, {"args": jsonable(vars(args)), "accuracy": acc, "controls_flagged": flagged, "clips": records})
 
 
 if __name__ == "__main__":

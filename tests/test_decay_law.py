@@ -15,25 +15,36 @@ from lagsplat.diagnose.effects import get_effect
 F_HZ, FPS, SECONDS, NOISE = 0.8, 30.0, 8.0, 0.004
 
 
+def _free_decay(accel, x0: float, seconds: float) -> tuple[np.ndarray, np.ndarray]:
+    """Times and positions at ``FPS`` of ``x'' = accel(x, x')`` released at rest from ``x0``."""
+    t = np.arange(int(seconds * FPS)) / FPS
+    x = solve_ivp(lambda _t, y: [y[1], accel(y[0], y[1])], (0, t[-1]), [x0, 0.0], t_eval=t, method="LSODA", rtol=1e-9, atol=1e-11,
+                  max_step=0.01).y[0]  # fmt: skip
+    return t, x
+
+
+def _record(t: np.ndarray, q: np.ndarray, segments: list[np.ndarray], u: np.ndarray | None = None) -> SimpleNamespace:
+    """What :func:`decay_law` reads of a residual: ``q [n, d]`` at ``t``, the segments' sample indices and the input."""
+    u = np.zeros((len(t), 0)) if u is None else u
+    return SimpleNamespace(d=q.shape[1], u=u, q_raw=q, t=t, f_dominant_hz=F_HZ, states=[], segment_slices=lambda: segments)
+
+
 def _res(law: str, seed: int = 0, d: int = 1, actuated: bool = False, seconds: float = SECONDS) -> SimpleNamespace:
     """One free decay (amplitude 1) of a 0.8 Hz oscillator with viscous damping plus ``law``, seen with white noise."""
     w = 2 * math.pi * F_HZ
 
-    def rhs(_t, y):
-        x, v = y
+    def accel(x, v):
         a = -w * w * x - 2 * 0.01 * w * v
         if law == "dry":
             a -= 0.015 * w * w * math.tanh(v / (0.01 * w))
         elif law == "drag":
             a -= 0.25 * abs(v) * v
-        return [v, a]
+        return a
 
-    t = np.arange(int(seconds * FPS)) / FPS
-    x = solve_ivp(rhs, (0, t[-1]), [1.0, 0.0], t_eval=t, method="LSODA", rtol=1e-9, atol=1e-11, max_step=0.01).y[0]
+    t, x = _free_decay(accel, 1.0, seconds)
     x = x + np.random.default_rng(seed).normal(0.0, NOISE, x.shape)
     q = np.column_stack([x] + [0.1 * x] * (d - 1))
-    u = np.column_stack([np.sin(t)]) if actuated else np.zeros((len(t), 0))
-    return SimpleNamespace(d=d, u=u, q_raw=q, t=t, f_dominant_hz=F_HZ, states=[], segment_slices=lambda: [np.arange(len(t))])
+    return _record(t, q, [np.arange(len(t))], np.column_stack([np.sin(t)]) if actuated else None)
 
 
 def test_dry_friction_reads_dry_and_not_drag():
@@ -95,21 +106,18 @@ def _pendulum_takes(law: str, amplitudes: tuple[float, ...], seed: int = 0) -> S
     """Takes of a damped pendulum (``sin`` restoring force) released at ``amplitudes`` (rad), 6 s each, seen through a
     mildly distorting chart ``q = x + 0.1 x^2`` with white noise."""
     w = 2 * math.pi * F_HZ
-    ts, qs, t0 = [], [], 0.0
-    for a in amplitudes:
-        def rhs(_t, y):
-            x, v = y
-            acc = -w * w * math.sin(x) - 2 * 0.02 * w * v
-            return [v, acc - (0.02 * w * w * math.tanh(v / (0.01 * w)) if law == "dry" else 0.0)]
 
-        t = np.arange(int(6.0 * FPS)) / FPS
-        x = solve_ivp(rhs, (0, t[-1]), [a, 0.0], t_eval=t, method="LSODA", rtol=1e-9, atol=1e-11, max_step=0.01).y[0]
+    def accel(x, v):
+        a = -w * w * math.sin(x) - 2 * 0.02 * w * v
+        return a - (0.02 * w * w * math.tanh(v / (0.01 * w)) if law == "dry" else 0.0)
+
+    ts, qs = [], []
+    for i, a in enumerate(amplitudes):
+        t, x = _free_decay(accel, a, 6.0)
         qs.append(x + 0.1 * x**2 + np.random.default_rng(seed).normal(0.0, NOISE, x.shape))
-        ts.append(t + t0)
-        t0 += 7.0
-    t, q = np.concatenate(ts), np.concatenate(qs)[:, None]
-    idx = np.split(np.arange(len(t)), np.cumsum([len(x) for x in ts])[:-1])
-    return SimpleNamespace(d=1, u=np.zeros((len(t), 0)), q_raw=q, t=t, f_dominant_hz=F_HZ, states=[], segment_slices=lambda: idx)
+        ts.append(t + 7.0 * i)
+    t = np.concatenate(ts)
+    return _record(t, np.concatenate(qs)[:, None], np.split(np.arange(len(t)), np.cumsum([len(x) for x in ts])[:-1]))
 
 
 @pytest.mark.parametrize("seed", [0, 1])

@@ -80,15 +80,22 @@ def _rk4(kind: int, t: np.ndarray, p: np.ndarray, s: float, v: float, v_s: float
     return ys
 
 
-def _simulate(kind: str, P: np.ndarray, segs: list[tuple[np.ndarray, np.ndarray]], v_s: float, substeps: int) -> np.ndarray:
-    """Positions of every segment under ``P = [law coefficient (not for "viscous"), (base..., s0, v0, offset) per segment]``,
-    RK4 on the frame grid: the oscillator's base (:data:`_BASE` terms) is each segment's own, the law's coefficient shared."""
+def _layout(kind: str, n_segments: int) -> tuple[int, list[slice]]:
+    """Where the parameters sit in ``P = [law coefficient (not for "viscous"), (base..., s0, v0, offset) per segment]``:
+    ``(number of law coefficients, each segment's slice)``."""
     n_law = int(kind != "viscous")
+    return n_law, [slice(n_law + _PER_SEGMENT * j, n_law + _PER_SEGMENT * (j + 1)) for j in range(n_segments)]
+
+
+def _simulate(kind: str, P: np.ndarray, segs: list[tuple[np.ndarray, np.ndarray]], v_s: float, substeps: int) -> np.ndarray:
+    """Positions of every segment under ``P`` (:func:`_layout`), RK4 on the frame grid: the oscillator's base
+    (:data:`_BASE` terms) is each segment's own, the law's coefficient shared."""
+    n_law, blocks = _layout(kind, len(segs))
     phys = np.zeros(_BASE + 1)
     phys[_BASE] = P[0] if n_law else 0.0
     out = []
-    for j, (t, _) in enumerate(segs):
-        blk = P[n_law + _PER_SEGMENT * j : n_law + _PER_SEGMENT * (j + 1)]
+    for (t, _), sl in zip(segs, blocks):
+        blk = P[sl]
         phys[:_BASE] = blk[:_BASE]
         s, v, off = blk[_BASE:]
         out.append(_rk4(_KIND[kind], t, phys, float(s), float(v), float(v_s), int(substeps)) + off)
@@ -105,12 +112,12 @@ def _fit(kind: str, starts: list[np.ndarray], segs, y: np.ndarray, v_s: float, s
 
     opts: dict[str, Any] = {}
     if len(segs) > 1:  # a segment's parameters move its own samples only: perturb the segments' together
-        n_law = int(kind != "viscous")
-        sparsity = np.zeros((len(y), n_law + _PER_SEGMENT * len(segs)), np.int8)
+        n_law, blocks = _layout(kind, len(segs))
+        sparsity = np.zeros((len(y), blocks[-1].stop), np.int8)
         sparsity[:, :n_law] = 1
         row = 0
-        for j, (t, _) in enumerate(segs):
-            sparsity[row : row + len(t), n_law + _PER_SEGMENT * j : n_law + _PER_SEGMENT * (j + 1)] = 1
+        for (t, _), sl in zip(segs, blocks):
+            sparsity[row : row + len(t), sl] = 1
             row += len(t)
         opts["jac_sparsity"] = sparsity
     best = None

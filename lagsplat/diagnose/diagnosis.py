@@ -104,7 +104,7 @@ class CandidateFit:
             "delta_bic": float(self.delta_bic),
             "r2": float(self.r2),
             "cv_gain": float(self.cv_gain),
-            "cv_gain_own": float(self.cv_gain_own) if math.isfinite(self.cv_gain_own) else None,
+            "cv_gain_own": jsonable(float(self.cv_gain_own)),
             "signature_support": float(self.signature_support),
             "evidence": self.evidence,
             "physical": bool(self.physical),

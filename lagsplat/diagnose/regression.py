@@ -13,6 +13,7 @@ cross-validated over contiguous blocks (:func:`blocked_folds`).
 from __future__ import annotations
 
 import math
+from functools import cached_property
 from itertools import combinations_with_replacement
 
 import numpy as np
@@ -109,7 +110,15 @@ class Regression:
             Z[j * n : (j + 1) * n, j * self.p0 : (j + 1) * self.p0] = X0 * self.w[j]
         self.Zn = Z
         self.folds = np.tile(folds, d)
+        self._poly = [j * self.p0 + k for j in range(d) for k in range(self.p_lin, self.p0)]  # the in-class corrections' columns
         self._refresh()
+
+    @cached_property
+    def _poly_basis(self) -> np.ndarray:
+        """Orthonormal basis ``[N, m]`` of the in-class corrections' columns (:meth:`cv_sse_own`; they never change,
+        :meth:`add_nuisance` appends after them)."""
+        P = self.Zn[:, self._poly]
+        return np.linalg.qr(P / np.maximum(np.linalg.norm(P, axis=0), 1e-300))[0] if P.shape[1] else np.zeros((self.N, 0))
 
     def _refresh(self) -> None:
         self.Q, _ = np.linalg.qr(self.Zn / np.maximum(np.linalg.norm(self.Zn, axis=0), 1e-300))
@@ -166,11 +175,10 @@ class Regression:
         """
         if n_cv_folds(self.folds) < 2:
             return float("nan")
-        idx = [j * self.p0 + k for j in range(self.res.d) for k in range(self.p_lin, self.p0)]
         keep = np.ones(self.Zn.shape[1], bool)
-        keep[idx] = False
-        P = self.Zn[:, idx]
-        Qp = np.linalg.qr(P / np.maximum(np.linalg.norm(P, axis=0), 1e-300))[0] if P.shape[1] else np.zeros((self.N, 0))
+        keep[self._poly] = False
+
+        Qp = self._poly_basis
 
         def out(A: np.ndarray) -> np.ndarray:
             return A - Qp @ (Qp.T @ A)
