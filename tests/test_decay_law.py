@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from lagsplat.diagnose.decay_law import decay_law
+from lagsplat.diagnose.decay_law import MIN_LOSS_PER_PERIOD, decay_law, law_evidence
 from lagsplat.diagnose.effects import get_effect
 
 F_HZ, FPS, SECONDS, NOISE = 0.8, 30.0, 8.0, 0.004
@@ -51,6 +51,8 @@ def test_dry_friction_reads_dry_and_not_drag():
     out = decay_law(_res("dry"), np.ones(1))
     assert out["dry"]["sign_ok"] and out["dry"]["evidence"] > 10
     assert not (out["drag"]["sign_ok"] and out["drag"]["evidence"] > 0)
+    # mu = 0.015 w^2 on an amplitude of 1 takes 4 mu / w^2 = 6 % of it per period
+    assert out["dry"]["loss_per_period"] == pytest.approx(0.06, rel=0.25) and out["dry"]["practical"]
 
 
 def test_quadratic_drag_reads_drag_and_not_dry():
@@ -129,3 +131,30 @@ def test_takes_released_at_different_amplitudes_read_no_law_from_the_potential(s
         assert not (out[law]["sign_ok"] and out[law]["evidence"] > 0), out
     dry = decay_law(_pendulum_takes("dry", (0.5, 1.0, 1.5, 2.0), seed), np.ones(1))
     assert dry["dry"]["sign_ok"] and dry["dry"]["evidence"] > 10, dry
+
+
+def test_a_law_below_its_practical_size_is_no_evidence():
+    # a sign-correct dry-friction reading far above the threshold, but of a law that takes 0.2 % of the amplitude per period
+    small = {"evidence": 40.0, "coef": 0.001, "sign_ok": True, "loss_per_period": 0.2 * MIN_LOSS_PER_PERIOD, "practical": False}
+    record = {"dry": small, "drag": {"evidence": -3.0, "coef": -0.01, "sign_ok": False, "loss_per_period": -0.01, "practical": False}}
+    assert law_evidence(record, "dry") == -math.inf
+    assert law_evidence(record, "dry", practical_only=False) == pytest.approx(40.0)
+    ev = {"envelope": {"support": {"linear": 3.0, "hyperbolic": 0.0}}, "rest": {"support": 0.0}, "decay_law": record}
+    sup, text = get_effect("coulomb").signature_support(ev)
+    assert sup == pytest.approx(3.0) and "whole trajectory" not in text  # the turning points' own reading stands
+    record["dry"] = {**small, "loss_per_period": 3 * MIN_LOSS_PER_PERIOD, "practical": True}
+    assert law_evidence(record, "dry") == pytest.approx(40.0)
+
+
+def test_a_weak_dry_friction_is_read_but_not_practical():
+    # mu = 0.0005 w^2 on an amplitude of 1 (0.2 % of the amplitude per period), a long clip with little noise
+    w = 2 * math.pi * F_HZ
+
+    def accel(x, v):
+        return -w * w * x - 2 * 0.01 * w * v - 0.0005 * w * w * math.tanh(v / (0.01 * w))
+
+    t, x = _free_decay(accel, 1.0, 20.0)
+    x = x + np.random.default_rng(0).normal(0.0, 0.0005, x.shape)
+    out = decay_law(_record(t, x[:, None], [np.arange(len(t))]), np.ones(1))
+    assert out["dry"]["sign_ok"] and out["dry"]["loss_per_period"] == pytest.approx(0.002, rel=0.5)
+    assert not out["dry"]["practical"] and law_evidence(out, "dry") == -math.inf

@@ -238,6 +238,20 @@ def test_the_decay_law_line_names_the_law_whose_coefficient_takes_its_sign() -> 
     assert not [ln for ln in distinguishing_lines(dg) if "whole trajectory" in ln]  # not read: no line
 
 
+def test_the_decay_law_line_gives_the_law_size_and_sets_a_negligible_one_aside() -> None:
+    from lagsplat.diagnose.reading import distinguishing_lines
+
+    def line(loss):
+        dry = {"evidence": 10.0, "coef": 0.02, "sign_ok": True, "loss_per_period": loss, "practical": loss >= 0.01}
+        law = {"dry": dry, "drag": {"evidence": 13.0, "coef": -0.01, "sign_ok": False, "loss_per_period": -0.004, "practical": False}}
+        dg = {"evidence": {"decay_law": law}, "settings": {"min_delta_bic": 10.0}, "ranking": []}
+        return [ln for ln in distinguishing_lines(dg) if ln.startswith("- decay over the whole trajectory")][0]
+
+    assert line(0.0016) == ("- decay over the whole trajectory: dry friction reads it better than viscous damping (evidence 10.0), but it "
+                            "alone takes 0.16 % of the amplitude per period, below 1 %: too small to count")  # fmt: skip
+    assert line(0.043).endswith("evidence 10.0 over viscous damping; it alone takes 4.3 % of the amplitude per period")
+
+
 def test_a_signature_confirmed_candidate_shows_its_own_cross_validation_and_why_it_stands() -> None:
     from lagsplat.diagnose.markdown import evidence_section
     from lagsplat.diagnose.reading import not_significant_lines

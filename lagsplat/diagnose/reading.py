@@ -13,7 +13,7 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-from lagsplat.diagnose.decay_law import LAWS, law_evidence
+from lagsplat.diagnose.decay_law import LAWS, MIN_LOSS_PER_PERIOD, law_evidence
 from lagsplat.diagnose.diagnosis import failed_rules
 
 __all__ = ["distinguishing_lines", "not_significant_lines", "carried_nonlinearity_line", "indistinguishable", "INDISTINGUISHABLE", "STRONG_Z", "WEAK_Z", "CONFOUNDED"]
@@ -52,12 +52,18 @@ def _law(law: Mapping[str, Any], min_delta_bic: float = 10.0) -> str:
     """The whole trajectory's decay law (:func:`~lagsplat.diagnose.decay_law.decay_law`), where it was read."""
     if not law:
         return ""
-    ev = {k: law_evidence(law, k) for k in LAWS}
+    ev = {k: law_evidence(law, k, practical_only=False) for k in LAWS}
     best = max(ev, key=ev.get)
     if not ev[best] >= min_delta_bic:  # also where neither coefficient took its sign
         return f"decay over the whole trajectory: no law reads it better than viscous damping does (evidence below {min_delta_bic:g})"
+    short = "dry friction" if best == "dry" else "quadratic drag"
+    loss = law[best].get("loss_per_period")
+    size = "" if loss is None else f"; it alone takes {100 * float(loss):.2g} % of the amplitude per period"
+    if law_evidence(law, best) < min_delta_bic:  # read, but below the practical size
+        return (f"decay over the whole trajectory: {short} reads it better than viscous damping (evidence {ev[best]:.1f}), but it alone "
+                f"takes {100 * float(loss):.2g} % of the amplitude per period, below {100 * MIN_LOSS_PER_PERIOD:g} %: too small to count")  # fmt: skip
     name = "dry friction (faster, relative to the amplitude, as it shrinks)" if best == "dry" else "quadratic drag (faster at large amplitude)"
-    return f"decay over the whole trajectory: {name}, evidence {ev[best]:.1f} over viscous damping"
+    return f"decay over the whole trajectory: {name}, evidence {ev[best]:.1f} over viscous damping{size}"
 
 
 def _frequency(fr: Mapping[str, Any], min_delta_bic: float = 10.0) -> list[str]:
