@@ -57,8 +57,8 @@ _KIND = {"viscous": 0, "dry": 1, "drag": 2}
 #: ``mu`` (acceleration) takes ``4 mu / w^2`` per period; quadratic drag ``c2`` takes ``8/3 c2 A^2`` of ``A`` (its work
 #: per cycle, ``8/3 c2 w^2 A^3``, over the energy ``w^2 A^2 / 2``, halved). On the cached suites every dry-friction clip
 #: whose law reads sign-correct above 0 loses 3.2 % or more per period to it and every drag clip 5.9 % or more; the
-#: blind suite's two pendulum controls read dry friction at evidence 9.9 and 10.0 with 0.16 %, a hardening pendulum at
-#: 13.7 with 0.12 %: an exponential decay bent by a fraction of a percent, not a law to report.
+#: blind suite's two pendulum controls read dry friction at evidence 9.9 and 10.0 with 0.17 / 0.18 %, a hardening pendulum
+#: at 13.7 with 0.11 %: an exponential decay bent by a fraction of a percent, not a law to report.
 MIN_LOSS_PER_PERIOD = 0.01
 
 
