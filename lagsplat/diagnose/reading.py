@@ -56,12 +56,13 @@ def _law(law: Mapping[str, Any], min_delta_bic: float = 10.0) -> str:
     best = max(ev, key=ev.get)
     if not ev[best] >= min_delta_bic:  # also where neither coefficient took its sign
         return f"decay over the whole trajectory: no law reads it better than viscous damping does (evidence below {min_delta_bic:g})"
-    short = "dry friction" if best == "dry" else "quadratic drag"
-    loss = law[best].get("loss_per_period")
-    size = "" if loss is None else f"; it alone takes {100 * float(loss):.2g} % of the amplitude per period"
-    if law_evidence(law, best) < min_delta_bic:  # read, but below the practical size
-        return (f"decay over the whole trajectory: {short} reads it better than viscous damping (evidence {ev[best]:.1f}), but it alone "
-                f"takes {100 * float(loss):.2g} % of the amplitude per period, below {100 * MIN_LOSS_PER_PERIOD:g} %: too small to count")  # fmt: skip
+    loss = law[best].get("loss_per_period")  # absent from records written before the size was read
+    size = "" if loss is None else f"it alone takes {100 * float(loss):.2g} % of the amplitude per period"
+    if law_evidence(law, best) < min_delta_bic:  # read, but below the practical size (only a record with a size can be)
+        short = "dry friction" if best == "dry" else "quadratic drag"
+        return (f"decay over the whole trajectory: {short} reads it better than viscous damping (evidence {ev[best]:.1f}), but {size}, "
+                f"below {100 * MIN_LOSS_PER_PERIOD:g} %: too small to count")  # fmt: skip
+    size = size and "; " + size
     name = "dry friction (faster, relative to the amplitude, as it shrinks)" if best == "dry" else "quadratic drag (faster at large amplitude)"
     return f"decay over the whole trajectory: {name}, evidence {ev[best]:.1f} over viscous damping{size}"
 
