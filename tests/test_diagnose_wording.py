@@ -252,6 +252,22 @@ def test_the_decay_law_line_gives_the_law_size_and_sets_a_negligible_one_aside()
     assert line(0.043).endswith("evidence 10.0 over viscous damping; it alone takes 4.3 % of the amplitude per period")
 
 
+def test_the_decay_law_line_on_one_take_names_the_damping_drift_it_cannot_tell_apart() -> None:
+    from lagsplat.diagnose.reading import distinguishing_lines
+
+    def line(n_segments, law="dry"):
+        rec = {"evidence": 37.0, "coef": 0.4, "sign_ok": True, "loss_per_period": 0.043, "practical": True}
+        other = {"evidence": -3.0, "coef": -0.01, "sign_ok": False, "loss_per_period": -0.01, "practical": False}
+        dl = {"n_segments": n_segments, "dry": rec if law == "dry" else other, "drag": rec if law == "drag" else other}
+        dg = {"evidence": {"decay_law": dl}, "settings": {"min_delta_bic": 10.0}, "ranking": []}
+        return [ln for ln in distinguishing_lines(dg) if ln.startswith("- decay over the whole trajectory")][0]
+
+    assert line(1).endswith("; on one take a damping that rises over the recording changes the decay alike (a take released at another "
+                            "amplitude would tell them apart)")  # fmt: skip
+    assert "a damping that falls over the recording" in line(1, "drag")
+    assert "on one take" not in line(3)  # takes released at different amplitudes tell amplitude from time
+
+
 def test_a_signature_confirmed_candidate_shows_its_own_cross_validation_and_why_it_stands() -> None:
     from lagsplat.diagnose.markdown import evidence_section
     from lagsplat.diagnose.reading import not_significant_lines

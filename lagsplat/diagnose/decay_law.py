@@ -173,7 +173,7 @@ def decay_law(res: Any, e: np.ndarray, substeps: int = 2, max_nfev: int = 200) -
 
     Returns:
         ``{}`` where the law is not read (``d > 1``, a varying input, or no segment of at least two
-        periods); else ``{"n": samples, "n_eff": effective samples, "rho": lag-one autocorrelation,
+        periods); else ``{"n": samples, "n_eff": effective samples, "rho": lag-one autocorrelation, "n_segments": segments read,
         "rms_viscous": rms misfit of the viscous fit (latent units), "dry": {"evidence", "coef", "sign_ok",
         "loss_per_period", "practical"}, "drag": {...}}``; ``evidence`` on the ``Delta BIC`` scale, ``coef`` the
         law's coefficient (``mu``, ``c2``; latent units), ``sign_ok`` whether it is positive: a negative one buys
@@ -208,7 +208,7 @@ def decay_law(res: Any, e: np.ndarray, substeps: int = 2, max_nfev: int = 200) -
     n = len(y)
     rho = float(np.clip(np.corrcoef(r0[1:], r0[:-1])[0, 1], 0.0, 0.95)) if n > 3 and r0.std() > 0 else 0.0
     n_eff = n * (1.0 - rho) / (1.0 + rho)
-    out: dict[str, Any] = {"n": n, "n_eff": n_eff, "rho": rho, "rms_viscous": math.sqrt(ssr0 / n)}
+    out: dict[str, Any] = {"n": n, "n_eff": n_eff, "rho": rho, "rms_viscous": math.sqrt(ssr0 / n), "n_segments": len(segs)}
     for law in LAWS:
         ssr, P, _ = fits[law]
         ev = n_eff * math.log(max(ssr0, 1e-300) / max(ssr, 1e-300)) - math.log(max(n_eff, 1.0))

@@ -64,7 +64,11 @@ def _law(law: Mapping[str, Any], min_delta_bic: float = 10.0) -> str:
                 f"below {100 * MIN_LOSS_PER_PERIOD:g} %: too small to count")  # fmt: skip
     size = size and "; " + size
     name = "dry friction (faster, relative to the amplitude, as it shrinks)" if best == "dry" else "quadratic drag (faster at large amplitude)"
-    return f"decay over the whole trajectory: {name}, evidence {ev[best]:.1f} over viscous damping{size}"
+    line = f"decay over the whole trajectory: {name}, evidence {ev[best]:.1f} over viscous damping{size}"
+    if law.get("n_segments") == 1:  # one take: the amplitude falls with time, so a damping that changes in time decays alike
+        line += (f"; on one take a damping that {'rises' if best == 'dry' else 'falls'} over the recording changes the decay alike "
+                 "(a take released at another amplitude would tell them apart)")  # fmt: skip
+    return line
 
 
 def _frequency(fr: Mapping[str, Any], min_delta_bic: float = 10.0) -> list[str]:
