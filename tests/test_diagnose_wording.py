@@ -220,13 +220,19 @@ def test_the_image_line_says_whether_the_scene_moves_beyond_the_chart() -> None:
     assert not [ln for ln in distinguishing_lines(dg(106.0, dbic=4.0)) if ln.startswith("- image:")]  # no mode found: no question
 
 
+def _decay_law_lines(law: dict) -> list[str]:
+    """The report's whole-trajectory decay lines for a ``decay_law`` record."""
+    from lagsplat.diagnose.reading import distinguishing_lines
+
+    dg = {"evidence": {"decay_law": law}, "settings": {"min_delta_bic": 10.0}, "ranking": []}
+    return [ln for ln in distinguishing_lines(dg) if ln.startswith("- decay over the whole trajectory")]
+
+
 def test_the_decay_law_line_names_the_law_whose_coefficient_takes_its_sign() -> None:
     from lagsplat.diagnose.reading import distinguishing_lines
 
     def lines(dry, drag, dry_ok=True, drag_ok=False):
-        law = {"dry": {"evidence": dry, "coef": 0.4, "sign_ok": dry_ok}, "drag": {"evidence": drag, "coef": -0.01, "sign_ok": drag_ok}}
-        dg = {"evidence": {"decay_law": law}, "settings": {"min_delta_bic": 10.0}, "ranking": []}
-        return [ln for ln in distinguishing_lines(dg) if ln.startswith("- decay over the whole trajectory")]
+        return _decay_law_lines({"dry": {"evidence": dry, "coef": 0.4, "sign_ok": dry_ok}, "drag": {"evidence": drag, "coef": -0.01, "sign_ok": drag_ok}})
 
     assert lines(37.1, 36.1) == ["- decay over the whole trajectory: dry friction (faster, relative to the amplitude, as it shrinks), "
                                  "evidence 37.1 over viscous damping"]  # fmt: skip
@@ -239,13 +245,9 @@ def test_the_decay_law_line_names_the_law_whose_coefficient_takes_its_sign() -> 
 
 
 def test_the_decay_law_line_gives_the_law_size_and_sets_a_negligible_one_aside() -> None:
-    from lagsplat.diagnose.reading import distinguishing_lines
-
     def line(loss):
         dry = {"evidence": 10.0, "coef": 0.02, "sign_ok": True, "loss_per_period": loss, "practical": loss >= 0.01}
-        law = {"dry": dry, "drag": {"evidence": 13.0, "coef": -0.01, "sign_ok": False, "loss_per_period": -0.004, "practical": False}}
-        dg = {"evidence": {"decay_law": law}, "settings": {"min_delta_bic": 10.0}, "ranking": []}
-        return [ln for ln in distinguishing_lines(dg) if ln.startswith("- decay over the whole trajectory")][0]
+        return _decay_law_lines({"dry": dry, "drag": {"evidence": 13.0, "coef": -0.01, "sign_ok": False, "loss_per_period": -0.004, "practical": False}})[0]
 
     assert line(0.0016) == ("- decay over the whole trajectory: dry friction reads it better than viscous damping (evidence 10.0), but it "
                             "alone takes 0.16 % of the amplitude per period, below 1 %: too small to count")  # fmt: skip
@@ -253,14 +255,10 @@ def test_the_decay_law_line_gives_the_law_size_and_sets_a_negligible_one_aside()
 
 
 def test_the_decay_law_line_on_one_take_names_the_damping_drift_it_cannot_tell_apart() -> None:
-    from lagsplat.diagnose.reading import distinguishing_lines
-
     def line(n_segments, law="dry"):
         rec = {"evidence": 37.0, "coef": 0.4, "sign_ok": True, "loss_per_period": 0.043, "practical": True}
         other = {"evidence": -3.0, "coef": -0.01, "sign_ok": False, "loss_per_period": -0.01, "practical": False}
-        dl = {"n_segments": n_segments, "dry": rec if law == "dry" else other, "drag": rec if law == "drag" else other}
-        dg = {"evidence": {"decay_law": dl}, "settings": {"min_delta_bic": 10.0}, "ranking": []}
-        return [ln for ln in distinguishing_lines(dg) if ln.startswith("- decay over the whole trajectory")][0]
+        return _decay_law_lines({"n_segments": n_segments, "dry": rec if law == "dry" else other, "drag": rec if law == "drag" else other})[0]
 
     assert line(1).endswith("; on one take a damping that rises over the recording changes the decay alike (a take released at another "
                             "amplitude would tell them apart)")  # fmt: skip

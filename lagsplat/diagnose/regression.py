@@ -124,6 +124,12 @@ class Regression:
         self.Q, _ = np.linalg.qr(self.Zn / np.maximum(np.linalg.norm(self.Zn, axis=0), 1e-300))
         self.r0 = self.y - self.Q @ (self.Q.T @ self.y)
         self.pn = self.Zn.shape[1]
+        self._own: tuple[np.ndarray, np.ndarray] | None = None  # cv_sse_own's target and nuisance, for this nuisance
+
+    def _without_poly(self, A: np.ndarray) -> np.ndarray:
+        """``A`` with the in-class corrections' columns projected out (on all samples)."""
+        Qp = self._poly_basis
+        return A - Qp @ (Qp.T @ A)
 
     def add_nuisance(self, Zc: np.ndarray) -> None:
         """Absorb an accepted effect's columns into the nuisance."""
@@ -175,15 +181,12 @@ class Regression:
         """
         if n_cv_folds(self.folds) < 2:
             return float("nan")
-        keep = np.ones(self.Zn.shape[1], bool)
-        keep[self._poly] = False
-
-        Qp = self._poly_basis
-
-        def out(A: np.ndarray) -> np.ndarray:
-            return A - Qp @ (Qp.T @ A)
-
-        return self._blocked_sse(out(self.y), out(self.Zn[:, keep]), None if Zc is None else out(Zc), positive)
+        if self._own is None:  # the same for the reference and every candidate: projected once per nuisance
+            keep = np.ones(self.Zn.shape[1], bool)
+            keep[self._poly] = False
+            self._own = (self._without_poly(self.y), self._without_poly(self.Zn[:, keep]))
+        y, Zn = self._own
+        return self._blocked_sse(y, Zn, None if Zc is None else self._without_poly(Zc), positive)
 
     def _blocked_sse(self, y: np.ndarray, Zn: np.ndarray, Zc: np.ndarray | None, positive: bool = False) -> float:
         """Sum over folds of the held-out SSE of ``y ~ Zn a + Zc w`` fitted on the other folds (``w >= 0`` if ``positive``)."""
