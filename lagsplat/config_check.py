@@ -96,7 +96,6 @@ CHECKS: dict[str, Bound] = {
     "stage2.w_q": NON_NEGATIVE, "stage2.w_v": NON_NEGATIVE, "stage2.lr": POSITIVE, "stage2.lr_potential_input": POSITIVE, "stage2.w_actuation_linear": NON_NEGATIVE, "stage2.rollout_steps": POSITIVE_INT, "stage2.potential_kinks": NON_NEGATIVE, "stage2.epochs": POSITIVE_INT,
     "stage2.batch": POSITIVE_INT, "stage2.windows_per_epoch": POSITIVE_INT, "stage2.grad_clip": POSITIVE,
     "stage2.select_every": POSITIVE_INT, "stage2.select_from": NON_NEGATIVE, "stage2.select_windows": POSITIVE_INT, "stage2.select_periods": POSITIVE,
-    "stage2.average_from": FRACTION,
     # evaluate (EvalConfig)
     "evaluate.n_windows": POSITIVE_INT, "evaluate.seed": COUNT, "evaluate.n_periods": POSITIVE, "evaluate.sigma": NON_NEGATIVE,
     "evaluate.freq_window_periods": POSITIVE, "evaluate.min_amplitude": NON_NEGATIVE, "evaluate.render_batch": POSITIVE_INT,
@@ -117,7 +116,6 @@ CHECKS: dict[str, Bound] = {
     "diagnose.where.turning_ratio": POSITIVE, "diagnose.where.high_speed_quantile": FRACTION, "diagnose.where.n_image_frames": COUNT,
     "diagnose.where.pixel_chunk": POSITIVE_INT, "diagnose.where.top_gaussians": COUNT, "diagnose.where.moving_fraction": FRACTION,
     "diagnose.refit.epochs": POSITIVE_INT, "diagnose.refit.lr": POSITIVE, "diagnose.refit.seed": COUNT, "diagnose.refit.floor_scale": POSITIVE,
-    "diagnose.refit.average_from": FRACTION,
     # extrapolation (ExtrapolationConfig)
     "extrapolation.long_s": POSITIVE, "extrapolation.figure_s": POSITIVE, "extrapolation.sigma": NON_NEGATIVE, "extrapolation.render_batch": POSITIVE_INT,
     # robot_figures (RobotFigureConfig)

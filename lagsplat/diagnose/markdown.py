@@ -291,11 +291,8 @@ def refit_section(rep: Mapping[str, Any]) -> list[str]:
             L.append(f"- {k}: {v}")
     else:
         cfg = rep["config"]["refit"]
-        avg = rf.get("averaged_epochs")
-        pick = (f"weights averaged over epochs {avg[0]}-{avg[-1]} ({len(avg)} snapshots)" if avg
-                else f"model selection on training rollouts, selected epoch {rf['selected_epoch']}")
-        L.append(f"Stage 2 refit ({cfg['init']} start, {cfg['epochs']} epochs, energy gauge x{cfg['floor_scale']:g}), {pick}, "
-                 f"training-rollout NRMSE {fmt_value(rf['selected_train_nrmse'], '.4g')} (control {fmt_value(rf['control_selected_train_nrmse'], '.4g')}).")  # fmt: skip
+        L.append(f"Stage 2 refit ({cfg['init']} start, {cfg['epochs']} epochs, energy gauge x{cfg['floor_scale']:g}; model selection on training rollouts), "
+                 f"selected epoch {rf['selected_epoch']}, training-rollout NRMSE {fmt_value(rf['selected_train_nrmse'], '.4g')} (control {fmt_value(rf['control_selected_train_nrmse'], '.4g')}).")  # fmt: skip
         for t0, t1 in zip(rf["spec"]["init_terms"], rf["fitted_terms"]):
             vals = ", ".join(f"{k} {fmt_value(t0[k])} -> {fmt_value(t1[k])}" for k in t1 if k not in ("class", "direction") and isinstance(t1[k], (int, float)))
             L.append(f"- {t1['class']} along {[round(v, 3) for v in t1['direction']]}: {vals} (start -> refit)")

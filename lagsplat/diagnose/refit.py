@@ -128,9 +128,6 @@ class RefitConfig:
             and fall back to the best rival whose refit beats the identified model
             (:func:`~lagsplat.diagnose.refit_choice.choose_by_refit`, the model selection of paper §3.3);
             ``False``: the Delta-BIC order decides alone.
-        average_from: the fine-tune (and its control) returns the mean of its weights at the selection
-            points from this fraction of the epochs on (``Stage2Config.average_from``, stochastic weight
-            averaging) instead of the epoch the training rollouts select; ``None``: the selected epoch.
     """
 
     enabled: bool = True
@@ -141,7 +138,6 @@ class RefitConfig:
     seed: int = 0
     floor_scale: float = 4.0
     choose: bool = True
-    average_from: float | None = 0.5
 
     @classmethod
     def from_mapping(cls, m: Mapping[str, Any] | None) -> RefitConfig:
@@ -173,7 +169,6 @@ class RefitResult:
 
 def _stage2_settings(stage2_cfg: Any, cfg: RefitConfig) -> Any:
     s2 = copy.deepcopy(stage2_cfg)
-    s2.average_from = cfg.average_from
     if cfg.init == "fitted":
         if cfg.epochs is not None:
             s2.epochs = int(cfg.epochs)

@@ -207,8 +207,7 @@ def _score_refit(run: _Run, r: RefitResult, gap: dict[str, Any], runs: dict[str,
     gap["held_out_check"] = held_out_check(gap, r.spec.effects)
     refit_rec.update(
         done=True, spec=r.spec.to_dict(), fitted_terms=r.fitted_terms, energy_check=energy_check(r.model, r.chart),
-        selected_epoch=r.history.get("selected_epoch"), averaged_epochs=r.history.get("averaged_epochs"),
-        selected_train_nrmse=r.history.get("selected_nrmse"),
+        selected_epoch=r.history.get("selected_epoch"), selected_train_nrmse=r.history.get("selected_nrmse"),
         control_selected_train_nrmse=None if r.control_history is None else r.control_history.get("selected_nrmse"),
         checkpoint=DIAGNOSIS_FILES["refit"],
     )  # fmt: skip

@@ -17,7 +17,6 @@ from lagsplat.chart import Chart
 from lagsplat.dynamics.integrators import actuation_schedule, initial_state, rollout
 from lagsplat.io.atomic import save_torch
 from lagsplat.io.clip import TRAIN
-from lagsplat.train.averaging import WeightAverage
 from lagsplat.train.config import dataclass_from_mapping
 from lagsplat.train.device import resolve_device
 from lagsplat.train.progress import Progress
@@ -103,11 +102,6 @@ class Stage2Config:
             the whole run on rollout error (paper §3.3), 1 keeps the last epoch's model (the reference
             implementation's checkpoint), the best earlier one only if the last rollout is not finite.
         select_windows, select_periods: rollouts used for selection.
-        average_from: fraction of the epochs from which the model at each selection point joins a running
-            mean of the weights (stochastic weight averaging, :mod:`~lagsplat.train.averaging`); the mean is
-            returned instead of the selected epoch, unless its selection rollouts are not finite. ``None``
-            (Stage 2's default): the selected epoch (paper §3.3). The gap diagnosis's refit sets it
-            (``diagnose.refit.average_from``).
     """
 
     mass: Mass = "auto"
@@ -135,7 +129,6 @@ class Stage2Config:
     select_from: float = 0.0
     select_windows: int = 16
     select_periods: float = 4.0
-    average_from: float | None = None
 
     @classmethod
     def from_mapping(cls, m: Mapping[str, Any]) -> "Stage2Config":
@@ -353,15 +346,8 @@ def train_stage2(
             returned on the CPU.
         label: what the progress report is headed with (e.g. ``"toy stage2"``).
 
-    With ``cfg.average_from`` set, the mean of the weights at the selection points from that
-    fraction of the epochs on is returned instead (stochastic weight averaging,
-    :class:`~lagsplat.train.averaging.WeightAverage`), if its selection rollouts are finite.
-
     Returns:
-        ``(model, history)``; ``model`` is ``augment``'s module when given. ``history`` has
-        ``loss`` per epoch, ``select_nrmse`` ``[(epoch, NRMSE)]``, ``selected_epoch`` (the
-        selection's best epoch), ``selected_nrmse`` (the returned model's selection NRMSE) and,
-        when averaging, ``averaged_epochs`` and ``averaged_nrmse``.
+        ``(model, history)``; ``model`` is ``augment``'s module when given.
 
     Raises:
         ValueError: if the training segment is too short for one window, or
@@ -396,7 +382,6 @@ def train_stage2(
     n = len(S0)
     hist: dict[str, list] = {"epoch": [], "loss": [], "select_nrmse": []}
     best = (float("inf"), copy.deepcopy(model.state_dict()), -1)
-    average = WeightAverage(None if cfg.average_from is None else cfg.average_from * cfg.epochs)
     bar = Progress(cfg.epochs, label, enabled=progress, unit="epoch")
     for ep in bar:
         model.train()
@@ -424,19 +409,11 @@ def train_stage2(
             hist["select_nrmse"].append((ep, err))
             if selection_replaces(err, best[0], best[2], cfg):
                 best = (err, copy.deepcopy(model.state_dict()), ep)
-            average.offer(model, ep)
             bar.update(loss=hist["loss"][-1], select_nrmse=err)
     model.load_state_dict(best[1])
     model = model.cpu()
     hist["selected_epoch"] = best[2]
     hist["selected_nrmse"] = best[0]
-    if (mean := average.state_dict()) is not None:
-        candidate = copy.deepcopy(model)
-        candidate.load_state_dict({k: v.cpu() for k, v in mean.items()})
-        err = _rollout_error(candidate.eval(), sel_seg, dt, G_eval, sel_h, sel_starts, q_std, sel_u)
-        hist.update(averaged_epochs=average.epochs, averaged_nrmse=err)
-        if np.isfinite(err):
-            model, hist["selected_nrmse"] = candidate, err
     hist["f_train_hz"] = f_train
     return model.eval(), hist
 
