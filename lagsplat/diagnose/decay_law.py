@@ -41,10 +41,12 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-__all__ = ["decay_law", "law_evidence", "LAWS", "MIN_LOSS_PER_PERIOD"]
+__all__ = ["decay_law", "law_evidence", "LAWS", "LAW_NAMES", "MIN_LOSS_PER_PERIOD"]
 
 #: The non-viscous decay laws tested; each coefficient must be positive to count.
 LAWS = ("dry", "drag")
+#: What the report calls each law.
+LAW_NAMES = {"dry": "dry friction", "drag": "quadratic drag"}
 
 _BASE = 7  # k, c, k2, k3, kappa, k4, kappa1
 _PER_SEGMENT = _BASE + 3  # the base, then the initial position, velocity and the offset

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from lagsplat.diagnose.decay_law import law_evidence
+from lagsplat.diagnose.decay_law import LAW_NAMES, law_evidence
 from lagsplat.diagnose.effect_base import Effect, ratio
 from lagsplat.diagnose.signatures import timing_drifts, turns_one_sided
 
@@ -27,8 +27,7 @@ def _decay_support(evidence: dict, law: str, envelope: float, envelope_text: str
     evidence is the larger, the whole trajectory's decay law ``law`` (:func:`~lagsplat.diagnose.decay_law.decay_law`)."""
     whole = law_evidence(evidence.get("decay_law"), law)
     if whole > envelope:
-        name = "dry friction" if law == "dry" else "quadratic drag"
-        return whole, f"the whole trajectory decays as {name} makes it (evidence {whole:.1f} over a viscous decay)"
+        return whole, f"the whole trajectory decays as {LAW_NAMES[law]} makes it (evidence {whole:.1f} over a viscous decay)"
     return envelope, envelope_text if envelope > 0 else ""
 
 

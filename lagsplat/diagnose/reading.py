@@ -13,7 +13,7 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-from lagsplat.diagnose.decay_law import LAWS, MIN_LOSS_PER_PERIOD, law_evidence
+from lagsplat.diagnose.decay_law import LAW_NAMES, LAWS, MIN_LOSS_PER_PERIOD, law_evidence
 from lagsplat.diagnose.diagnosis import failed_rules
 
 __all__ = ["distinguishing_lines", "not_significant_lines", "carried_nonlinearity_line", "indistinguishable", "INDISTINGUISHABLE", "STRONG_Z", "WEAK_Z", "CONFOUNDED"]
@@ -58,9 +58,8 @@ def _law(law: Mapping[str, Any], min_delta_bic: float = 10.0) -> str:
         return f"decay over the whole trajectory: no law reads it better than viscous damping does (evidence below {min_delta_bic:g})"
     loss = law[best].get("loss_per_period")  # absent from records written before the size was read
     size = "" if loss is None else f"it alone takes {100 * float(loss):.2g} % of the amplitude per period"
-    if law_evidence(law, best) < min_delta_bic:  # read, but below the practical size (only a record with a size can be)
-        short = "dry friction" if best == "dry" else "quadratic drag"
-        return (f"decay over the whole trajectory: {short} reads it better than viscous damping (evidence {ev[best]:.1f}), but {size}, "
+    if not law[best].get("practical", True):  # read, but below the practical size (a record without the size counts as practical)
+        return (f"decay over the whole trajectory: {LAW_NAMES[best]} reads it better than viscous damping (evidence {ev[best]:.1f}), but {size}, "
                 f"below {100 * MIN_LOSS_PER_PERIOD:g} %: too small to count")  # fmt: skip
     size = size and "; " + size
     name = "dry friction (faster, relative to the amplitude, as it shrinks)" if best == "dry" else "quadratic drag (faster at large amplitude)"
