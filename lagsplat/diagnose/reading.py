@@ -48,6 +48,10 @@ def _decay(env: Mapping[str, Any]) -> str:
     return f"decay shape: {_FORM[best]}, evidence {_num(sup.get(best)):.1f} over an exponential decay ({n} turning points)"
 
 
+#: How each decay law takes the amplitude, as the report's decay line says it.
+_LAW_SHAPE = {"dry": "faster, relative to the amplitude, as it shrinks", "drag": "faster at large amplitude"}
+
+
 def _law(law: Mapping[str, Any], min_delta_bic: float = 10.0) -> str:
     """The whole trajectory's decay law (:func:`~lagsplat.diagnose.decay_law.decay_law`), where it was read."""
     if not law:
@@ -62,8 +66,7 @@ def _law(law: Mapping[str, Any], min_delta_bic: float = 10.0) -> str:
         return (f"decay over the whole trajectory: {LAW_NAMES[best]} reads it better than viscous damping (evidence {ev[best]:.1f}), but {size}, "
                 f"below {100 * MIN_LOSS_PER_PERIOD:g} %: too small to count")  # fmt: skip
     size = size and "; " + size
-    name = "dry friction (faster, relative to the amplitude, as it shrinks)" if best == "dry" else "quadratic drag (faster at large amplitude)"
-    line = f"decay over the whole trajectory: {name}, evidence {ev[best]:.1f} over viscous damping{size}"
+    line = f"decay over the whole trajectory: {LAW_NAMES[best]} ({_LAW_SHAPE[best]}), evidence {ev[best]:.1f} over viscous damping{size}"
     if law.get("n_segments") == 1:  # one take: the amplitude falls with time, so a damping that changes in time decays alike
         line += (f"; on one take a damping that {'rises' if best == 'dry' else 'falls'} over the recording changes the decay alike "
                  "(a take released at another amplitude would tell them apart)")  # fmt: skip
