@@ -143,6 +143,27 @@ def test_kinks_are_spread_only_on_a_chart_without_a_logged_input(monkeypatch):
     assert calls == [cfg.potential_kinks]  # not called again
 
 
+def test_alternative_kink_starts_keep_the_start_whose_rollouts_score_lowest():
+    """``potential_kinks_alternatives``: one fit per sharpness from the same seed, the start with the lowest
+    selection NRMSE returned (its weights and history), the others' scores recorded; a refit (``augment``)
+    and the empty default train one start."""
+    chart, _ = _end_stop_chart()
+    base = Stage2Config(epochs=4, windows_per_epoch=64, select_every=2)
+    alone = {s: train_stage2(chart, Stage2Config(**{**base.__dict__, "potential_kinks": s}), seed=0, progress=False) for s in (30.0, 0.0)}
+    both_cfg = Stage2Config(**{**base.__dict__, "potential_kinks_alternatives": (0.0, 30.0)})
+    model, hist = train_stage2(chart, both_cfg, seed=0, progress=False)
+    scores = {s: h["selected_nrmse"] for s, (_, h) in alone.items()}
+    assert [(r["potential_kinks"], r["selected_nrmse"]) for r in hist["starts"]] == [(30.0, scores[30.0]), (0.0, scores[0.0])]
+    kept = min(scores, key=scores.get)
+    assert hist["potential_kinks"] == kept and hist["selected_nrmse"] == scores[kept]
+    for (k, a), b in zip(alone[kept][0].state_dict().items(), model.state_dict().values()):
+        torch.testing.assert_close(a, b, msg=k)
+    assert "starts" not in train_stage2(chart, base, seed=0, progress=False)[1]
+    seen = []
+    _, h = train_stage2(chart, both_cfg, seed=0, progress=False, augment=lambda m: seen.append(m) or m)
+    assert len(seen) == 1 and "starts" not in h
+
+
 def test_auto_inertia_is_scalar_only_on_a_d1_chart_with_a_logged_input(tmp_path):
     """``mass="auto"``: the learned M(q) trades off against a logged input's actuation map on a d = 1 chart, so
     there the model is built with the scalar mass; elsewhere with the learned one. The saved model rebuilds

@@ -6,7 +6,7 @@ import copy
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Literal, Mapping
+from typing import Callable
 
 import numpy as np
 import torch
@@ -17,155 +17,15 @@ from lagsplat.chart import Chart
 from lagsplat.dynamics.integrators import actuation_schedule, initial_state, rollout
 from lagsplat.io.atomic import save_torch
 from lagsplat.io.clip import TRAIN
-from lagsplat.train.config import dataclass_from_mapping
 from lagsplat.train.device import resolve_device
 from lagsplat.train.progress import Progress
 from lagsplat.train.shooting import multi_step_windows, shooting_loss
+from lagsplat.train.stage2_config import PAPER_FIT, Mass, Potential, Stage2Config
 from lagsplat.models.icnn import ConcaveMap
 from lagsplat.models.inertia import DecoderInertia
 from lagsplat.models.lagrangian import Lagrangian
 
 __all__ = ["PAPER_FIT", "Stage2Config", "Mass", "Potential", "one_step_windows", "selection_replaces", "TrainingWindows", "training_windows", "train_stage2", "save_stage2", "load_stage2"]
-
-Mass = Literal["auto", "scalar", "constant", "learned", "decoder"]
-"""Inertia models of Stage 2 (``stage2.mass``; :class:`~lagsplat.models.lagrangian.Lagrangian`);
-``"auto"`` is resolved per chart by :meth:`Stage2Config.effective_mass`."""
-
-Potential = Literal["convex", "invex"]
-"""Potentials of Stage 2 (``stage2.potential``): ICNN, or ICNN o i-ResNet."""
-
-
-PAPER_FIT: dict[str, Any] = {"mass": "scalar", "rollout_steps": 1, "potential_kinks": 0.0}
-"""The paper's Stage-2 fit of a d = 1 chart (§3.3, Eq. 8): ``Stage2Config(**PAPER_FIT, ...)``."""
-
-
-@dataclass
-class Stage2Config:
-    """Stage-2 settings (``conf/config.yaml``, group ``stage2``).
-
-    The defaults are those of a new clip (``conf/config.yaml``): the inertia chosen per chart
-    (``mass="auto"``) and, on d = 1 charts, four chained steps per window and kinks spread over the range. The paper's fit (Eq. 8) is
-    ``mass="scalar"`` for d = 1, ``rollout_steps=1``, ``potential_kinks=0``.
-
-    Attributes:
-        mass: ``"scalar"``, ``"constant"``, ``"learned"`` or ``"decoder"`` inertia
-            (see :class:`Lagrangian`; ``"decoder"`` needs the Stage-1 decoder), or ``"auto"``:
-            ``"learned"``, except on a d = 1 chart with a logged input, where it is ``"scalar"``
-            (:meth:`effective_mass`). There the learned ``M(q)`` trades off against the actuation
-            map (blind suite, 32 px, actuated pendulum with nothing missing: held-out ``eps_q`` 0.099 and
-            frequency 40 % off with the learned inertia, 0.074 and 0.01 % with the scalar one; the
-            actuated cart 0.137 against 0.106).
-        potential: ``"convex"`` (ICNN) or ``"invex"`` (ICNN o i-ResNet).
-        c0: dissipation floor (App. C: 1).
-        dissipation_init: initial learned dissipation (0.2 I).
-        hidden: MLP / ICNN widths.
-        eps_V: quadratic floor of the potential.
-        learn_rest: train the rest state.
-        zeta_floor: damping ratio the floor alone gives at initialisation.
-        stride: frames per training step ``k`` (reference: 2).
-        sigma: Gaussian smoothing of the encoded trajectory, frames (reference: 1).
-        w_q, w_v: weights of position and velocity terms of Eq. 8.
-        lr, epochs, batch, windows_per_epoch, grad_clip: optimisation.
-        lr_potential_input: learning-rate factor of the potential ICNN's input layers (the affine maps of
-            ``q`` into each hidden layer, :class:`~lagsplat.models.icnn.ICNN`). A sharp feature of ``V``
-            (an end stop's kink) needs input weights many times the initial ones, which Adam reaches
-            at about ``lr`` per step. 10 (with ``select_from = 1``) identifies an end stop from its exact
-            trajectory (held-out frequency within 0-7 % where the default misses by 9-25 %), but on
-            the realistic suite's encoded charts it fits their noise (a plain torsion disk 1.7 % -> 8.4 %,
-            a plain pendulum 0.3 % -> 3.0 %), so the default stays 1.
-        w_actuation_linear: weight of a prior toward a linear actuation map (an actuated model, paper
-            Eq. 6): ``w |grad_q sum_j g_j(q)|^2`` at the windows' states is added to the loss
-            (:meth:`~lagsplat.models.icnn.ConcaveMap.nonlinearity`). Without it, where the
-            pressures never vanish in training, the concave map takes over the restoring force
-            (a pressure-proportional stiffness) and the unloaded model is too soft: on the
-            simulated two-segment robot the lowest unloaded mode fell to 0.44 Hz at 400 epochs
-            (1.55 Hz simulated); with 1 the map's stiffness share went from 0.47 of ``V``'s to 0
-            and the free frequency at the published budget (500 x 3000 windows) from 12.0 % to
-            4.9 % off (seed 0). 0: the free concave map. No effect without actuation.
-        rollout_steps: Verlet steps per training window: 1 is Eq. 8's one-step fit; ``K > 1`` chains the
-            step ``K`` times from the window's state and scores every step (:mod:`~lagsplat.train.shooting`),
-            so one frame's chart noise is outvoted by the ``K`` frames after it. Used for d = 1 charts
-            only: with the learned inertia on a double pendulum (d = 2) four steps read the held-out
-            frequency 4.4 % off against 0.8 % with one, so d > 1 charts take one step (Eq. 8).
-        potential_kinks: sharpness ``s`` of the potential ICNN's kinks, spread over the training range
-            (:meth:`~lagsplat.models.icnn.ICNN.spread_kinks`); 0 keeps the default initialisation (every
-            kink at the origin), which smears an end stop's wall over the whole range. Used for d = 1
-            charts only (in d > 1 they would need directions; random ones did not help a double
-            pendulum), so there the kinks stay at the origin; and only on clips without a logged input
-            (``n_u = 0``): where an input drives the motion, a potential with sharp kinks over the
-            range fits the input's force as a function of ``q`` and the free rollouts fail (blind
-            suite, 32 px, actuated pendulum with nothing missing: free-rollout NRMSE on the training
-            frames 0.86 at every selection with kinks at 30, 0.77 at 10, 0.20 with none; held-out
-            ``eps_q`` 0.79, where the one-step fit read 0.047).
-        select_every: epochs between model-selection rollouts.
-        select_from: fraction of the epochs after which a model can be selected: 0 (default) selects over
-            the whole run on rollout error (paper §3.3), 1 keeps the last epoch's model (the reference
-            implementation's checkpoint), the best earlier one only if the last rollout is not finite.
-        select_windows, select_periods: rollouts used for selection.
-    """
-
-    mass: Mass = "auto"
-    potential: Potential = "convex"
-    c0: float = 1.0
-    dissipation_init: float = 0.2
-    hidden: tuple[int, ...] = (64, 64)
-    eps_V: float = 0.01
-    learn_rest: bool = True
-    zeta_floor: float = 0.01
-    stride: int = 2
-    sigma: float = 1.0
-    w_q: float = 0.1
-    w_v: float = 0.1
-    lr: float = 1e-3
-    lr_potential_input: float = 1.0
-    w_actuation_linear: float = 1.0
-    rollout_steps: int = 4
-    potential_kinks: float = 30.0
-    epochs: int = 300
-    batch: int = 32
-    windows_per_epoch: int = 1000
-    grad_clip: float = 100.0
-    select_every: int = 5
-    select_from: float = 0.0
-    select_windows: int = 16
-    select_periods: float = 4.0
-
-    @classmethod
-    def from_mapping(cls, m: Mapping[str, Any]) -> "Stage2Config":
-        """Build from a (Hydra) mapping; unknown keys raise ``KeyError``."""
-        return dataclass_from_mapping(cls, m, "stage2")
-
-    def effective_mass(self, d: int, n_u: int = 0) -> str:
-        """The inertia model built for a chart of dimension ``d`` with ``n_u`` logged input channels:
-        ``mass`` itself, or for ``"auto"`` ``"scalar"`` where ``d == 1`` and ``n_u > 0``, else ``"learned"``.
-        It depends on ``(d, n_u)`` only, so a saved model rebuilds the same (:func:`load_stage2`)."""
-        if self.mass != "auto":
-            return self.mass
-        return "scalar" if d == 1 and n_u > 0 else "learned"
-
-    def effective_rollout_steps(self, d: int) -> int:
-        """Verlet steps per training window on a chart of dimension ``d``: ``rollout_steps`` for ``d == 1``,
-        else 1 (Eq. 8's one-step fit; see ``rollout_steps``)."""
-        return int(self.rollout_steps) if d == 1 else 1
-
-    def effective_kinks(self, d: int, n_u: int = 0) -> float:
-        """Sharpness of the potential's spread kinks on a chart of dimension ``d`` with ``n_u`` logged input
-        channels: ``potential_kinks`` for ``d == 1`` without an input, else 0 (kinks at the origin; see
-        ``potential_kinks``)."""
-        return float(self.potential_kinks) if d == 1 and n_u == 0 else 0.0
-
-    def build(self, d: int, n_u: int = 0, inertia: DecoderInertia | None = None) -> Lagrangian:
-        """The (untrained) :class:`Lagrangian` these settings describe.
-
-        Args:
-            d: latent dimension.
-            n_u: actuation channels the model reads (its inertia follows :meth:`effective_mass`).
-            inertia: the frozen decoder inertia (``mass="decoder"`` only).
-        """
-        return Lagrangian(
-            d, self.effective_mass(d, n_u), self.c0, self.dissipation_init, tuple(self.hidden), self.eps_V, self.learn_rest,
-            potential=self.potential, n_u=n_u, inertia=inertia,
-        )  # fmt: skip
 
 
 def one_step_windows(q: np.ndarray, dt: float, k: int, u: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
@@ -319,7 +179,9 @@ def train_stage2(
     *training* frames; of the epochs from ``select_from * epochs`` on, the state with the
     lowest latent NRMSE is returned (model selection on multi-step rollout error, paper §3.3;
     ``select_from = 1`` keeps the last epoch, falling back to an earlier one only when its
-    rollouts are not finite).
+    rollouts are not finite). With ``cfg.potential_kinks_alternatives`` (and no ``augment``)
+    the fit is run once per kink sharpness from the same seed, and the start whose selected
+    state scored lowest is returned.
 
     Args:
         chart: the frozen chart (only its training frames are used; several
@@ -347,12 +209,35 @@ def train_stage2(
         label: what the progress report is headed with (e.g. ``"toy stage2"``).
 
     Returns:
-        ``(model, history)``; ``model`` is ``augment``'s module when given.
+        ``(model, history)``; ``model`` is ``augment``'s module when given. ``history`` holds
+        per epoch ``epoch`` and ``loss``, ``select_nrmse`` as ``(epoch, NRMSE)`` pairs,
+        ``selected_epoch``, ``selected_nrmse`` and ``f_train_hz`` (Hz); with several starts, those of
+        the start kept, plus ``potential_kinks`` (its sharpness) and ``starts`` (per start its
+        ``potential_kinks``, ``selected_nrmse`` and ``selected_epoch``).
 
     Raises:
         ValueError: if the training segment is too short for one window, or
             ``mass="decoder"`` without ``inertia``.
     """
+    d, n_u = chart.d, chart.n_u
+    starts = [cfg.effective_kinks(d, n_u)]
+    if augment is None and starts[0] > 0:
+        starts += [float(s) for s in cfg.potential_kinks_alternatives if float(s) not in starts]
+    if len(starts) == 1:
+        return _fit(chart, cfg, seed, progress, inertia, augment, n_u_model, device, label, starts[0])
+    fits = [_fit(chart, cfg, seed, progress, inertia, augment, n_u_model, device, f"{label} (kinks {s:g})", s) for s in starts]
+    best = min(range(len(fits)), key=lambda i: fits[i][1]["selected_nrmse"])
+    model, hist = fits[best]
+    hist["starts"] = [{"potential_kinks": s, "selected_nrmse": h["selected_nrmse"], "selected_epoch": h["selected_epoch"]} for s, (_, h) in zip(starts, fits)]
+    hist["potential_kinks"] = starts[best]
+    return model, hist
+
+
+def _fit(
+    chart: Chart, cfg: Stage2Config, seed: int, progress: bool, inertia: DecoderInertia | None,
+    augment: Callable[[Lagrangian], torch.nn.Module] | None, n_u_model: int | None, device: str, label: str, kinks: float,
+) -> tuple[Lagrangian, dict]:  # fmt: skip
+    """One start of :func:`train_stage2`, its potential's kinks spread at sharpness ``kinks`` (0: at the origin)."""
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     w = training_windows(chart, cfg, seed, "stage-2")
@@ -365,7 +250,7 @@ def train_stage2(
     model = cfg.build(d, n_u if n_u_model is None else int(n_u_model), inertia)
     with torch.no_grad():
         model.potential_hat.q_rest.copy_(torch.as_tensor(np.concatenate(q_smooth).mean(0), dtype=torch.float32))
-    if (kinks := cfg.effective_kinks(d, n_u)) > 0:
+    if kinks > 0:
         model.potential_hat.g.spread_kinks(torch.as_tensor(np.concatenate(q_smooth), dtype=torch.float32), kinks, seed)
     model.init_energy_scales(2 * math.pi * f_train, cfg.zeta_floor)
     if augment is not None:

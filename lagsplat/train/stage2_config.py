@@ -1,0 +1,163 @@
+"""Stage-2 settings (``conf/config.yaml``, group ``stage2``; paper §3.3, Eq. 8, App. C)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Literal, Mapping
+
+from lagsplat.models.inertia import DecoderInertia
+from lagsplat.models.lagrangian import Lagrangian
+from lagsplat.train.config import dataclass_from_mapping
+
+__all__ = ["PAPER_FIT", "Stage2Config", "Mass", "Potential"]
+
+Mass = Literal["auto", "scalar", "constant", "learned", "decoder"]
+"""Inertia models of Stage 2 (``stage2.mass``; :class:`~lagsplat.models.lagrangian.Lagrangian`);
+``"auto"`` is resolved per chart by :meth:`Stage2Config.effective_mass`."""
+
+Potential = Literal["convex", "invex"]
+"""Potentials of Stage 2 (``stage2.potential``): ICNN, or ICNN o i-ResNet."""
+
+
+PAPER_FIT: dict[str, Any] = {"mass": "scalar", "rollout_steps": 1, "potential_kinks": 0.0}
+"""The paper's Stage-2 fit of a d = 1 chart (§3.3, Eq. 8): ``Stage2Config(**PAPER_FIT, ...)``."""
+
+
+@dataclass
+class Stage2Config:
+    """Stage-2 settings (``conf/config.yaml``, group ``stage2``).
+
+    The defaults are those of a new clip (``conf/config.yaml``): the inertia chosen per chart
+    (``mass="auto"``) and, on d = 1 charts, four chained steps per window and kinks spread over the range. The paper's fit (Eq. 8) is
+    ``mass="scalar"`` for d = 1, ``rollout_steps=1``, ``potential_kinks=0``.
+
+    Attributes:
+        mass: ``"scalar"``, ``"constant"``, ``"learned"`` or ``"decoder"`` inertia
+            (see :class:`Lagrangian`; ``"decoder"`` needs the Stage-1 decoder), or ``"auto"``:
+            ``"learned"``, except on a d = 1 chart with a logged input, where it is ``"scalar"``
+            (:meth:`effective_mass`). There the learned ``M(q)`` trades off against the actuation
+            map (blind suite, 32 px, actuated pendulum with nothing missing: held-out ``eps_q`` 0.099 and
+            frequency 40 % off with the learned inertia, 0.074 and 0.01 % with the scalar one; the
+            actuated cart 0.137 against 0.106).
+        potential: ``"convex"`` (ICNN) or ``"invex"`` (ICNN o i-ResNet).
+        c0: dissipation floor (App. C: 1).
+        dissipation_init: initial learned dissipation (0.2 I).
+        hidden: MLP / ICNN widths.
+        eps_V: quadratic floor of the potential.
+        learn_rest: train the rest state.
+        zeta_floor: damping ratio the floor alone gives at initialisation.
+        stride: frames per training step ``k`` (reference: 2).
+        sigma: Gaussian smoothing of the encoded trajectory, frames (reference: 1).
+        w_q, w_v: weights of position and velocity terms of Eq. 8.
+        lr, epochs, batch, windows_per_epoch, grad_clip: optimisation.
+        lr_potential_input: learning-rate factor of the potential ICNN's input layers (the affine maps of
+            ``q`` into each hidden layer, :class:`~lagsplat.models.icnn.ICNN`). A sharp feature of ``V``
+            (an end stop's kink) needs input weights many times the initial ones, which Adam reaches
+            at about ``lr`` per step. 10 (with ``select_from = 1``) identifies an end stop from its exact
+            trajectory (held-out frequency within 0-7 % where the default misses by 9-25 %), but on
+            the realistic suite's encoded charts it fits their noise (a plain torsion disk 1.7 % -> 8.4 %,
+            a plain pendulum 0.3 % -> 3.0 %), so the default stays 1.
+        w_actuation_linear: weight of a prior toward a linear actuation map (an actuated model, paper
+            Eq. 6): ``w |grad_q sum_j g_j(q)|^2`` at the windows' states is added to the loss
+            (:meth:`~lagsplat.models.icnn.ConcaveMap.nonlinearity`). Without it, where the
+            pressures never vanish in training, the concave map takes over the restoring force
+            (a pressure-proportional stiffness) and the unloaded model is too soft: on the
+            simulated two-segment robot the lowest unloaded mode fell to 0.44 Hz at 400 epochs
+            (1.55 Hz simulated); with 1 the map's stiffness share went from 0.47 of ``V``'s to 0
+            and the free frequency at the published budget (500 x 3000 windows) from 12.0 % to
+            4.9 % off (seed 0). 0: the free concave map. No effect without actuation.
+        rollout_steps: Verlet steps per training window: 1 is Eq. 8's one-step fit; ``K > 1`` chains the
+            step ``K`` times from the window's state and scores every step (:mod:`~lagsplat.train.shooting`),
+            so one frame's chart noise is outvoted by the ``K`` frames after it. Used for d = 1 charts
+            only: with the learned inertia on a double pendulum (d = 2) four steps read the held-out
+            frequency 4.4 % off against 0.8 % with one, so d > 1 charts take one step (Eq. 8).
+        potential_kinks: sharpness ``s`` of the potential ICNN's kinks, spread over the training range
+            (:meth:`~lagsplat.models.icnn.ICNN.spread_kinks`); 0 keeps the default initialisation (every
+            kink at the origin), which smears an end stop's wall over the whole range. Used for d = 1
+            charts only (in d > 1 they would need directions; random ones did not help a double
+            pendulum), so there the kinks stay at the origin; and only on clips without a logged input
+            (``n_u = 0``): where an input drives the motion, a potential with sharp kinks over the
+            range fits the input's force as a function of ``q`` and the free rollouts fail (blind
+            suite, 32 px, actuated pendulum with nothing missing: free-rollout NRMSE on the training
+            frames 0.86 at every selection with kinks at 30, 0.77 at 10, 0.20 with none; held-out
+            ``eps_q`` 0.79, where the one-step fit read 0.047).
+        potential_kinks_alternatives: further starts of the fit, one per kink sharpness listed (e.g.
+            ``[0]``: also every kink at the origin), wherever ``potential_kinks`` is used; each start is
+            trained with the same seed and windows, and the one whose selection rollouts score lowest is
+            kept (the model selection of paper §3.3, over the starts as over the epochs). A refit
+            (``augment``) trains one start. Empty (default): one start. With ``[0]`` on the realistic
+            suite's 30 charts (``docs/diagnosis.md``) the held-out ``eps_q`` fell on 11 clips and rose on 6:
+            where the kinks' start makes the frequency depend on the amplitude (a plain cart 0.073 -> 0.024,
+            plain pendulums 0.033 -> 0.019 and 0.046 -> 0.029) the other start wins, but on the stiffness
+            and damping drifts and the end stops the start that follows the training frames best
+            extrapolates worse (a cart's drift 0.059 -> 0.197, its end stop 0.168 -> 0.304).
+        select_every: epochs between model-selection rollouts.
+        select_from: fraction of the epochs after which a model can be selected: 0 (default) selects over
+            the whole run on rollout error (paper §3.3), 1 keeps the last epoch's model (the reference
+            implementation's checkpoint), the best earlier one only if the last rollout is not finite.
+        select_windows, select_periods: rollouts used for selection.
+    """
+
+    mass: Mass = "auto"
+    potential: Potential = "convex"
+    c0: float = 1.0
+    dissipation_init: float = 0.2
+    hidden: tuple[int, ...] = (64, 64)
+    eps_V: float = 0.01
+    learn_rest: bool = True
+    zeta_floor: float = 0.01
+    stride: int = 2
+    sigma: float = 1.0
+    w_q: float = 0.1
+    w_v: float = 0.1
+    lr: float = 1e-3
+    lr_potential_input: float = 1.0
+    w_actuation_linear: float = 1.0
+    rollout_steps: int = 4
+    potential_kinks: float = 30.0
+    potential_kinks_alternatives: tuple[float, ...] = ()
+    epochs: int = 300
+    batch: int = 32
+    windows_per_epoch: int = 1000
+    grad_clip: float = 100.0
+    select_every: int = 5
+    select_from: float = 0.0
+    select_windows: int = 16
+    select_periods: float = 4.0
+
+    @classmethod
+    def from_mapping(cls, m: Mapping[str, Any]) -> "Stage2Config":
+        """Build from a (Hydra) mapping; unknown keys raise ``KeyError``."""
+        return dataclass_from_mapping(cls, m, "stage2")
+
+    def effective_mass(self, d: int, n_u: int = 0) -> str:
+        """The inertia model built for a chart of dimension ``d`` with ``n_u`` logged input channels:
+        ``mass`` itself, or for ``"auto"`` ``"scalar"`` where ``d == 1`` and ``n_u > 0``, else ``"learned"``.
+        It depends on ``(d, n_u)`` only, so a saved model rebuilds the same (:func:`load_stage2`)."""
+        if self.mass != "auto":
+            return self.mass
+        return "scalar" if d == 1 and n_u > 0 else "learned"
+
+    def effective_rollout_steps(self, d: int) -> int:
+        """Verlet steps per training window on a chart of dimension ``d``: ``rollout_steps`` for ``d == 1``,
+        else 1 (Eq. 8's one-step fit; see ``rollout_steps``)."""
+        return int(self.rollout_steps) if d == 1 else 1
+
+    def effective_kinks(self, d: int, n_u: int = 0) -> float:
+        """Sharpness of the potential's spread kinks on a chart of dimension ``d`` with ``n_u`` logged input
+        channels: ``potential_kinks`` for ``d == 1`` without an input, else 0 (kinks at the origin; see
+        ``potential_kinks``)."""
+        return float(self.potential_kinks) if d == 1 and n_u == 0 else 0.0
+
+    def build(self, d: int, n_u: int = 0, inertia: DecoderInertia | None = None) -> Lagrangian:
+        """The (untrained) :class:`Lagrangian` these settings describe.
+
+        Args:
+            d: latent dimension.
+            n_u: actuation channels the model reads (its inertia follows :meth:`effective_mass`).
+            inertia: the frozen decoder inertia (``mass="decoder"`` only).
+        """
+        return Lagrangian(
+            d, self.effective_mass(d, n_u), self.c0, self.dissipation_init, tuple(self.hidden), self.eps_V, self.learn_rest,
+            potential=self.potential, n_u=n_u, inertia=inertia,
+        )  # fmt: skip
