@@ -222,7 +222,7 @@ def train_stage2(
     d, n_u = chart.d, chart.n_u
     starts = [cfg.effective_kinks(d, n_u)]
     if augment is None and starts[0] > 0:
-        starts += [float(s) for s in cfg.potential_kinks_alternatives if float(s) not in starts]
+        starts += [s for s in dict.fromkeys(map(float, cfg.potential_kinks_alternatives)) if s != starts[0]]
     if len(starts) == 1:
         return _fit(chart, cfg, seed, progress, inertia, augment, n_u_model, device, label, starts[0])
     fits = [_fit(chart, cfg, seed, progress, inertia, augment, n_u_model, device, f"{label} (kinks {s:g})", s) for s in starts]
