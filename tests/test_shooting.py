@@ -147,10 +147,12 @@ def test_alternative_kink_starts_keep_the_start_whose_rollouts_score_lowest():
     """``potential_kinks_alternatives``: one fit per sharpness from the same seed, the start with the lowest
     selection NRMSE returned (its weights and history), the others' scores recorded; a refit (``augment``)
     and the empty default train one start."""
+    import dataclasses
+
     chart, _ = _end_stop_chart()
     base = Stage2Config(epochs=4, windows_per_epoch=64, select_every=2)
-    alone = {s: train_stage2(chart, Stage2Config(**{**base.__dict__, "potential_kinks": s}), seed=0, progress=False) for s in (30.0, 0.0)}
-    both_cfg = Stage2Config(**{**base.__dict__, "potential_kinks_alternatives": (0.0, 30.0, 0.0)})
+    alone = {s: train_stage2(chart, dataclasses.replace(base, potential_kinks=s), seed=0, progress=False) for s in (30.0, 0.0)}
+    both_cfg = dataclasses.replace(base, potential_kinks_alternatives=(0.0, 30.0, 0.0))
     model, hist = train_stage2(chart, both_cfg, seed=0, progress=False)
     scores = {s: h["selected_nrmse"] for s, (_, h) in alone.items()}
     assert [(r["potential_kinks"], r["selected_nrmse"]) for r in hist["starts"]] == [(30.0, scores[30.0]), (0.0, scores[0.0])]

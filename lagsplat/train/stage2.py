@@ -223,9 +223,10 @@ def train_stage2(
     starts = [cfg.effective_kinks(d, n_u)]
     if augment is None and starts[0] > 0:
         starts += [s for s in dict.fromkeys(map(float, cfg.potential_kinks_alternatives)) if s != starts[0]]
+    w = training_windows(chart, cfg, seed, "stage-2")
     if len(starts) == 1:
-        return _fit(chart, cfg, seed, progress, inertia, augment, n_u_model, device, label, starts[0])
-    fits = [_fit(chart, cfg, seed, progress, inertia, augment, n_u_model, device, f"{label} (kinks {s:g})", s) for s in starts]
+        return _fit(chart, w, cfg, seed, progress, inertia, augment, n_u_model, device, label, starts[0])
+    fits = [_fit(chart, w, cfg, seed, progress, inertia, augment, n_u_model, device, f"{label} (kinks {s:g})", s) for s in starts]
     best = min(range(len(fits)), key=lambda i: fits[i][1]["selected_nrmse"])
     model, hist = fits[best]
     hist["starts"] = [{"potential_kinks": s, "selected_nrmse": h["selected_nrmse"], "selected_epoch": h["selected_epoch"]} for s, (_, h) in zip(starts, fits)]
@@ -234,13 +235,13 @@ def train_stage2(
 
 
 def _fit(
-    chart: Chart, cfg: Stage2Config, seed: int, progress: bool, inertia: DecoderInertia | None,
+    chart: Chart, w: TrainingWindows, cfg: Stage2Config, seed: int, progress: bool, inertia: DecoderInertia | None,
     augment: Callable[[Lagrangian], torch.nn.Module] | None, n_u_model: int | None, device: str, label: str, kinks: float,
 ) -> tuple[Lagrangian, dict]:  # fmt: skip
-    """One start of :func:`train_stage2`, its potential's kinks spread at sharpness ``kinks`` (0: at the origin)."""
+    """One start of :func:`train_stage2` on the chart's windows ``w`` (shared by the starts), its potential's kinks
+    spread at sharpness ``kinks`` (0: at the origin)."""
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
-    w = training_windows(chart, cfg, seed, "stage-2")
     dt, d, q_smooth, f_train, G_eval = w.dt, chart.d, w.q_smooth, w.f_train, w.G
     n_u = chart.n_u
     A = torch.as_tensor(chart.A, dtype=torch.float32)

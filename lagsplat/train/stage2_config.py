@@ -85,14 +85,10 @@ class Stage2Config:
             ``[0]``: also every kink at the origin), wherever ``potential_kinks`` is used; each start is
             trained with the same seed and windows, and the one whose selection rollouts score lowest is
             kept (the model selection of paper §3.3, over the starts as over the epochs). A refit
-            (``augment``) trains one start. Empty (default): one start. With ``[0]`` on the realistic
-            suite's 30 charts (``docs/diagnosis.md``) the held-out ``eps_q`` fell on 11 clips and rose on 6:
-            where the kinks' start makes the frequency depend on the amplitude (a plain cart 0.073 -> 0.024,
-            plain pendulums 0.033 -> 0.019 and 0.046 -> 0.029) the other start wins, but on the stiffness
-            and damping drifts and the end stops the start that follows the training frames best
-            extrapolates worse (a cart's drift 0.059 -> 0.197, its end stop 0.168 -> 0.304). The
-            diagnosis there kept top-1 90 % and 0 of 8 controls, but on the clips cut to three periods
-            it fell from 63 to 60 % and flagged a control, so the default is one start.
+            (``augment``) trains one start. Empty (default): one start. ``[0]`` helps where the spread
+            kinks make the fitted frequency depend on the amplitude and hurts on drifts and end stops,
+            where the start that follows the training frames best extrapolates worse (measured on the
+            realistic and blind suites in ``docs/diagnosis.md``), so the default is one start.
         select_every: epochs between model-selection rollouts.
         select_from: fraction of the epochs after which a model can be selected: 0 (default) selects over
             the whole run on rollout error (paper §3.3), 1 keeps the last epoch's model (the reference
