@@ -151,7 +151,10 @@ def measurable_gap_medians(rows: list[dict], metrics: Sequence[str]) -> dict[str
     (1: the refit brings the gap down to what the pipeline reaches with nothing
     missing; ``1 - after / before`` cannot exceed ``1 - level / before`` however
     good the refit, about 0.3 for a gap 1.5x the level), and ``n_at_level``, how
-    many of them the refit brings to the level or below.
+    many of them the refit brings to the level or below; and ``median_at_level``, what the plain
+    reduction's median would read if every measurable clip's refit brought it exactly to the
+    level, ``1 - level / before`` (the ceiling of a refit as good as the identified models with
+    nothing missing: a median at or above it needs refits better than those).
     """
     out: dict[str, dict] = {}
     for k in metrics:
@@ -171,6 +174,7 @@ def measurable_gap_medians(rows: list[dict], metrics: Sequence[str]) -> dict[str
         out[k] = {"median": float(np.median([r[f"red_{k}"] for r in meas])) if meas else None, "n": len(meas), "n_refit": len(scored),
                   "n_kept": len(kept), "median_vs_control": float(np.median(vs_ctrl)) if vs_ctrl else None, "levels": levels,
                   "median_excess_removed": float(np.median(excess)) if excess else None,
+                  "median_at_level": float(np.median([1.0 - lv(r) / r["before"][k] for r in meas])) if meas else None,
                   "n_at_level": sum(r["after"].get(k) is not None and r["after"][k] <= lv(r) for r in meas)}  # fmt: skip
     return out
 

@@ -358,7 +358,8 @@ def summarize(rows: list[dict], timings: dict[str, dict], budget: str, markdown:
               f"of the other {m['n_refit'] - m['n']}, {m['n_kept']} stay at or below the level after the refit; "
               f"vs the refit without the term {pct(m['median_vs_control'])}; share of the excess over the level removed "
               f"{'n/a' if m['median_excess_removed'] is None else format(100 * m['median_excess_removed'], '.0f') + ' %'}, "
-              f"{m['n_at_level']} of {m['n']} brought to the level or below", file=buf)  # fmt: skip
+              f"{m['n_at_level']} of {m['n']} brought to the level or below; every one brought exactly to the level "
+              f"would read {pct(m['median_at_level'])}", file=buf)  # fmt: skip
     print(f"{item}median wall time per stage (s, as cached): {per_stage}", file=buf)
     record = {"budget": budget, "accuracy": acc, "controls_flagged": flagged, "median_reduction": med, "median_reduction_vs_control": med_c,
               "measurable_gap": meas, "rows": rows, "timings": timings}  # fmt: skip

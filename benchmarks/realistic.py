@@ -249,7 +249,9 @@ def gather(rows: list[dict], out_md: Path, argv: list[str] | None = None) -> dic
             if m["median_excess_removed"] is not None:
                 L += [f"On the same clips, the share of the gap's excess over the no-effect level that the refit removes "
                       f"(min(1, (before - after) / (before - level))): median {100 * m['median_excess_removed']:.0f} %; "
-                      f"{m['n_at_level']} of the {m['n']} refits bring eps_q to the level or below.", ""]  # fmt: skip
+                      f"{m['n_at_level']} of the {m['n']} refits bring eps_q to the level or below. Had every one of them "
+                      f"brought eps_q exactly to the level, the median eps_q change would read {100 * m['median_at_level']:+.0f} % "
+                      "(1 - level / before).", ""]  # fmt: skip
     L += [f"Wall time per clip: median {summary['wall_s_median']:.0f} s, max {summary['wall_s_max']:.0f} s.", "",
           "| clip | status | gate | attempts | f_truth (Hz) | f_sim (Hz) | eps_freq vs truth | after diagnosis | eps_q | eps_I / eps_AE | continuity | coverage | saturation | verdict | reason |",
           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip

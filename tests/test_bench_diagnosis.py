@@ -73,8 +73,10 @@ def test_only_gaps_above_the_same_systems_controls_count_towards_the_median(benc
     # the second reading: (before - after) / (before - level) over the same three, none brought to the level
     assert m["median_excess_removed"] == pytest.approx((0.05 - 0.01) / (0.05 - 0.004))
     assert m["n_at_level"] == 0
+    # the ceiling of refits that reach the level: 1 - level / before over the same three
+    assert m["median_at_level"] == pytest.approx(np.median([1 - 0.002 / 0.06, 1 - 0.002 / 0.03, 1 - 0.004 / 0.05]))
     empty = bench.measurable_gap_medians([_row("cart", "none", 0.004, None, refit=False)])["eps_freq"]
-    assert empty["median"] is None and empty["n"] == 0 and empty["median_excess_removed"] is None
+    assert empty["median"] is None and empty["n"] == 0 and empty["median_excess_removed"] is None and empty["median_at_level"] is None
 
 
 def test_the_share_of_the_excess_removed_stops_at_one_where_the_refit_reaches_the_no_effect_level(bench) -> None:
