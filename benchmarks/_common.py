@@ -154,7 +154,12 @@ def measurable_gap_medians(rows: list[dict], metrics: Sequence[str]) -> dict[str
     many of them the refit brings to the level or below; and ``median_at_level``, what the plain
     reduction's median would read if every measurable clip's refit brought it exactly to the
     level, ``1 - level / before`` (the ceiling of a refit as good as the identified models with
-    nothing missing: a median at or above it needs refits better than those).
+    nothing missing: a median at or above it needs refits better than those). Where rows carry
+    ``true_law`` (``{metric: value}``: what the clip's own ground-truth law scores in its chart,
+    ``benchmarks/_oracle.py``), also ``median_true_law``, the median of ``1 - true_law / before`` over the
+    measurable clips that have it (the reduction a refit that recovered the exact law would show:
+    no refit's median can be expected above it), ``n_true_law`` of them, and
+    ``n_at_true_law``, the refits among them whose ``after`` is at or below the true law's value.
     """
     out: dict[str, dict] = {}
     for k in metrics:
@@ -176,6 +181,10 @@ def measurable_gap_medians(rows: list[dict], metrics: Sequence[str]) -> dict[str
                   "median_excess_removed": float(np.median(excess)) if excess else None,
                   "median_at_level": float(np.median([1.0 - lv(r) / r["before"][k] for r in meas])) if meas else None,
                   "n_at_level": sum(r["after"].get(k) is not None and r["after"][k] <= lv(r) for r in meas)}  # fmt: skip
+        law = [r for r in meas if (r.get("true_law") or {}).get(k) is not None]
+        out[k].update(n_true_law=len(law),
+                      median_true_law=float(np.median([1.0 - r["true_law"][k] / r["before"][k] for r in law])) if law else None,
+                      n_at_true_law=sum(r["after"].get(k) is not None and r["after"][k] <= r["true_law"][k] for r in law))  # fmt: skip
     return out
 
 

@@ -15,6 +15,12 @@ reason when it did not finish. ``--gather`` turns rows into ``results/benchmarks
 ``--results`` (a Stage-2 change re-scored without training Stage 1 again); the row's ``wall_s`` is then
 theirs only.
 
+``--true-law``: on the clip's finished run, score its ground-truth law written in the run's chart
+(``benchmarks/_oracle.py``) with the run's evaluation settings: ``eps_q_true_law`` is what a model with no
+gap at all scores on this chart, the floor of any refit's held-out ``eps_q`` (1-DOF clips with an effect
+law; not the double pendulum or a missing degree of freedom). ``--gather`` reports the median reduction a
+refit that recovered the exact law would show beside the measured one.
+
 Short clips (``--train-periods 3 --from-results results/realistic``): the diagnosis on a clip whose
 training part is only three periods of the motion. The full run's folder is copied and the split is
 moved (``system.split.train_fraction`` = three true periods over the clip's length), then ingest, chart,
@@ -129,13 +135,33 @@ def diagnosis_of(name: str, results: Path, code: int, reason: str, wall_s: float
             "f_sim_refit_hz": f_refit, "diagnosis_wall_s": round(wall_s, 1)}  # fmt: skip
 
 
+def true_law_of(name: str, clips: Path, results: Path, floor_draws: int = 8) -> dict:
+    """The row's ``eps_q_true_law`` (with its noise floor and the chart map's rms): the clip's ground-truth law
+    written in the run's chart and scored by the run's own evaluation settings (``benchmarks/_oracle.py``);
+    ``{}`` where there is no 1-DOF law (double pendulum, missing degree of freedom) or no chart."""
+    from _oracle import true_law_gap  # this script's folder
+    from omegaconf import OmegaConf
+
+    from lagsplat.chart import load_chart
+    from lagsplat.evaluate import EvalConfig
+
+    spec = clip_spec(name)
+    art = Artifacts.for_run(results, name)
+    if spec["system"] == "double_pendulum" or spec["effect"] == "missing_dof" or not art.chart.exists():
+        return {}
+    cfg = EvalConfig(**OmegaConf.to_container(OmegaConf.load(art.config("evaluate")).evaluate, resolve=True))
+    g = true_law_gap(load_chart(art.chart), clips / f"{name}.truth.npz", spec["system"], cfg, floor_draws)
+    return {"eps_q_true_law": g["eps_q"], "eps_q_true_law_floor": g["eps_q_floor"], "chart_map_rms": g["chart_map_rms"]}
+
+
 def _gap_row(row: dict) -> dict:
     """A realistic row in the form :func:`_common.measurable_gap_medians` reads: held-out ``eps_q`` before the refit
     (the identified model's) and after it (``before * (1 - reduction)``)."""
     red, before = row.get("gap_reduction_eps_q"), row.get("eps_q")
     after = None if red is None or before is None else before * (1.0 - red)
     return {"system": row.get("system"), "truth": row.get("truth_effect"), "refit": red is not None,
-            "before": {"eps_q": before}, "after": {"eps_q": after}, "red_eps_q": red}  # fmt: skip
+            "before": {"eps_q": before}, "after": {"eps_q": after}, "red_eps_q": red,
+            "true_law": {"eps_q": row.get("eps_q_true_law")}}  # fmt: skip
 
 
 def eps_freq_after_diagnosis(row: dict) -> float | None:
@@ -252,15 +278,21 @@ def gather(rows: list[dict], out_md: Path, argv: list[str] | None = None) -> dic
                       f"{m['n_at_level']} of the {m['n']} refits bring eps_q to the level or below. Had every one of them "
                       f"brought eps_q exactly to the level, the median eps_q change would read {100 * m['median_at_level']:+.0f} % "
                       "(1 - level / before).", ""]  # fmt: skip
+            if m.get("median_true_law") is not None:
+                L += [f"The clips' own ground-truth law, written in each clip's chart and scored by the same protocol "
+                      f"(`--true-law`; {m['n_true_law']} of the {m['n']} measurable clips): had every refit recovered it exactly, "
+                      f"the median eps_q change would read {100 * m['median_true_law']:+.0f} % (1 - true law / before); "
+                      f"{m['n_at_true_law']} of those refits already score at or below the true law.", ""]  # fmt: skip
     L += [f"Wall time per clip: median {summary['wall_s_median']:.0f} s, max {summary['wall_s_max']:.0f} s.", "",
-          "| clip | status | gate | attempts | f_truth (Hz) | f_sim (Hz) | eps_freq vs truth | after diagnosis | eps_q | eps_I / eps_AE | continuity | coverage | saturation | verdict | reason |",
-          "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+          "| clip | status | gate | attempts | f_truth (Hz) | f_sim (Hz) | eps_freq vs truth | after diagnosis | eps_q | eps_q after refit | eps_q true law | eps_I / eps_AE | continuity | coverage | saturation | verdict | reason |",
+          "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     fmt = lambda v, f: "" if v is None else format(v, f)  # noqa: E731
     for r in sorted(rows, key=lambda r: r["name"]):
         g = r.get("gate") or {}
         gate = {True: "passed", False: "failed"}.get(r.get("gate_passed"), "")
         L.append(f"| {r['name']} | {r['status']} | {gate} | {r.get('stage1_attempts', '')} | {r['f_truth_hz']:.3f} | {fmt(r.get('f_sim_hz'), '.3f')} | "
-                 f"{fmt(r.get('eps_freq_truth'), '.2%')} | {fmt(eps_freq_after_diagnosis(r), '.2%')} | {fmt(r.get('eps_q'), '.3f')} | {fmt(r.get('eps_I_over_AE'), '.2f')} | "
+                 f"{fmt(r.get('eps_freq_truth'), '.2%')} | {fmt(eps_freq_after_diagnosis(r), '.2%')} | {fmt(r.get('eps_q'), '.3f')} | "
+                 f"{fmt(_gap_row(r)['after']['eps_q'], '.3f')} | {fmt(r.get('eps_q_true_law'), '.3f')} | {fmt(r.get('eps_I_over_AE'), '.2f')} | "
                  f"{fmt(g.get('continuity'), '.1f')} | {fmt(g.get('coverage'), '.2f')} | {fmt(g.get('saturation'), '.2f')} | {r.get('verdict', '')} | {r.get('reason', '').replace('|', chr(92) + '|')} |")  # fmt: skip
     periods = sorted({r["train_periods"] for r in rows if r.get("train_periods") is not None})
     short = f", training frames cut to {', '.join(f'{p:g}' for p in periods)} periods" if periods else ""
@@ -281,6 +313,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--diagnose", action="store_true", help="also run the diagnosis (python -m lagsplat diagnose) and score its verdict; "
                     "with an existing --row, only the diagnosis, on the cached artifacts")
+    ap.add_argument("--true-law", action="store_true", help="also score the clip's ground-truth law in the run's chart "
+                    "(eps_q_true_law: what a perfect model scores; benchmarks/_oracle.py), on the run's artifacts")
     ap.add_argument("--train-periods", type=float, help="short clip: only this many true periods of training frames (needs --from-results)")
     ap.add_argument("--from-results", type=Path, help="the full runs whose Stage-1 autoencoders the short clips reuse")
     ap.add_argument("--from-stage2", action="store_true", help="rerun Stage 2 and the evaluation only, on the clip's Stage-1 autoencoder "
@@ -316,7 +350,7 @@ def main(argv: list[str] | None = None) -> int:
                 break
         row = row_of(a.clip, a.clips, a.results, code, reason, wall)
         write_json(a.row, row)
-    elif a.row.exists() and a.diagnose:  # the pipeline's row is there: the diagnosis only, on its artifacts
+    elif a.row.exists() and (a.diagnose or a.true_law):  # the pipeline's row is there: the diagnosis / true law only, on its artifacts
         row = json.loads(a.row.read_text())
     else:
         code, reason, wall = run_clip(a.clip, a.clips, a.results, a.threads, a.extra)
@@ -325,6 +359,9 @@ def main(argv: list[str] | None = None) -> int:
     if a.diagnose and Artifacts.for_run(a.results, a.clip).chart.exists():
         code, reason, wall = run_clip(a.clip, a.clips, a.results, a.threads, a.extra, stage="diagnose")
         row.update(diagnosis_of(a.clip, a.results, code, reason, wall), diagnosis_commit=git_commit())
+        write_json(a.row, row)
+    if a.true_law:
+        row.update(true_law_of(a.clip, a.clips, a.results))
         write_json(a.row, row)
     print(json.dumps(row))
     return 0

@@ -138,3 +138,54 @@ def test_a_clip_not_rendered_stops_before_any_stage_naming_the_missing_files(ben
     err = capsys.readouterr().err
     assert e.value.code == 2 and "spring_cart-none-s0-128.truth.npz" in err and "python -m lagsplat.synth.realistic" in err
     assert not row.exists() and not (tmp_path / "res").exists()
+
+
+def _true_law_clip(tmp_path: Path, f0_factor: float = 1.0):
+    """A pendulum with an unlogged periodic force seen through a bent chart, q = 3 x - 4 x^3 + noise, and its truth file
+    (with the natural frequency scaled by ``f0_factor``: a wrong law)."""
+    import numpy as np
+
+    from lagsplat.chart import Chart
+    from lagsplat.synth.effects import simulate_effect
+
+    run = simulate_effect("pendulum", "periodic_force", seed=0, fps=30.0, duration_s=12.0, n_episodes=2)
+    q = 3 * run.x - 4 * run.x**3 + 0.003 * np.random.default_rng(0).standard_normal(len(run.x))
+    I = np.eye(1)
+    chart = Chart(mean=np.zeros(1), W=I, W_inv=I, q=q[:, None], t=run.t, split=run.split, G_bar=I, A=I, ae_mse=np.zeros(len(q)),
+                  ae_floor_train=0.0, ae_floor_held_out=0.0, height=64, width=64, episode=run.episode, u=run.u)  # fmt: skip
+    truth = {**run.truth, "f0_hz": run.truth["f0_hz"] * f0_factor}
+    path = tmp_path / f"clip-{f0_factor}.truth.npz"
+    np.savez(path, q=run.x[:, None], t=run.t, truth_json=json.dumps(truth))
+    return chart, path
+
+
+def test_the_true_law_in_a_bent_chart_scores_at_the_noise_and_a_wrong_law_does_not(bench, tmp_path) -> None:
+    from _oracle import true_law_gap  # benchmarks/, on the path once the benchmark is loaded
+
+    chart, path = _true_law_clip(tmp_path)
+    right = true_law_gap(chart, path, "pendulum", floor_draws=2)
+    assert abs(right["chart_map_rms"] - 0.003) < 0.001  # the cubic recovers the bend, leaving the noise
+    wrong = true_law_gap(chart, _true_law_clip(tmp_path, 1.05)[1], "pendulum", floor_draws=2)
+    assert right["eps_q"] < 0.05 and wrong["eps_q"] > 3 * right["eps_q"], (right, wrong)
+    assert right["eps_q"] < 2 * right["eps_q_floor"] + 0.01  # what any model scores on this chart's noise, no more
+    with pytest.raises(ValueError, match="1-D chart"):
+        true_law_gap(type(chart)(**{**chart.__dict__, "q": chart.q.repeat(2, 1), "W": chart.W.repeat(2, 0).repeat(2, 1)}), path, "pendulum")
+
+
+def test_the_true_law_in_chart_coordinates_is_the_chain_rule_of_the_law(bench) -> None:
+    import numpy as np
+    import torch
+
+    from _oracle import TrueLawInChart
+    from lagsplat.synth.effects import simulate_effect, true_acceleration
+
+    tr = simulate_effect("pendulum", "none", seed=0, fps=30.0, duration_s=4.0, n_episodes=2).truth
+    coef = np.array([-4.0, 0.5, 3.0, 0.2])  # q = -4 x^3 + 0.5 x^2 + 3 x + 0.2
+    m = TrueLawInChart(tr, coef, 8.0, time_channel=False)
+    x = np.linspace(-0.3, 0.3, 7)
+    xd = np.linspace(1.0, -0.5, 7)
+    phi = np.poly1d(coef)
+    q, qd = phi(x), phi.deriv()(x) * xd
+    got = m.acceleration(torch.tensor(q[:, None]), torch.tensor(qd[:, None])).numpy()[:, 0]
+    want = phi.deriv()(x) * true_acceleration(tr, 8.0)(0.0, x, xd) + phi.deriv(2)(x) * xd**2
+    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9)

@@ -11,7 +11,7 @@ from scipy.ndimage import gaussian_filter1d
 from lagsplat.io.clip import HELD_OUT, TRAIN
 from lagsplat.synth import GENERATORS, make_clip
 from lagsplat.synth.effect_truth import EFFECTS, MAX_EXCURSION, SYSTEMS, sample_truth
-from lagsplat.synth.effects import simulate_effect
+from lagsplat.synth.effects import simulate_effect, true_acceleration
 from lagsplat.synth.effect_clips import blind_suite, make_effect_clip
 
 FPS = 240.0  # fine sampling, so that finite differences give the acceleration accurately
@@ -74,6 +74,29 @@ def test_simulated_motion_obeys_the_documented_law(system: str, effect: str) -> 
         assert np.median(err) < 0.2 * tol * scale
         assert np.quantile(err, 0.98) < tol * scale * (10 if effect in ("end_stop", "coulomb") else 1)
         np.testing.assert_allclose(np.gradient(x, 1 / FPS)[inner], v[inner], rtol=0, atol=2e-3 * (2 * math.pi * tr["f0_hz"]) * tr["amplitude"])
+
+
+@pytest.mark.parametrize("system", SYSTEMS)
+@pytest.mark.parametrize("effect", [e for e in EFFECTS if e != "missing_dof"])
+def test_the_exported_law_is_the_documented_one_on_any_state(system: str, effect: str) -> None:
+    run = simulate_effect(system, effect, seed=2, fps=30.0, duration_s=4.0, n_episodes=2)
+    tr = run.truth
+    T_clip = len(run.t) / 30.0
+    rng = np.random.default_rng(0)
+    A, w0 = tr["amplitude"], 2 * math.pi * tr["f0_hz"]
+    x, v, t = rng.uniform(-1.3 * A, 1.3 * A, 200), rng.uniform(-1.3 * w0 * A, 1.3 * w0 * A, 200), rng.uniform(0, T_clip, 200)
+    u_at = None
+    if tr["actuated"]:
+        a = tr["actuation"]
+        f, amp, ph = (np.asarray(a[k]) for k in ("freqs_hz", "amps", "phases"))
+
+        def u_at(tt):
+            return amp.sum() + (amp * np.sin(2 * math.pi * f * np.asarray(tt)[:, None] + ph)).sum(-1)
+
+    np.testing.assert_allclose(true_acceleration(tr, T_clip)(t, x, v), _law(tr, x, v, t, T_clip, u_at), rtol=1e-12, atol=1e-12 * w0 * w0 * A)
+    assert np.isscalar(float(true_acceleration(tr, T_clip)(0.5, 0.1 * A, 0.0)))  # one state, as the integrator calls it
+    with pytest.raises(ValueError, match="two degrees of freedom"):
+        true_acceleration({**tr, "effect": "missing_dof"}, T_clip)
 
 
 def test_effects_leave_their_signature() -> None:

@@ -75,7 +75,7 @@ from lagsplat.synth.coupled_carts import (
     CoupledCarts,
 )
 
-__all__ = ["EffectRun", "simulate_effect"]
+__all__ = ["EffectRun", "simulate_effect", "true_acceleration"]
 
 
 @dataclass
@@ -122,18 +122,31 @@ def _input(truth: dict[str, Any]) -> Callable[[np.ndarray | float], np.ndarray |
     return u
 
 
-def _rhs_1dof(truth: dict[str, Any], T_clip: float) -> Callable[[float, np.ndarray], np.ndarray]:
-    """Right-hand side of ``y = (x, x')`` for every effect except ``missing_dof``."""
+def true_acceleration(truth: dict[str, Any], T_clip: float) -> Callable[[Any, Any, Any], np.ndarray]:
+    """The law of a 1-DOF clip, ``x'' = a(t, x, x')``, for every effect except ``missing_dof`` (module docstring).
+
+    Args:
+        truth: the clip's ``meta["truth"]`` (:func:`~lagsplat.synth.effect_truth.sample_truth`).
+        T_clip: the clip's length, s (the drift's time scale).
+
+    Returns:
+        ``a(t, x, xdot)``: the acceleration (units of ``x`` per s^2), elementwise over
+        broadcastable arrays (or floats) of time (s), position and rate.
+
+    Raises:
+        ValueError: for ``missing_dof`` (two degrees of freedom, no 1-DOF law).
+    """
     system, effect = truth["system"], truth["effect"]
+    if effect == "missing_dof":
+        raise ValueError("missing_dof has two degrees of freedom; its law is _rhs_pivot / the coupled carts")
     w0 = 2 * math.pi * truth["f0_hz"]
     zeta, A, p = truth["zeta"], truth["amplitude"], truth["effect_params"]
-    g = math.sin if system == "pendulum" else (lambda x: x)
+    g = np.sin if system == "pendulum" else (lambda x: x)
     u = _input(truth) if truth["actuated"] else None
     gain = truth["actuation"]["gain"] if u is not None else 0.0
     tau = p.get("tau_s", 0.0)
 
-    def rhs(t: float, y: np.ndarray) -> np.ndarray:
-        x, v = y
+    def law(t: Any, x: Any, v: Any) -> np.ndarray:
         k2, z = w0 * w0, zeta
         if effect == "drift":
             if p["kind"] == "stiffness":
@@ -142,20 +155,28 @@ def _rhs_1dof(truth: dict[str, Any], T_clip: float) -> Callable[[float, np.ndarr
                 z = p["zeta_start"] + (p["zeta_end"] - p["zeta_start"]) * t / T_clip
         a = -k2 * g(x) - 2.0 * z * w0 * v
         if effect == "coulomb":
-            a -= p["mu"] * math.tanh(v / p["v_s"])
+            a = a - p["mu"] * np.tanh(v / p["v_s"])
         elif effect == "quadratic_drag":
-            a -= p["c2"] * abs(v) * v
+            a = a - p["c2"] * np.abs(v) * v
         elif effect == "end_stop":
-            pen = p["side"] * (x - p["x_stop"])
-            if pen > 0:
-                a -= p["k_ratio"] * w0 * w0 * pen * p["side"]
+            a = a - p["k_ratio"] * w0 * w0 * np.maximum(p["side"] * (x - p["x_stop"]), 0.0) * p["side"]
         elif effect == "cubic_stiffness":
-            a -= p["eps"] * w0 * w0 * x**3 / A**2
+            a = a - p["eps"] * w0 * w0 * x**3 / A**2
         elif effect == "periodic_force":
-            a += p["amplitude"] * math.cos(2 * math.pi * p["f_hz"] * t + p["phase"])
+            a = a + p["amplitude"] * np.cos(2 * math.pi * p["f_hz"] * t + p["phase"])
         if u is not None:
-            a += gain * float(u(t - tau))
-        return np.array([v, a])
+            a = a + gain * u(t - tau)
+        return a
+
+    return law
+
+
+def _rhs_1dof(truth: dict[str, Any], T_clip: float) -> Callable[[float, np.ndarray], np.ndarray]:
+    """Right-hand side of ``y = (x, x')`` for every effect except ``missing_dof`` (:func:`true_acceleration`)."""
+    law = true_acceleration(truth, T_clip)
+
+    def rhs(t: float, y: np.ndarray) -> np.ndarray:
+        return np.array([y[1], float(law(t, y[0], y[1]))])
 
     return rhs
 

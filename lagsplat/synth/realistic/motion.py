@@ -40,7 +40,7 @@ from scipy.integrate import solve_ivp
 from lagsplat.synth.effect_truth import NOMINAL_AMPLITUDE
 from lagsplat.synth.effects import simulate_effect
 
-__all__ = ["Motion", "CART_METRES", "one_dof_motion", "double_pendulum_motion", "spin_down_motion", "slide_out_motion", "acceleration_of", "GRAVITY"]
+__all__ = ["Motion", "CART_METRES", "coordinate_scale", "one_dof_motion", "double_pendulum_motion", "spin_down_motion", "slide_out_motion", "acceleration_of", "GRAVITY"]
 
 CART_METRES = 1.0
 """Metres per frame width of the effect library's cart coordinate."""
@@ -83,6 +83,24 @@ def _hidden(x: np.ndarray, xd: np.ndarray, dt: float, f0: float, zeta: float, si
     return acceleration_of(xd, dt) + w0**2 * (np.sin(x) if sine else x) + 2 * zeta * w0 * xd
 
 
+def coordinate_scale(system: str, truth: dict[str, Any]) -> float:
+    """Units of a 1-DOF clip's ``q`` per unit of the effect library's ``x`` (module docstring).
+
+    1 for the pendulum (rad), :data:`CART_METRES` for the spring cart, and for the torsion disk
+    ``radians(amplitude_deg) / A`` (``truth["amplitude_deg"]``, ``A`` the library's nominal cart amplitude).
+
+    Raises:
+        ValueError: on a system other than ``pendulum``, ``spring_cart`` or ``torsion_disk``.
+    """
+    if system == "pendulum":
+        return 1.0
+    if system == "spring_cart":
+        return CART_METRES
+    if system == "torsion_disk":
+        return math.radians(float(truth["amplitude_deg"])) / NOMINAL_AMPLITUDE["cart"]
+    raise ValueError(f"unknown 1-DOF system {system!r}; known: pendulum, spring_cart, torsion_disk")
+
+
 def one_dof_motion(system: str, effect: str, seed: int, fps: float, duration_s: float, amplitude_deg: float = 60.0) -> Motion:
     """Ground truth of a pendulum, spring cart or torsion disk clip (module docstring).
 
@@ -109,12 +127,12 @@ def one_dof_motion(system: str, effect: str, seed: int, fps: float, duration_s: 
     tr = dict(run.truth)
     f0, zeta = float(tr["f0_hz"]), float(tr["zeta"])
     hidden = _hidden(x, xd, 1.0 / fps, f0, zeta, sine=base == "pendulum")
-    if system == "spring_cart":
-        x, xd, second, hidden = x * CART_METRES, xd * CART_METRES, second * CART_METRES, hidden * CART_METRES
     if system == "torsion_disk":
-        k = math.radians(amplitude_deg) / NOMINAL_AMPLITUDE["cart"]
-        x, xd, hidden = x * k, xd * k, hidden * k
         tr["amplitude_deg"] = float(amplitude_deg)
+    k = coordinate_scale(system, tr)
+    x, xd, hidden = x * k, xd * k, hidden * k
+    if system == "spring_cart":  # the second cart of the missing degree of freedom, in the same units
+        second = second * CART_METRES
     q = np.stack([x, second], 1) if effect == "missing_dof" else x[:, None]
     qd = np.stack([xd, np.gradient(second, 1.0 / fps)], 1) if effect == "missing_dof" else xd[:, None]
     return Motion(t - t[0], q, qd, hidden, f0, tr)
