@@ -43,7 +43,8 @@ class TrueLawInChart(nn.Module):
         truth: the clip's truth record (``truth_json`` of its ``.truth.npz``).
         coef: ``phi``'s coefficients, highest power first (``numpy.polyfit``), chart units per library unit.
         T_clip: the simulated take's length, s (the drift's time scale).
-        time_channel: whether the last actuation channel carries the clip time (periodic force, drift).
+        time_channel: whether the last actuation channel carries the clip time (periodic force, drift, a logged
+            input: the law computes the input from its own record at that time).
 
     Raises:
         ValueError: for ``missing_dof`` (:func:`~lagsplat.synth.effects.true_acceleration`).
@@ -111,7 +112,7 @@ def true_law_gap(chart: Any, truth_npz: str | Path, system: str, eval_cfg: Any |
     if len(x) != len(q):
         raise ValueError(f"{truth_npz}: {len(x)} true frames, the chart has {len(q)}")
     coef = np.polyfit(x, q, CHART_MAP_DEGREE)
-    time_channel = truth["effect"] in ("periodic_force", "drift")
+    time_channel = truth["effect"] in ("periodic_force", "drift") or bool(truth.get("actuated"))  # the law reads the clip time
     T_clip = float(truth["n_episodes"]) * float(truth["duration_s"])
     model = TrueLawInChart(truth, coef, T_clip, time_channel)
     gap = held_out_gap(with_time_channel(chart) if time_channel else chart, model, eval_cfg=eval_cfg, floor_draws=floor_draws)
