@@ -45,6 +45,15 @@ def _law(truth: dict, x: np.ndarray, v: np.ndarray, t: np.ndarray, T_clip: float
     return a
 
 
+def _logged_input(truth: dict):
+    """The documented logged input ``u(t)`` of an actuated clip (module docstring of the library), or ``None``."""
+    if not truth["actuated"]:
+        return None
+    a = truth["actuation"]
+    f, amp, ph = (np.asarray(a[k]) for k in ("freqs_hz", "amps", "phases"))
+    return lambda tt: amp.sum() + (amp * np.sin(2 * math.pi * f * np.asarray(tt)[:, None] + ph)).sum(-1)
+
+
 @pytest.mark.parametrize("system", SYSTEMS)
 @pytest.mark.parametrize("effect", [e for e in EFFECTS if e != "missing_dof"])
 def test_simulated_motion_obeys_the_documented_law(system: str, effect: str) -> None:
@@ -52,14 +61,8 @@ def test_simulated_motion_obeys_the_documented_law(system: str, effect: str) -> 
     tr = run.truth
     assert run.effect == effect and tr["effect"] == effect and tr["system"] == system
     T_clip = len(run.t) / FPS
-    u_at = None
+    u_at = _logged_input(tr)
     if tr["actuated"]:
-        a = tr["actuation"]
-        f, amp, ph = (np.asarray(a[k]) for k in ("freqs_hz", "amps", "phases"))
-
-        def u_at(tt):
-            return amp.sum() + (amp * np.sin(2 * math.pi * f * np.asarray(tt)[:, None] + ph)).sum(-1)
-
         np.testing.assert_allclose(run.u[:, 0], u_at(run.t), rtol=1e-5, atol=1e-5)  # the logged input
         assert run.u.min() >= 0.0
     for e in range(2):
@@ -85,14 +88,7 @@ def test_the_exported_law_is_the_documented_one_on_any_state(system: str, effect
     rng = np.random.default_rng(0)
     A, w0 = tr["amplitude"], 2 * math.pi * tr["f0_hz"]
     x, v, t = rng.uniform(-1.3 * A, 1.3 * A, 200), rng.uniform(-1.3 * w0 * A, 1.3 * w0 * A, 200), rng.uniform(0, T_clip, 200)
-    u_at = None
-    if tr["actuated"]:
-        a = tr["actuation"]
-        f, amp, ph = (np.asarray(a[k]) for k in ("freqs_hz", "amps", "phases"))
-
-        def u_at(tt):
-            return amp.sum() + (amp * np.sin(2 * math.pi * f * np.asarray(tt)[:, None] + ph)).sum(-1)
-
+    u_at = _logged_input(tr)
     np.testing.assert_allclose(true_acceleration(tr, T_clip)(t, x, v), _law(tr, x, v, t, T_clip, u_at), rtol=1e-12, atol=1e-12 * w0 * w0 * A)
     assert np.isscalar(float(true_acceleration(tr, T_clip)(0.5, 0.1 * A, 0.0)))  # one state, as the integrator calls it
     with pytest.raises(ValueError, match="two degrees of freedom"):
