@@ -1,10 +1,11 @@
 """The true law of a realistic-suite clip, written in the clip's identified chart: what a perfect model scores.
 
-A refit's held-out ``eps_q`` cannot fall below what the clip's own ground-truth
-law scores on the same chart with the same protocol: the chart's noise turns
+What the clip's own ground-truth law scores on the same chart with the same
+protocol is what a model with no gap at all scores: the chart's noise turns
 into rollout error for any model, and more so for a stiff or switching one (an
 end stop turns the same noise into larger timing errors than a linear spring).
-:func:`true_law_gap` measures it. The law is
+A refit is not expected to score much below it (a little below happens where
+the noise favours a slightly different model). :func:`true_law_gap` measures it. The law is
 :func:`lagsplat.synth.effects.true_acceleration` in the library's coordinate
 ``x``; the chart's coordinate is ``q = phi(x)``, with ``phi`` the least-squares
 polynomial (cubic) of the encoded ``q`` on the true ``x`` over every frame (the

@@ -17,7 +17,7 @@ theirs only.
 
 ``--true-law``: on the clip's finished run, score its ground-truth law written in the run's chart
 (``benchmarks/_oracle.py``) with the run's evaluation settings: ``eps_q_true_law`` is what a model with no
-gap at all scores on this chart, the floor of any refit's held-out ``eps_q`` (1-DOF clips with an effect
+gap at all scores on this chart, about the lowest held-out ``eps_q`` a refit can be expected to reach (1-DOF clips with an effect
 law; not the double pendulum or a missing degree of freedom). ``--gather`` reports the median reduction a
 refit that recovered the exact law would show beside the measured one.
 
