@@ -138,7 +138,8 @@ def diagnosis_of(name: str, results: Path, code: int, reason: str, wall_s: float
 def true_law_of(name: str, clips: Path, results: Path, floor_draws: int = 8) -> dict:
     """The row's ``eps_q_true_law`` (with its noise floor and the chart map's rms): the clip's ground-truth law
     written in the run's chart and scored by the run's own evaluation settings (``benchmarks/_oracle.py``);
-    ``{}`` where there is no 1-DOF law (double pendulum, missing degree of freedom) or no chart."""
+    ``{}`` where there is no 1-DOF law (double pendulum, missing degree of freedom) or the run did not reach the
+    evaluation (no chart, or stopped at the chart's quality gate)."""
     from _oracle import true_law_gap  # this script's folder
     from omegaconf import OmegaConf
 
@@ -147,7 +148,7 @@ def true_law_of(name: str, clips: Path, results: Path, floor_draws: int = 8) -> 
 
     spec = clip_spec(name)
     art = Artifacts.for_run(results, name)
-    if spec["system"] == "double_pendulum" or spec["effect"] == "missing_dof" or not art.chart.exists():
+    if spec["system"] == "double_pendulum" or spec["effect"] == "missing_dof" or not (art.chart.exists() and art.config("evaluate").exists()):
         return {}
     cfg = EvalConfig(**OmegaConf.to_container(OmegaConf.load(art.config("evaluate")).evaluate, resolve=True))
     g = true_law_gap(load_chart(art.chart), clips / f"{name}.truth.npz", spec["system"], cfg, floor_draws)

@@ -189,3 +189,13 @@ def test_the_true_law_in_chart_coordinates_is_the_chain_rule_of_the_law(bench) -
     got = m.acceleration(torch.tensor(q[:, None]), torch.tensor(qd[:, None])).numpy()[:, 0]
     want = phi.deriv()(x) * true_acceleration(tr, 8.0)(0.0, x, xd) + phi.deriv(2)(x) * xd**2
     np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9)
+
+
+def test_the_true_law_is_left_out_where_there_is_none_or_the_run_never_evaluated(bench, tmp_path) -> None:
+    chart, _ = _true_law_clip(tmp_path)
+    from lagsplat.artifacts import Artifacts
+    from lagsplat.chart import save_chart
+
+    save_chart(Artifacts.for_run(tmp_path, "pendulum-coulomb-s0-128").chart, chart)  # a chart, but the run stopped before evaluate
+    assert bench.true_law_of("pendulum-coulomb-s0-128", tmp_path, tmp_path) == {}
+    assert bench.true_law_of("spring_cart-missing_dof-s0-128", tmp_path, tmp_path) == {}  # two degrees of freedom: no 1-DOF law
