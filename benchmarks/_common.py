@@ -178,14 +178,19 @@ def measurable_gap_medians(rows: list[dict], metrics: Sequence[str]) -> dict[str
         excess = [min(1.0, (r["before"][k] - r["after"][k]) / (r["before"][k] - lv(r))) for r in meas if r["after"].get(k) is not None]
         out[k] = {"median": float(np.median([r[f"red_{k}"] for r in meas])) if meas else None, "n": len(meas), "n_refit": len(scored),
                   "n_kept": len(kept), "median_vs_control": float(np.median(vs_ctrl)) if vs_ctrl else None, "levels": levels,
-                  "median_excess_removed": float(np.median(excess)) if excess else None,
-                  "median_at_level": float(np.median([1.0 - lv(r) / r["before"][k] for r in meas])) if meas else None,
-                  "n_at_level": sum(r["after"].get(k) is not None and r["after"][k] <= lv(r) for r in meas)}  # fmt: skip
+                  "median_excess_removed": float(np.median(excess)) if excess else None}  # fmt: skip
+        out[k]["median_at_level"], out[k]["n_at_level"] = _ceiling(meas, k, lv)
         law = [r for r in meas if (r.get("true_law") or {}).get(k) is not None]
-        out[k].update(n_true_law=len(law),
-                      median_true_law=float(np.median([1.0 - r["true_law"][k] / r["before"][k] for r in law])) if law else None,
-                      n_at_true_law=sum(r["after"].get(k) is not None and r["after"][k] <= r["true_law"][k] for r in law))  # fmt: skip
+        out[k]["n_true_law"] = len(law)
+        out[k]["median_true_law"], out[k]["n_at_true_law"] = _ceiling(law, k, lambda r: r["true_law"][k])
     return out
+
+
+def _ceiling(rows: list[dict], k: str, reference) -> tuple[float | None, int]:
+    """``(median of 1 - reference / before, how many refits' after is at or below the reference)`` over ``rows``
+    for metric ``k``; ``reference(row)`` is a value of ``k`` (a no-effect level, or the true law's score)."""
+    median = float(np.median([1.0 - reference(r) / r["before"][k] for r in rows])) if rows else None
+    return median, sum(r["after"].get(k) is not None and r["after"][k] <= reference(r) for r in rows)
 
 
 def realistic_verdict_ok(name: str, verdict: str) -> bool:

@@ -143,7 +143,6 @@ def true_law_of(name: str, clips: Path, results: Path, floor_draws: int = 8) -> 
     from _oracle import true_law_gap  # this script's folder
     from omegaconf import OmegaConf
 
-    from lagsplat.chart import load_chart
     from lagsplat.evaluate import EvalConfig
 
     spec = clip_spec(name)
@@ -151,7 +150,7 @@ def true_law_of(name: str, clips: Path, results: Path, floor_draws: int = 8) -> 
     if spec["system"] == "double_pendulum" or spec["effect"] == "missing_dof" or not (art.chart.exists() and art.config("evaluate").exists()):
         return {}
     cfg = EvalConfig(**OmegaConf.to_container(OmegaConf.load(art.config("evaluate")).evaluate, resolve=True))
-    g = true_law_gap(load_chart(art.chart), clips / f"{name}.truth.npz", spec["system"], cfg, floor_draws)
+    g = true_law_gap(art.load_chart(), clips / f"{name}.truth.npz", spec["system"], cfg, floor_draws)
     return {"eps_q_true_law": g["eps_q"], "eps_q_true_law_floor": g["eps_q_floor"], "chart_map_rms": g["chart_map_rms"]}
 
 
