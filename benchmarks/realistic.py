@@ -19,7 +19,10 @@ theirs only.
 (``benchmarks/_oracle.py``) with the run's evaluation settings: ``eps_q_true_law`` is what a model with no
 gap at all scores on this chart, about the lowest held-out ``eps_q`` a refit can be expected to reach (1-DOF clips with an effect
 law; not the double pendulum or a missing degree of freedom). ``--gather`` reports the median reduction a
-refit that recovered the exact law would show beside the measured one.
+refit that recovered the exact law would show beside the measured one. The same flag runs the diagnosis's
+selection with the clip's *control* law (the true law without its effect) as the model:
+``verdict_true_control`` is what the diagnosis names when Stage 2 misfits nothing, and ``--gather`` reports its
+top-1 beside the pipeline's on the same clips.
 
 Short clips (``--train-periods 3 --from-results results/realistic``): the diagnosis on a clip whose
 training part is only three periods of the motion. The full run's folder is copied and the split is
@@ -138,9 +141,11 @@ def diagnosis_of(name: str, results: Path, code: int, reason: str, wall_s: float
 def true_law_of(name: str, clips: Path, results: Path, floor_draws: int = 8) -> dict:
     """The row's ``eps_q_true_law`` (with its noise floor and the chart map's rms): the clip's ground-truth law
     written in the run's chart and scored by the run's own evaluation settings (``benchmarks/_oracle.py``);
-    ``{}`` where there is no 1-DOF law (double pendulum, missing degree of freedom) or the run did not reach the
-    evaluation (no chart, or stopped at the chart's quality gate)."""
-    from _oracle import true_law_gap  # this script's folder
+    and ``verdict_true_control`` (with ``true_control_ok``, scored as ``diagnosis_ok``): what the diagnosis's
+    selection names with the clip's control law as the model (:func:`_oracle.true_control_diagnosis`, default
+    diagnosis settings). ``{}`` where there is no 1-DOF law (double pendulum, missing degree of freedom) or the run
+    did not reach the evaluation (no chart, or stopped at the chart's quality gate)."""
+    from _oracle import true_control_diagnosis, true_law_gap  # this script's folder
     from omegaconf import OmegaConf
 
     from lagsplat.evaluate import EvalConfig
@@ -150,8 +155,11 @@ def true_law_of(name: str, clips: Path, results: Path, floor_draws: int = 8) -> 
     if spec["system"] == "double_pendulum" or spec["effect"] == "missing_dof" or not (art.chart.exists() and art.config("evaluate").exists()):
         return {}
     cfg = EvalConfig(**OmegaConf.to_container(OmegaConf.load(art.config("evaluate")).evaluate, resolve=True))
-    g = true_law_gap(art.load_chart(), clips / f"{name}.truth.npz", spec["system"], cfg, floor_draws)
-    return {"eps_q_true_law": g["eps_q"], "eps_q_true_law_floor": g["eps_q_floor"], "chart_map_rms": g["chart_map_rms"]}
+    chart, truth = art.load_chart(), clips / f"{name}.truth.npz"
+    g = true_law_gap(chart, truth, spec["system"], cfg, floor_draws)
+    verdict = true_control_diagnosis(chart, truth, spec["system"]).winner
+    return {"eps_q_true_law": g["eps_q"], "eps_q_true_law_floor": g["eps_q_floor"], "chart_map_rms": g["chart_map_rms"],
+            "verdict_true_control": verdict, "true_control_ok": realistic_verdict_ok(name, verdict)}  # fmt: skip
 
 
 def _gap_row(row: dict) -> dict:
@@ -240,6 +248,14 @@ def gather(rows: list[dict], out_md: Path, argv: list[str] | None = None) -> dic
             "median_gap_reduction_eps_q": float(np.median(reds)) if reds else None,
             "measurable_gap": measurable_gap_medians([_gap_row(r) for r in passed], ("eps_q",))["eps_q"],
         }  # fmt: skip
+        oracle = [r for r in passed if r.get("verdict_true_control") is not None]
+        if oracle:  # the selection with a perfect model of the control class (--true-law)
+            summary["diagnosis"]["true_control"] = {
+                "n": len(oracle), "top1": float(np.mean([r["true_control_ok"] for r in oracle])),
+                "top1_pipeline": float(np.mean([r["diagnosis_ok"] for r in oracle])),
+                "controls_flagged": sum(r["verdict_true_control"] != "none" for r in oracle if r["truth_effect"] == "none"),
+                "n_controls": sum(r["truth_effect"] == "none" for r in oracle),
+            }  # fmt: skip
     commits = sorted({r.get("commit", "unknown") for r in rows})
     summary["commits"] = commits
     L = [f"{summary['n_clips']} clips over {len(summary['systems'])} systems: {summary['n_ok']} with metrics, "
@@ -265,6 +281,12 @@ def gather(rows: list[dict], out_md: Path, argv: list[str] | None = None) -> dic
         L += [f"Diagnosis ({D['n_diagnosed']} clips): top-1 {top1} over the {D['n_on_passed_charts']} whose chart passed the gate; "
               f"controls flagged {D['controls_flagged']}/{D['n_controls']}; charts that failed the gate read cannot_diagnose "
               f"{D['failed_gate_read_cannot_diagnose']}/{D['n_failed_gate']}; median held-out eps_q change after the refit {red}.", ""]  # fmt: skip
+        if "true_control" in D:
+            O = D["true_control"]
+            L += [f"With the clip's control law as the model (`--true-law`: its ground-truth law without the effect, written in the "
+                  f"run's chart; the selection alone, no Stage-2 misfit), the diagnosis's top-1 is {100 * O['top1']:.0f} % over the "
+                  f"{O['n']} 1-DOF clips it applies to, controls flagged {O['controls_flagged']}/{O['n_controls']}; the pipeline's "
+                  f"top-1 on the same clips is {100 * O['top1_pipeline']:.0f} %.", ""]  # fmt: skip
         m = D["measurable_gap"]
         if m["levels"]:
             lv = ", ".join(f"{k} {v:.3f}" for k, v in sorted(m["levels"].items()))
@@ -284,8 +306,8 @@ def gather(rows: list[dict], out_md: Path, argv: list[str] | None = None) -> dic
                       f"the median eps_q change would read {100 * m['median_true_law']:+.0f} % (1 - true law / before); "
                       f"{m['n_at_true_law']} of those refits already score at or below the true law.", ""]  # fmt: skip
     L += [f"Wall time per clip: median {summary['wall_s_median']:.0f} s, max {summary['wall_s_max']:.0f} s.", "",
-          "| clip | status | gate | attempts | f_truth (Hz) | f_sim (Hz) | eps_freq vs truth | after diagnosis | eps_q | eps_q after refit | eps_q true law | eps_I / eps_AE | continuity | coverage | saturation | verdict | reason |",
-          "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+          "| clip | status | gate | attempts | f_truth (Hz) | f_sim (Hz) | eps_freq vs truth | after diagnosis | eps_q | eps_q after refit | eps_q true law | eps_I / eps_AE | continuity | coverage | saturation | verdict | verdict, true control law | reason |",
+          "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     fmt = lambda v, f: "" if v is None else format(v, f)  # noqa: E731
     for r in sorted(rows, key=lambda r: r["name"]):
         g = r.get("gate") or {}
@@ -293,7 +315,7 @@ def gather(rows: list[dict], out_md: Path, argv: list[str] | None = None) -> dic
         L.append(f"| {r['name']} | {r['status']} | {gate} | {r.get('stage1_attempts', '')} | {r['f_truth_hz']:.3f} | {fmt(r.get('f_sim_hz'), '.3f')} | "
                  f"{fmt(r.get('eps_freq_truth'), '.2%')} | {fmt(eps_freq_after_diagnosis(r), '.2%')} | {fmt(r.get('eps_q'), '.3f')} | "
                  f"{fmt(_gap_row(r)['after']['eps_q'], '.3f')} | {fmt(r.get('eps_q_true_law'), '.3f')} | {fmt(r.get('eps_I_over_AE'), '.2f')} | "
-                 f"{fmt(g.get('continuity'), '.1f')} | {fmt(g.get('coverage'), '.2f')} | {fmt(g.get('saturation'), '.2f')} | {r.get('verdict', '')} | {r.get('reason', '').replace('|', chr(92) + '|')} |")  # fmt: skip
+                 f"{fmt(g.get('continuity'), '.1f')} | {fmt(g.get('coverage'), '.2f')} | {fmt(g.get('saturation'), '.2f')} | {r.get('verdict', '')} | {r.get('verdict_true_control', '')} | {r.get('reason', '').replace('|', chr(92) + '|')} |")  # fmt: skip
     periods = sorted({r["train_periods"] for r in rows if r.get("train_periods") is not None})
     short = f", training frames cut to {', '.join(f'{p:g}' for p in periods)} periods" if periods else ""
     rep = Report(f"Realistic suite (MuJoCo-rendered clips) against the ground truth{short}", out_md, __file__, argv)
@@ -314,7 +336,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--diagnose", action="store_true", help="also run the diagnosis (python -m lagsplat diagnose) and score its verdict; "
                     "with an existing --row, only the diagnosis, on the cached artifacts")
     ap.add_argument("--true-law", action="store_true", help="also score the clip's ground-truth law in the run's chart "
-                    "(eps_q_true_law: what a perfect model scores; benchmarks/_oracle.py), on the run's artifacts")
+                    "(eps_q_true_law: what a perfect model scores; benchmarks/_oracle.py) and run the diagnosis's selection with its "
+                    "control law as the model (verdict_true_control), on the run's artifacts")
     ap.add_argument("--train-periods", type=float, help="short clip: only this many true periods of training frames (needs --from-results)")
     ap.add_argument("--from-results", type=Path, help="the full runs whose Stage-1 autoencoders the short clips reuse")
     ap.add_argument("--from-stage2", action="store_true", help="rerun Stage 2 and the evaluation only, on the clip's Stage-1 autoencoder "

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 
@@ -49,6 +50,12 @@ def test_the_summary_counts_controls_gate_failures_and_names_short_clips(bench, 
     assert md.startswith("# Realistic suite (MuJoCo-rendered clips) against the ground truth, training frames cut to 3 periods")
     assert json.loads((tmp_path / "short.json").read_text())["summary"]["n_clips"] == 3
     assert "Rows measured at commit unknown (3 rows)." in md  # rows without a recorded commit say so
+    assert "true_control" not in D  # no --true-law reading, no line
+    rows[0].update(verdict_true_control="none", true_control_ok=True)  # the selection with the control law as the model
+    rows[1].update(verdict_true_control="coulomb", true_control_ok=True)
+    O = bench.gather(rows, tmp_path / "short.md", [])["diagnosis"]["true_control"]
+    assert O == {"n": 2, "top1": 1.0, "top1_pipeline": 0.5, "controls_flagged": 0, "n_controls": 1}
+    assert "the diagnosis's top-1 is 100 % over the 2 1-DOF clips" in (tmp_path / "short.md").read_text()
     rows[0].update(commit="aaa", diagnosis_commit="bbb")  # a row whose diagnosis alone was rerun at a later commit
     rows[1].update(commit="aaa", diagnosis_commit="aaa")
     md = (bench.gather(rows, tmp_path / "short.md", []), (tmp_path / "short.md").read_text())[1]
@@ -74,7 +81,6 @@ def test_the_reading_after_the_diagnosis_takes_the_refit_only_where_its_held_out
 
 
 def test_the_truth_level_chart_is_split_where_the_pipeline_split_the_clip_and_whitened_on_its_training_frames(load_benchmark) -> None:
-    import numpy as np
 
     latent = load_benchmark("diagnosis_latent")
     name = "spring_cart-none-s0-128"
@@ -92,7 +98,6 @@ def test_the_truth_level_chart_is_split_where_the_pipeline_split_the_clip_and_wh
 
 
 def test_the_short_truth_level_chart_trains_on_three_periods_of_the_true_motion(load_benchmark) -> None:
-    import numpy as np
 
     latent = load_benchmark("diagnosis_latent")
     entry = next(e for e in latent.realistic_suite() if e["name"] == "spring_cart-none-s0-128")
@@ -140,21 +145,20 @@ def test_a_clip_not_rendered_stops_before_any_stage_naming_the_missing_files(ben
     assert not row.exists() and not (tmp_path / "res").exists()
 
 
-def _true_law_clip(tmp_path: Path, f0_factor: float = 1.0):
-    """A pendulum with an unlogged periodic force seen through a bent chart, q = 3 x - 4 x^3 + noise, and its truth file
-    (with the natural frequency scaled by ``f0_factor``: a wrong law)."""
-    import numpy as np
+def _true_law_clip(tmp_path: Path, f0_factor: float = 1.0, effect: str = "periodic_force"):
+    """A pendulum with an unlogged periodic force (or ``effect``) seen through a bent chart, q = 3 x - 4 x^3 + noise, and its
+    truth file (with the natural frequency scaled by ``f0_factor``: a wrong law)."""
 
     from lagsplat.chart import Chart
     from lagsplat.synth.effects import simulate_effect
 
-    run = simulate_effect("pendulum", "periodic_force", seed=0, fps=30.0, duration_s=12.0, n_episodes=2)
+    run = simulate_effect("pendulum", effect, seed=0, fps=30.0, duration_s=12.0, n_episodes=2)
     q = 3 * run.x - 4 * run.x**3 + 0.003 * np.random.default_rng(0).standard_normal(len(run.x))
     I = np.eye(1)
     chart = Chart(mean=np.zeros(1), W=I, W_inv=I, q=q[:, None], t=run.t, split=run.split, G_bar=I, A=I, ae_mse=np.zeros(len(q)),
                   ae_floor_train=0.0, ae_floor_held_out=0.0, height=64, width=64, episode=run.episode, u=run.u)  # fmt: skip
     truth = {**run.truth, "f0_hz": run.truth["f0_hz"] * f0_factor}
-    path = tmp_path / f"clip-{f0_factor}.truth.npz"
+    path = tmp_path / f"clip-{effect}-{f0_factor}.truth.npz"
     np.savez(path, q=run.x[:, None], t=run.t, truth_json=json.dumps(truth))
     return chart, path
 
@@ -172,8 +176,24 @@ def test_the_true_law_in_a_bent_chart_scores_at_the_noise_and_a_wrong_law_does_n
         true_law_gap(type(chart)(**{**chart.__dict__, "q": chart.q.repeat(2, 1), "W": chart.W.repeat(2, 0).repeat(2, 1)}), path, "pendulum")
 
 
+def test_the_selection_with_the_true_control_law_names_the_effect_and_nothing_on_a_control(bench, tmp_path) -> None:
+    from _oracle import law_in_chart, true_control_diagnosis  # benchmarks/, on the path once the benchmark is loaded
+
+    for effect, want in (("coulomb", "coulomb"), ("none", "none")):
+        chart, path = _true_law_clip(tmp_path, effect=effect)
+        d = true_control_diagnosis(chart, path, "pendulum")
+        assert d.winner == want, (effect, [(f.effect, f.evidence, f.significant) for f in d.ranking])
+        assert law_in_chart(chart, path, "pendulum", control=True)[0].truth["effect"] == "none"
+    chart, path = _true_law_clip(tmp_path, effect="coulomb")
+    assert law_in_chart(chart, path, "pendulum")[0].truth["effect"] == "coulomb"  # without control: the clip's own law
+    z = dict(np.load(path))
+    z["truth_json"] = json.dumps({**json.loads(str(z["truth_json"])), "actuated": True})
+    np.savez(tmp_path / "actuated.truth.npz", **z)
+    with pytest.raises(ValueError, match="actuated"):
+        true_control_diagnosis(chart, tmp_path / "actuated.truth.npz", "pendulum")
+
+
 def test_the_true_law_in_chart_coordinates_is_the_chain_rule_of_the_law(bench) -> None:
-    import numpy as np
     import torch
 
     from _oracle import TrueLawInChart
