@@ -224,6 +224,19 @@ def test_a_distorted_chart_of_an_isochronous_motion_is_not_a_cubic_stiffness() -
     assert _diagnosed("cart", "cubic_stiffness", 0)[0].winner == "cubic_stiffness"
 
 
+def test_a_cubic_stiffness_on_too_few_periods_to_check_its_timing_says_so() -> None:
+    """On one training take of about three periods the frequency is not regressed on amplitude and time, so a cubic
+    found in the residual is not checked against the recorded periods, and a drifting stiffness would read the same."""
+    base = _chart("cart", "cubic_stiffness", 0, duration_s=4.0)
+    chart = Chart(**{**base.__dict__, "split": np.where(base.episode == 0, TRAIN, 1 - TRAIN).astype(base.split.dtype)})
+    diag, _ = diagnose_chart(_linear(chart), chart)
+    cubic = next(f for f in diag.ranking if f.effect == "cubic_stiffness")
+    assert diag.evidence["frequency"]["n_periods"] < 6 and cubic.interpretation["measured_frequency_shift"] is None
+    assert "not checked against the recorded periods (3 periods, 6 needed)" in cubic.interpretation["text"]
+    full = next(f for f in _diagnosed("cart", "cubic_stiffness", 0)[0].ranking if f.effect == "cubic_stiffness")
+    assert full.interpretation["measured_frequency_shift"] is not None and "not checked" not in full.interpretation["text"]
+
+
 def test_pendulum_effects_and_control_with_the_linear_stand_in() -> None:
     for effect in ("none", "coulomb", "missing_dof"):
         chart = _chart("pendulum", effect, seed=1)

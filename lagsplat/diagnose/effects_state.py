@@ -13,7 +13,7 @@ import numpy as np
 
 from lagsplat.diagnose.decay_law import LAW_NAMES, law_evidence
 from lagsplat.diagnose.effect_base import Effect, ratio
-from lagsplat.diagnose.signatures import timing_drifts, turns_one_sided
+from lagsplat.diagnose.signatures import MIN_TIMING_PERIODS, timing_drifts, turns_one_sided
 
 __all__ = ["CoulombEffect", "QuadraticDragEffect", "EndStopEffect", "CubicStiffnessEffect"]
 
@@ -266,7 +266,8 @@ class CubicStiffnessEffect(Effect):
         k1 = scale["k"] - k3 * float(np.mean(x**4) / max(np.mean(x**2), 1e-300))
         shift = 3.0 * k3 * A * A / (8.0 * k1) if k1 > 0 else float("nan")
         fsig = res.meta.get("frequency_signature") or {}  # select_effect's evidence (chart-invariant periods)
-        meas = fsig.get("relative_shift_at_max_amplitude") if fsig.get("n_periods", 0) >= 6 else None
+        n_periods = int(fsig.get("n_periods", 0))
+        meas = fsig.get("relative_shift_at_max_amplitude") if n_periods >= MIN_TIMING_PERIODS else None
         return {
             "k3": k3, "k3_se": float(se[0]), "kind": "hardening" if k3 > 0 else "softening",
             "relative_frequency_shift_at_amplitude": shift, "amplitude": A, "s_bar": float(s.mean()), "k_linear": k1,
@@ -276,5 +277,8 @@ class CubicStiffnessEffect(Effect):
             "turning": {k: v for k, v in ((res.meta.get("signatures") or {}).get("turning") or {}).items() if k in ("ratio", "sharper_side", "support")},
             "text": f"{'hardening' if k3 > 0 else 'softening'} cubic stiffness k3 = {k3:.3g} +- {se[0]:.2g}: "
             f"frequency {'+' if shift >= 0 else ''}{100 * shift:.1f} % at amplitude {A:.3g} (Duffing, 3 k3 A^2 / 8 k); "
-            "in the latent coordinate, where a chart that stretches or compresses large excursions looks the same",
+            "in the latent coordinate, where a chart that stretches or compresses large excursions looks the same"
+            + ("" if meas is not None or not fsig else
+               f"; not checked against the recorded periods ({n_periods} periods, {MIN_TIMING_PERIODS} needed), so on one decaying take "
+               "a stiffness that drifts in time would read the same"),
         }  # fmt: skip

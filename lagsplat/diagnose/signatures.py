@@ -112,6 +112,9 @@ def _envelope(res: Residual, segs: list[tuple[np.ndarray, ...]]) -> dict[str, An
 #: fewest turning points (beyond one intercept per segment) for an envelope to count as evidence
 MIN_TURNING_POINTS = 4
 
+#: fewest periods (zero crossing to the second next) the frequency signature needs before it regresses them on amplitude^2 and time
+MIN_TIMING_PERIODS = 6
+
 
 def _envelope_support(env: dict[str, Any], n: int, n_segments: int) -> dict[str, float]:
     """The evidence of the turning points for a linear or a hyperbolic envelope over the exponential (viscous) one,
@@ -213,7 +216,7 @@ def _frequency(res: Residual, segs: list[tuple[np.ndarray, ...]]) -> dict[str, A
             A2.append(amp * amp)
             TT.append(0.5 * (a + b))
             UP.append(1.0 if pk[i0] < 0 else -1.0)
-    if len(F) < 6:
+    if len(F) < MIN_TIMING_PERIODS:
         return {"n_periods": len(F)}
     F, A2, TT, UP = map(np.asarray, (F, A2, TT, UP))
     alt = UP - UP.mean()
