@@ -359,6 +359,8 @@ def main(argv: list[str] | None = None) -> int:
         if a.from_results is None:
             ap.error("--train-periods needs --from-results (the full runs)")
         row = short_clip(a.clip, a.clips, a.from_results, a.results, a.threads, a.extra, a.train_periods)
+        if a.true_law:
+            row.update(true_law_of(a.clip, a.clips, a.results))
         write_json(a.row, row)
         print(json.dumps(row))
         return 0

@@ -6,7 +6,8 @@
 #   snakemake -c2 realistic_suite --config realistic_dir=/scratch/clips
 #
 # Config keys: realistic_dir (default data/cache/realistic; not committed); realistic_args (extra flags of
-# every scoring job, e.g. "--diagnose": the diagnosis too, scored against the clip's effect). One job per clip, each logged.
+# every scoring job, e.g. "--diagnose --true-law": the diagnosis too, scored against the clip's effect, and the
+# clip's ground-truth law in its chart, benchmarks/_oracle.py). One job per clip, each logged.
 #   snakemake -c2 realistic_short_scores   # the diagnosis with the training part cut to three periods (after realistic_scores)
 from lagsplat.synth.realistic import outside_class_clips, realistic_suite
 
@@ -76,7 +77,8 @@ REALISTIC_SHORT_ROWS = f"{RESULTS}/benchmarks/realistic_short"
 
 rule realistic_short_row:
     """The diagnosis on one realistic clip whose training part is cut to three true periods (benchmarks/realistic.py,
-    "Short clips"): the full run's Stage-1 autoencoder, the split moved, ingest to diagnosis again."""
+    "Short clips"): the full run's Stage-1 autoencoder, the split moved, ingest to diagnosis again; then the clip's
+    true law in the short run's chart (--true-law)."""
     input:
         row=f"{REALISTIC_ROWS}/{{clip}}.json",
         truth=f"{REALISTIC_DIR}/{{clip}}.truth.npz",
@@ -89,7 +91,7 @@ rule realistic_short_row:
     threads: 2
     shell:
         f"python benchmarks/realistic.py --clip {{wildcards.clip}} --clips {REALISTIC_DIR} --from-results {RESULTS}/realistic "
-        f"--results {RESULTS}/realistic_short --train-periods 3 --threads {{threads}} --row {{output}} > {{log}} 2>&1"
+        f"--results {RESULTS}/realistic_short --train-periods 3 --true-law --threads {{threads}} --row {{output}} > {{log}} 2>&1"
 
 
 rule realistic_short_scores:
