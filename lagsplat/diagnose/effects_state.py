@@ -257,7 +257,8 @@ class CubicStiffnessEffect(Effect):
         return True, ""
 
     def interpret(self, coef, se, params, res, e, scale):
-        """``k3``, hardening or softening, the Duffing frequency shift at the largest amplitude and the one the recorded periods show."""
+        """``k3``, hardening or softening, the Duffing frequency shift at the largest amplitude and the one the recorded periods show
+        (``None``, and the text says so, where fewer than :data:`~lagsplat.diagnose.signatures.MIN_TIMING_PERIODS` were recorded)."""
         k3 = float(coef[0])
         s = res.q @ e
         x = s - s.mean()
