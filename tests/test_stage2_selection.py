@@ -13,7 +13,7 @@ from lagsplat.chart import Chart
 from lagsplat.cli_common import plain
 from lagsplat.dynamics.integrators import rollout
 from lagsplat.io.clip import HELD_OUT, TRAIN
-from lagsplat.train.stage2 import Stage2Config, _param_groups, selection_replaces, selection_rollouts, train_stage2
+from lagsplat.train.stage2 import Stage2Config, _param_groups, selection_replaces, train_stage2
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -24,25 +24,6 @@ def test_selection_keeps_the_last_finite_epoch_or_the_lowest_error():
     assert not selection_replaces(0.5, 0.1, 90, anywhere) and selection_replaces(0.05, 0.1, 90, anywhere)
     half = Stage2Config(epochs=100, select_from=0.5)
     assert selection_replaces(0.5, 0.1, 40, half) and not selection_replaces(0.5, 0.1, 60, half)
-
-
-def test_a_training_part_too_short_for_the_selection_horizon_is_rolled_out_once_from_past_the_smoothing_edge():
-    from lagsplat import metrics
-    from lagsplat.dynamics.integrators import initial_state
-
-    cfg = Stage2Config()  # four periods per rollout, 16 starts, sigma = 1 frame
-    starts, horizon = selection_rollouts(600, 1 / 30, cfg, seed=3)  # 20 periods of 30 frames: the seeded starts
-    assert horizon == 120 and np.array_equal(starts, metrics.window_starts(0, 600 - 120 - 2, cfg.select_windows, 3))
-    edge = timeseries.smoothing_edge(cfg.sigma)
-    starts, horizon = selection_rollouts(100, 1 / 30, cfg)  # three periods and a bit: no room for four
-    assert starts.tolist() == [edge] and horizon == 100 - edge - 2
-    starts, horizon = selection_rollouts(12, 1 / 30, cfg)  # too short to clear the edge: the 8 states still fit
-    assert starts.tolist() == [2] and horizon == 8
-    # why: at a mid-swing first frame the smoothed segment's velocity reads about half the true speed; past the edge it is right
-    t = np.arange(100) / 30
-    q = timeseries.gaussian_smooth(np.sin(2 * np.pi * 0.7 * t)[:, None], cfg.sigma)
-    v = initial_state(q, np.array([0, edge]), 1 / 30)[1].numpy()[:, 0] / (2 * np.pi * 0.7)
-    assert v[0] < 0.7 and abs(v[1] - np.cos(2 * np.pi * 0.7 * t[edge])) < 0.02, v
 
 
 def test_the_potentials_input_layers_learn_faster():

@@ -25,7 +25,7 @@ from lagsplat.models.icnn import ConcaveMap
 from lagsplat.models.inertia import DecoderInertia
 from lagsplat.models.lagrangian import Lagrangian
 
-__all__ = ["PAPER_FIT", "Stage2Config", "Mass", "Potential", "one_step_windows", "selection_replaces", "TrainingWindows", "training_windows", "selection_rollouts", "train_stage2", "save_stage2", "load_stage2"]
+__all__ = ["PAPER_FIT", "Stage2Config", "Mass", "Potential", "one_step_windows", "selection_replaces", "TrainingWindows", "training_windows", "train_stage2", "save_stage2", "load_stage2"]
 
 
 def one_step_windows(q: np.ndarray, dt: float, k: int, u: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
@@ -153,32 +153,11 @@ def training_windows(chart: Chart, cfg: Stage2Config, seed: int = 0, what: str =
     i_long = int(np.argmax([len(x) for x in q_smooth]))
     longest = q_smooth[i_long]
     f_train = timeseries.spectral_peak_frequency(metrics.project(longest, metrics.top_direction(chart.G_bar)), dt)
-    starts, horizon = selection_rollouts(len(longest), f_train * dt, cfg, seed)
+    horizon = max(8, int(round(cfg.select_periods / (f_train * dt))))
+    hi = len(longest) - horizon - 2
+    starts = metrics.window_starts(0, hi, cfg.select_windows, seed) if hi > 0 else np.zeros(1, int)
     return TrainingWindows(dt, q_smooth, u_segs, Q0, V0, Q1, V1, U0, U1, G, f_train, longest, u_segs[i_long], starts,
-                           horizon, metrics.g_rms_spread(longest, G), shooting)  # fmt: skip
-
-
-def selection_rollouts(n: int, f_per_frame: float, cfg: Stage2Config, seed: int = 0) -> tuple[np.ndarray, int]:
-    """Start frames and length (states) of the model-selection rollouts on a smoothed training segment of ``n`` frames.
-
-    ``cfg.select_windows`` seeded starts (:func:`lagsplat.metrics.window_starts`) of rollouts over
-    ``cfg.select_periods`` periods of the motion (``f_per_frame``: its frequency in cycles per frame; at least
-    8 states), where the segment holds them with room to spare beyond the edge of its smoothing (paper §3.3
-    model selection). A segment too short for that (a few periods of training frames) is rolled out once,
-    over what it holds, from past that edge (:func:`lagsplat.timeseries.smoothing_edge` of ``cfg.sigma``): a
-    velocity read at the segment's first frames is biased low (about half the true speed at mid-swing), and
-    the single rollout's error would measure that wrong start rather than the model.
-
-    Returns:
-        ``(starts [k] int64, horizon)``.
-    """
-    horizon = max(8, int(round(cfg.select_periods / f_per_frame)))
-    hi = n - horizon - 2
-    edge = timeseries.smoothing_edge(cfg.sigma)
-    if hi > edge:  # a start within the edge is then one of several seeded starts
-        return metrics.window_starts(0, hi, cfg.select_windows, seed), horizon
-    edge = min(edge, max(n - 10, 0))  # a segment without 8 + 2 frames past the edge starts at its first frame
-    return np.full(1, edge, dtype=np.int64), min(horizon, n - edge - 2)
+                           min(horizon, len(longest) - 2), metrics.g_rms_spread(longest, G), shooting)  # fmt: skip
 
 
 def train_stage2(
