@@ -81,7 +81,6 @@ def test_the_reading_after_the_diagnosis_takes_the_refit_only_where_its_held_out
 
 
 def test_the_truth_level_chart_is_split_where_the_pipeline_split_the_clip_and_whitened_on_its_training_frames(load_benchmark) -> None:
-
     latent = load_benchmark("diagnosis_latent")
     name = "spring_cart-none-s0-128"
     entry = next(e for e in latent.realistic_suite() if e["name"] == name)
@@ -98,7 +97,6 @@ def test_the_truth_level_chart_is_split_where_the_pipeline_split_the_clip_and_wh
 
 
 def test_the_short_truth_level_chart_trains_on_three_periods_of_the_true_motion(load_benchmark) -> None:
-
     latent = load_benchmark("diagnosis_latent")
     entry = next(e for e in latent.realistic_suite() if e["name"] == "spring_cart-none-s0-128")
     motion = latent.motion_of(entry)
