@@ -156,7 +156,8 @@ def true_control_diagnosis(chart: Any, truth_npz: str | Path, system: str, diagn
     """The diagnosis's selection with a perfect model of the control class: the clip's control law in its chart.
 
     :func:`lagsplat.diagnose.diagnose_chart` on the chart's frames of ``diagnose_cfg.split`` with the law of
-    :func:`law_in_chart` (``control=True``) as the model, and its natural frequency as the model's modal frequency.
+    :func:`law_in_chart` (``control=True``) as the model (its natural frequency, :meth:`TrueLawInChart.modal_analysis`,
+    is the model's modal frequency there).
     Its residual is then the clip's effect and the chart's noise and bend only: no Stage-2 misfit. What the
     selection names on it is what the diagnosis can name on this chart and these frames at best (its ceiling
     for a Stage 2 that learned the control law exactly); the refit choice and the report's checks are not run.
@@ -177,5 +178,4 @@ def true_control_diagnosis(chart: Any, truth_npz: str | Path, system: str, diagn
 
     cfg = diagnose_cfg or DiagnoseConfig()
     model, _, _ = law_in_chart(chart, truth_npz, system, control=True)
-    f0 = float(model.modal_analysis()["f_hz"][0])
-    return diagnose_chart(model, chart, split_code(cfg.split), cfg.sigma, **{"model_freqs_hz": [f0], **cfg.select})[0]
+    return diagnose_chart(model, chart, split_code(cfg.split), cfg.sigma, **cfg.select)[0]

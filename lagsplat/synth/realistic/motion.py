@@ -132,7 +132,7 @@ def one_dof_motion(system: str, effect: str, seed: int, fps: float, duration_s: 
     k = coordinate_scale(system, tr)
     x, xd, hidden = x * k, xd * k, hidden * k
     if system == "spring_cart":  # the second cart of the missing degree of freedom, in the same units
-        second = second * CART_METRES
+        second = second * k
     q = np.stack([x, second], 1) if effect == "missing_dof" else x[:, None]
     qd = np.stack([xd, np.gradient(second, 1.0 / fps)], 1) if effect == "missing_dof" else xd[:, None]
     return Motion(t - t[0], q, qd, hidden, f0, tr)
