@@ -532,6 +532,10 @@ def test_markdown_of_a_refit_report_has_the_before_after_table() -> None:
     assert "| eps_q (latent NRMSE, 2 periods) | 0.1 | 0.05 | 0.1 | +50 % | +50 % |" in md
     assert "CoulombFriction along [1.0]: mu 1 -> 0.9" in md and "energy bound (App. A.2): holds" in md
     assert "- held-out check: the refit with coulomb shrinks it." in md
+    assert "(fitted start, 40 epochs, energy gauge x4;" in md
+    rep["config"]["refit"]["init"] = "scratch"  # a fresh Stage 2: neither the fine-tune's epochs nor the gauge apply
+    md = render_markdown(rep)
+    assert "(scratch start: a fresh Stage 2 with the term, its configured epochs;" in md and "40 epochs" not in md and "gauge" not in md
 
 
 def test_held_out_check_confirms_only_a_refit_that_beats_before_and_control() -> None:

@@ -291,7 +291,9 @@ def refit_section(rep: Mapping[str, Any]) -> list[str]:
             L.append(f"- {k}: {v}")
     else:
         cfg = rep["config"]["refit"]
-        L.append(f"Stage 2 refit ({cfg['init']} start, {cfg['epochs']} epochs, energy gauge x{cfg['floor_scale']:g}; model selection on training rollouts), "
+        how = ("scratch start: a fresh Stage 2 with the term, its configured epochs" if cfg["init"] == "scratch"
+               else f"fitted start, {cfg['epochs']} epochs, energy gauge x{cfg['floor_scale']:g}")  # fmt: skip
+        L.append(f"Stage 2 refit ({how}; model selection on training rollouts), "
                  f"selected epoch {rf['selected_epoch']}, training-rollout NRMSE {fmt_value(rf['selected_train_nrmse'], '.4g')} (control {fmt_value(rf['control_selected_train_nrmse'], '.4g')}).")  # fmt: skip
         for t0, t1 in zip(rf["spec"]["init_terms"], rf["fitted_terms"]):
             vals = ", ".join(f"{k} {fmt_value(t0[k])} -> {fmt_value(t1[k])}" for k in t1 if k not in ("class", "direction") and isinstance(t1[k], (int, float)))
