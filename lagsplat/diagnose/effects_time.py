@@ -13,7 +13,7 @@ import numpy as np
 
 from lagsplat.diagnose.effect_base import Effect, ratio
 from lagsplat.diagnose.image_signature import unencoded_oscillation
-from lagsplat.diagnose.signatures import timing_drifts
+from lagsplat.diagnose.signatures import MIN_TIMING_PERIODS, timing_drifts
 from lagsplat.diagnose.spectrum import excluded_bands, frequency_allowed, longest_segment_s, residual_peaks
 
 __all__ = ["PeriodicForceEffect", "DriftEffect", "ActuationDelayEffect", "MissingDofEffect", "peak_frequencies"]
@@ -208,10 +208,11 @@ def _through_zero(interpretation) -> str:
 def _timing_check(dk_dt: float, k: float, span: float, res) -> dict[str, float] | None:
     """The frequency change per second a stiffness drift ``dk_dt`` predicts (``dk_dt / (2 k)``, relative) beside the one the
     recorded periods show at a given amplitude (the frequency signature's time slope and its s.e., relative to the mean
-    frequency); ``None`` without a usable signature (fewer than 6 periods, or several latent dimensions, whose modes beat)."""
+    frequency); ``None`` without a usable signature (fewer than :data:`~lagsplat.diagnose.signatures.MIN_TIMING_PERIODS` periods,
+    or several latent dimensions, whose modes beat)."""
     fsig = res.meta.get("frequency_signature") or {}  # select_effect's evidence, on both regressions' residuals
     f0 = float(fsig.get("f_mean_hz", float("nan")))
-    if res.d != 1 or fsig.get("n_periods", 0) < 6 or not (f0 > 0) or "slope_time" not in fsig or not (k > 0):
+    if res.d != 1 or fsig.get("n_periods", 0) < MIN_TIMING_PERIODS or not (f0 > 0) or "slope_time" not in fsig or not (k > 0):
         return None
     return {"predicted_rel_per_s": float(dk_dt / (2.0 * k)), "measured_rel_per_s": float(fsig["slope_time"]) / f0,
             "measured_se_rel_per_s": float(fsig["slope_time_se"]) / f0, "span_s": span}  # fmt: skip
