@@ -106,3 +106,88 @@ def test_motions_outside_the_model_class_are_named_in_one_line(entry, gl_ok, tmp
         prepare_video(mp4)
     msg = str(err.value)
     assert msg.startswith(f"{mp4}: outside the model class: {why}") and "\n" not in msg
+
+
+# ---- nuisance clips (lagsplat.synth.realistic.nuisance): what the clip preparation is measured on
+
+
+def _nuisance(tag: str) -> list[dict]:
+    from lagsplat.synth.realistic import nuisance_clips
+
+    return [e for e in nuisance_clips() if e["nuisance"] == tag]
+
+
+def test_the_nuisance_clips_are_listed_apart_from_the_suite() -> None:
+    from lagsplat.synth.realistic import nuisance_clips
+
+    entries = nuisance_clips()
+    names = [e["name"] for e in entries]
+    suite = {e["name"] for e in realistic_suite() + outside_class_clips()}
+    assert len(names) == len(set(names)) and not suite & set(names)
+    assert {e["nuisance"] for e in entries} == {"distractor", "walk_in", "sticks", "short", "long_string"}
+    assert all(clip_spec(n)["nuisance"] for n in names)
+    assert {e["system"] for e in _nuisance("distractor")} == {"pendulum", "spring_cart"}
+
+
+@pytest.mark.parametrize("entry", _nuisance("sticks"), ids=lambda e: e["name"])
+def test_a_sticking_clip_swings_a_few_times_then_rests_off_centre(entry) -> None:
+    m = motion_of(entry, fps=30.0, duration_s=12.0)
+    q, t, tr = m.q[:, 0], m.t, m.truth
+    assert 0.5 * 12.0 <= tr["moving_until_s"] <= 0.65 * 12.0  # stuck for the last 35 to 50 %
+    stuck = t >= tr["moving_until_s"]
+    assert np.all(q[stuck] == q[-1]) and np.all(m.qdot[stuck, 0] == 0) and stuck[t >= 8.0].all()
+    assert 3.0 <= tr["observed_periods"] <= 5.0
+    assert abs(q[-1]) > 0.04 * np.abs(q).max()  # off-centre: held by static friction
+    assert abs(tr["observed_hz"] - m.f0_hz) / m.f0_hz < 0.02
+    assert abs(tr["observed_hz_spectral"] - tr["observed_hz"]) / tr["observed_hz"] < 0.03
+
+
+@pytest.mark.parametrize("entry", _nuisance("short"), ids=lambda e: e["name"])
+def test_a_short_clip_holds_two_and_a_half_periods(entry) -> None:
+    m = motion_of(entry, fps=30.0, duration_s=entry["duration_s"])
+    assert abs(len(m.t) / 30.0 * m.truth["observed_hz"] - 2.5) <= 0.2
+    assert abs(m.truth["observed_hz"] - m.f0_hz) / m.f0_hz < 0.03 and m.truth["moving_until_s"] == pytest.approx(len(m.t) / 30.0)
+
+
+@pytest.mark.parametrize("entry", _nuisance("long_string"), ids=lambda e: e["name"])
+def test_the_long_string_bob_rises_at_twice_the_swing_frequency(entry) -> None:
+    m = motion_of(entry, fps=30.0, duration_s=12.0)
+    height = -np.cos(m.q[:, 0])
+    f_swing, f_height = spectral_peak_frequency(m.q[:, :1], 1 / 30.0), spectral_peak_frequency(height, 1 / 30.0)
+    assert abs(f_height / f_swing - 2.0) < 0.05 and abs(f_swing - m.truth["observed_hz"]) / f_swing < 0.03
+    assert m.truth["bob_vertical_m"] > 0.04 and m.truth["bob_vertical_hz"] == pytest.approx(2 * m.truth["observed_hz"])
+
+
+@pytest.mark.parametrize("entry", _nuisance("distractor"), ids=lambda e: e["name"])
+def test_the_distractor_moves_more_than_the_object_and_touches_the_border(entry, gl_ok) -> None:
+    from lagsplat.synth.realistic.nuisance import distractor_track, nuisance_scene
+    from lagsplat.synth.realistic.scene import scene_xml
+
+    m = motion_of(entry, fps=30.0, duration_s=12.0)
+    track = m.extras["distractor"]
+    assert np.ptp(track[:, 0]) > 0.08 and np.ptp(track[:, 1]) > math.radians(3)
+    k = np.arange(0, len(m.t), 30)  # one frame a second
+    xml = scene_xml(entry["system"], distance_m=2.2, **nuisance_scene(entry))
+    away = distractor_track(0, np.zeros(len(k)), entry["side"], walk_in=True)  # the figure out of view
+
+    def render(q, extra):
+        return render_frames(entry["system"], q, 128, 128, xml=xml, extra_qpos=extra).astype(np.float32)
+
+    rest = np.zeros_like(m.q[k])
+    both, figure, obj, empty = render(m.q[k], track[k]), render(rest, track[k]), render(m.q[k], away), render(rest[:1], away[:1])
+    mask = np.abs(figure - empty).max(-1) > 30  # the figure's pixels, per frame
+    col = -1 if entry["side"] > 0 else 0
+    assert mask[:, 20:-20, col].any(1).all()  # cut by the frame's border in every frame
+    assert 0.04 < mask.mean() < 0.3
+    change = lambda f: np.abs(f - f.mean(0)).max(-1) > 25  # noqa: E731
+    assert change(figure).sum() > change(obj).sum()  # the figure's image change beats the object's
+    assert change(both).sum() > change(obj).sum()
+
+
+def test_a_nuisance_clip_renders_at_its_own_length_with_its_observed_frequency(tmp_path, gl_ok) -> None:
+    entry = _nuisance("short")[0]
+    mp4 = make_clip(entry["name"], tmp_path)
+    frames = _decode(mp4)
+    truth = np.load(tmp_path / f"{entry['name']}.truth.npz")
+    assert frames.shape == (round(entry["duration_s"] * 30), 128, 128, 3) and truth["q"].shape == (len(frames), 1)
+    assert 0.5 < float(truth["observed_hz"]) < 1.1 and float(truth["moving_until_s"]) == pytest.approx(len(frames) / 30)

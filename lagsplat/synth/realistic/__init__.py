@@ -19,6 +19,10 @@ Each clip is ``<name>.mp4`` with ``<name>.truth.npz`` beside it: per-frame ``t``
 JSON (:func:`make_clip`). :func:`realistic_suite` lists the clips; the
 command line (``python -m lagsplat.synth.realistic --list`` / ``--clip NAME
 --out DIR``) builds one; the Snakemake target ``realistic_suite`` builds all.
+:func:`nuisance_clips` lists clips with one nuisance of real footage each (a
+moving distractor, a motion that stops, a clip too short, a long string;
+:mod:`lagsplat.synth.realistic.nuisance`), built by the same :func:`make_clip`
+and the Snakemake target ``realistic_nuisance``.
 """
 
 from __future__ import annotations
@@ -33,10 +37,12 @@ import numpy as np
 from lagsplat.synth.effect_truth import EFFECTS
 from lagsplat.synth.realistic.camera import add_camera_nuisances, render_frames, write_mp4
 from lagsplat.synth.realistic.motion import Motion, double_pendulum_motion, one_dof_motion, slide_out_motion, spin_down_motion
+from lagsplat.synth.realistic.nuisance import nuisance_clips, nuisance_motion, nuisance_scene
+from lagsplat.synth.realistic.scene import scene_xml
 
-__all__ = ["realistic_suite", "outside_class_clips", "clip_spec", "make_clip", "motion_of", "SIZES"]
+__all__ = ["realistic_suite", "outside_class_clips", "nuisance_clips", "clip_spec", "make_clip", "motion_of", "SIZES"]
 
-SIZES = {"128": (128, 128), "640x480": (640, 480)}
+SIZES = {"128": (128, 128), "640x480": (640, 480), "96x160": (96, 160)}
 """Resolutions, name -> (width, height)."""
 
 _ONE_DOF = ("pendulum", "spring_cart", "torsion_disk")
@@ -85,20 +91,23 @@ def outside_class_clips() -> list[dict[str, Any]]:
 
 
 def clip_spec(name: str) -> dict[str, Any]:
-    """The entry called ``name`` (:func:`realistic_suite` or :func:`outside_class_clips`).
+    """The entry called ``name`` (:func:`realistic_suite`, :func:`outside_class_clips` or :func:`nuisance_clips`).
 
     Raises:
         KeyError: naming the unknown clip and how to list the known ones.
     """
-    for e in realistic_suite() + outside_class_clips():
+    for e in realistic_suite() + outside_class_clips() + nuisance_clips():
         if e["name"] == name:
             return e
-    raise KeyError(f"unknown realistic clip {name!r} (python -m lagsplat.synth.realistic --list)")
+    raise KeyError(f"unknown realistic clip {name!r} (python -m lagsplat.synth.realistic --list, --list-nuisance)")
 
 
 def motion_of(spec: dict[str, Any], fps: float = 30.0, duration_s: float = 12.0) -> Motion:
-    """The ground-truth motion of one suite entry (:mod:`lagsplat.synth.realistic.motion`)."""
+    """The ground-truth motion of one entry (:mod:`lagsplat.synth.realistic.motion`; a nuisance clip's:
+    :func:`lagsplat.synth.realistic.nuisance.nuisance_motion`)."""
     system, variant = spec["system"], spec["variant"]
+    if "nuisance" in spec:
+        return nuisance_motion(spec, fps, duration_s)
     if spec["effect"] == "spin_down":
         return spin_down_motion(spec["seed"], fps, duration_s)
     if spec["effect"] == "slide_out":
@@ -109,11 +118,14 @@ def motion_of(spec: dict[str, Any], fps: float = 30.0, duration_s: float = 12.0)
     return one_dof_motion(system, spec["effect"], int(spec["seed"]), fps, duration_s, amplitude_deg=amp)
 
 
-def make_clip(name: str, out_dir: str | Path, fps: float = 30.0, duration_s: float = 12.0, size: tuple[int, int] | None = None, noise_std: float = 3.0) -> Path:
+def make_clip(
+    name: str, out_dir: str | Path, fps: float = 30.0, duration_s: float | None = None, size: tuple[int, int] | None = None, noise_std: float = 3.0
+) -> Path:
     """Render clip ``name`` to ``<out_dir>/<name>.mp4`` with ``<name>.truth.npz`` beside it (both atomically).
 
     Args:
-        fps, duration_s: frame rate (Hz) and length (s).
+        fps, duration_s: frame rate (Hz) and length (s); the length defaults to the entry's ``duration_s``
+            (the ``short`` nuisance clips), else 12 s.
         size: ``(width, height)`` override (tests); default the entry's resolution.
         noise_std: sensor noise, grey levels.
 
@@ -121,14 +133,20 @@ def make_clip(name: str, out_dir: str | Path, fps: float = 30.0, duration_s: flo
         The path of the MP4.
     """
     spec = clip_spec(name)
+    duration_s = float(spec.get("duration_s", 12.0)) if duration_s is None else duration_s
     m = motion_of(spec, fps, duration_s)
     W, H = size or SIZES[spec["size"]]
-    frames = add_camera_nuisances(render_frames(spec["system"], m.q, W, H), noise_std, seed=int(spec["seed"]) + 17)
+    if "nuisance" in spec:
+        scene = scene_xml(spec["system"], distance_m=2.2, **nuisance_scene(spec))
+        clean = render_frames(spec["system"], m.q, W, H, xml=scene, extra_qpos=m.extras.get("distractor"))
+    else:
+        clean = render_frames(spec["system"], m.q, W, H)
+    frames = add_camera_nuisances(clean, noise_std, seed=int(spec["seed"]) + 17)
     out = Path(out_dir)
     mp4 = write_mp4(frames, out / f"{name}.mp4", fps)
     truth = {**m.truth, **spec, "fps": fps, "duration_s": duration_s, "width": W, "height": H, "noise_std": noise_std}
     tmp = out / f".{name}.truth.tmp{os.getpid()}.npz"
     with open(tmp, "wb") as fh:
-        np.savez(fh, t=m.t, q=m.q, qdot=m.qdot, hidden=m.hidden, f0_hz=np.float64(m.f0_hz), truth_json=np.array(json.dumps(truth, default=float)))
+        np.savez(fh, t=m.t, q=m.q, qdot=m.qdot, hidden=m.hidden, f0_hz=np.float64(m.f0_hz), truth_json=np.array(json.dumps(truth, default=float)), **m.extras)
     os.replace(tmp, out / f"{name}.truth.npz")
     return mp4

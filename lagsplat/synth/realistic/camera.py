@@ -54,21 +54,31 @@ def offscreen(xml: str, width: int, height: int):
     return model, data, renderer
 
 
-def render_frames(system: str, q: np.ndarray, width: int, height: int) -> np.ndarray:
+def render_frames(
+    system: str, q: np.ndarray, width: int, height: int, xml: str | None = None, extra_qpos: np.ndarray | None = None
+) -> np.ndarray:
     """Render ``q [T, d]`` (ground-truth coordinates) of ``system`` to uint8 RGB frames ``[T, height, width, 3]``.
+
+    Args:
+        xml: the scene's MJCF (default :func:`~lagsplat.synth.realistic.scene.scene_xml` of ``system``).
+        extra_qpos: ``[T, k]`` joint positions (m, rad) of the extra bodies of such a scene
+            (``scene_xml(..., extra_xml=...)``), written into the last ``k`` entries of ``qpos`` per frame.
 
     Raises:
         ImportError: without MuJoCo.
         RuntimeError: naming the GL backend when no offscreen context can be made.
     """
     mujoco = import_mujoco()
-    model, data, renderer = offscreen(scene_xml(system, distance_m=2.2), width, height)
+    model, data, renderer = offscreen(xml or scene_xml(system, distance_m=2.2), width, height)
     out = np.empty((len(q), height, width, 3), np.uint8)
     cam = model.camera("cam").id
+    extra = None if extra_qpos is None else np.asarray(extra_qpos, np.float64).reshape(len(q), -1)
     try:
         for i, qi in enumerate(np.asarray(q)):
             qp = qpos_of(system, qi)
             data.qpos[: len(qp)] = qp
+            if extra is not None and extra.shape[1]:
+                data.qpos[model.nq - extra.shape[1] :] = extra[i]
             mujoco.mj_kinematics(model, data)
             mujoco.mj_camlight(model, data)  # camera and light poses (mj_kinematics leaves them at zero)
             renderer.update_scene(data, camera=cam)

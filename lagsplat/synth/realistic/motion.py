@@ -40,7 +40,7 @@ from scipy.integrate import solve_ivp
 from lagsplat.synth.effect_truth import NOMINAL_AMPLITUDE
 from lagsplat.synth.effects import simulate_effect
 
-__all__ = ["Motion", "CART_METRES", "coordinate_scale", "one_dof_motion", "double_pendulum_motion", "spin_down_motion", "slide_out_motion", "acceleration_of", "GRAVITY"]
+__all__ = ["Motion", "CART_METRES", "coordinate_scale", "one_dof_motion", "double_pendulum_motion", "spin_down_motion", "slide_out_motion", "acceleration_of", "hidden_acceleration", "GRAVITY"]
 
 CART_METRES = 1.0
 """Metres per frame width of the effect library's cart coordinate."""
@@ -61,6 +61,8 @@ class Motion:
         hidden: ``[T]`` hidden generalized acceleration of the first coordinate (see the module docstring).
         f0_hz: natural frequency of the nominal oscillator (the slower mode for the double pendulum).
         truth: parameters (JSON-serialisable).
+        extras: further arrays of the truth file, by key (the nuisance clips' observed frequency,
+            :mod:`lagsplat.synth.realistic.nuisance`); empty for the suite's clips.
     """
 
     t: np.ndarray
@@ -69,6 +71,7 @@ class Motion:
     hidden: np.ndarray
     f0_hz: float
     truth: dict[str, Any] = field(default_factory=dict)
+    extras: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 def acceleration_of(xd: np.ndarray, dt: float) -> np.ndarray:
@@ -78,7 +81,12 @@ def acceleration_of(xd: np.ndarray, dt: float) -> np.ndarray:
     return xdd
 
 
-def _hidden(x: np.ndarray, xd: np.ndarray, dt: float, f0: float, zeta: float, sine: bool) -> np.ndarray:
+def hidden_acceleration(x: np.ndarray, xd: np.ndarray, dt: float, f0: float, zeta: float, sine: bool) -> np.ndarray:
+    """The part of the acceleration that the damped linear (or pendulum) law leaves unexplained, ``[T]``.
+
+    ``a - (-w0^2 x - 2 zeta w0 xd)`` (``sin x`` for a pendulum) with ``a`` the finite-difference acceleration
+    of ``xd`` (:func:`acceleration_of`), ``w0 = 2 pi f0``: the effect's own term, in ``x``'s units per s^2.
+    """
     w0 = 2 * math.pi * f0
     return acceleration_of(xd, dt) + w0**2 * (np.sin(x) if sine else x) + 2 * zeta * w0 * xd
 
@@ -126,7 +134,7 @@ def one_dof_motion(system: str, effect: str, seed: int, fps: float, duration_s: 
     t, x, xd, second = run.t[first], run.x[first], run.xdot[first], run.second[first]
     tr = dict(run.truth)
     f0, zeta = float(tr["f0_hz"]), float(tr["zeta"])
-    hidden = _hidden(x, xd, 1.0 / fps, f0, zeta, sine=base == "pendulum")
+    hidden = hidden_acceleration(x, xd, 1.0 / fps, f0, zeta, sine=base == "pendulum")
     if system == "torsion_disk":
         tr["amplitude_deg"] = float(amplitude_deg)
     k = coordinate_scale(system, tr)

@@ -47,11 +47,11 @@ the moving system's MJCF); the camera is named ``cam``."""
 
 _BODIES = {
     "pendulum": """
-    <body name="slider" pos="0 0 1.45"><joint name="pivot_x" type="slide" axis="1 0 0"/>
+    <body name="slider" pos="0 0 {pivot_z}"><joint name="pivot_x" type="slide" axis="1 0 0"/>
       <geom type="box" size="0.05 0.03 0.02" rgba="0.2 0.2 0.22 1"/>
       <body name="arm"><joint name="theta" type="hinge" axis="0 1 0"/>
-        <geom type="capsule" fromto="0 0 0 0 0 -{rod}" size="0.012" rgba="0.75 0.75 0.78 1"/>
-        <geom type="sphere" pos="0 0 -{rod}" size="0.06" rgba="0.85 0.2 0.12 1"/>
+        <geom type="capsule" fromto="0 0 0 0 0 -{rod}" size="{string}" rgba="0.75 0.75 0.78 1"/>
+        <geom type="sphere" pos="0 0 -{rod}" size="{bob}" rgba="0.85 0.2 0.12 1"/>
       </body>
     </body>""",
     "spring_cart": """
@@ -85,8 +85,22 @@ _BODIES = {
 }
 
 
-def scene_xml(system: str, distance_m: float = 2.2) -> str:
+_PENDULUM = {"pivot_z": 1.45, "rod": ROD_M, "string": 0.012, "bob": 0.06}
+"""The pendulum's default geometry, m (:func:`scene_xml`)."""
+
+
+def scene_xml(
+    system: str, distance_m: float = 2.2, pendulum: dict[str, float] | None = None, extra_xml: str = "", extra_assets: str = ""
+) -> str:
     """MJCF of ``system``'s scene; the camera at ``distance_m`` sees :data:`VIEW_WIDTH_M` across (square field).
+
+    Args:
+        system: one of the systems of :func:`qpos_of`.
+        distance_m: camera distance from the plane of motion, m.
+        pendulum: pendulum geometry overrides, m: ``pivot_z`` (pivot height, default 1.45), ``rod``
+            (default :data:`ROD_M`), ``string`` (rod radius, default 0.012), ``bob`` (bob radius, default 0.06).
+        extra_xml: MJCF bodies appended to the world after the system (their joints come last in ``qpos``).
+        extra_assets: an MJCF ``<asset>`` block the extra bodies use (textures, materials).
 
     Raises:
         ValueError: on an unknown system.
@@ -94,8 +108,12 @@ def scene_xml(system: str, distance_m: float = 2.2) -> str:
     if system not in _BODIES:
         raise ValueError(f"unknown system {system!r}; known: {sorted(_BODIES)}")
     fovy = float(np.degrees(2 * np.arctan(0.5 * VIEW_WIDTH_M / distance_m)))
-    body = _BODIES[system].replace("{rod}", f"{ROD_M:g}")
-    return "<mujoco>" + ROOM_XML.replace("{dist}", f"{distance_m:g}").replace("{fovy}", f"{fovy:.4f}").replace("{body}", body) + "</mujoco>"
+    geom = {**_PENDULUM, **(pendulum or {})}
+    body = _BODIES[system]
+    for key, value in geom.items():
+        body = body.replace("{" + key + "}", f"{value:g}")
+    body += extra_xml
+    return "<mujoco>" + ROOM_XML.replace("{dist}", f"{distance_m:g}").replace("{fovy}", f"{fovy:.4f}").replace("{body}", body) + extra_assets + "</mujoco>"
 
 
 def qpos_of(system: str, q: np.ndarray) -> np.ndarray:
