@@ -38,6 +38,8 @@ from lagsplat.views import ViewSet, load_views
 
 __all__ = [
     "Artifacts",
+    "STOPPED_FILE",
+    "STOP_STAGES",
     "table_path",
     "seed_metrics_path",
     "variant_metrics_path",
@@ -48,6 +50,14 @@ __all__ = [
 DIAGNOSIS_FILES = {"report_md": "report.md", "report_json": "report.json", "config": "config.yaml", "refit": "refit.pt"}
 """What the diagnosis writes into its folder (``diagnosis/``): the report, its record, the resolved
 configuration and the refitted Stage-2 model (:mod:`lagsplat.diagnose.report`)."""
+
+STOPPED_FILE = "stopped.json"
+"""The record a pipeline stage leaves when it stops with a one-line reason (``{stage, reason, time}``;
+written by the command line, :func:`lagsplat.cli_common.record_stop`), in the folder of what the stage
+writes; removed when that stage, or one before it, later succeeds."""
+
+STOP_STAGES = ("ingest", "views", "stage1", "chart", "stage2", "evaluate")
+"""The pipeline stages whose stop is recorded, in pipeline order."""
 
 DIAGNOSIS_FIGURES = {
     "where_time": "where_time.png",
@@ -66,6 +76,7 @@ class Artifacts:
 
     Attributes:
         clip, views, stage1, chart: the frozen upstream artifacts (system folder; ``views`` a folder, 3-D systems only).
+        prepare_preview: what the automatic preparation chose, drawn at ingest (``prepare.png``; system folder).
         stage2, metrics, rollout_figure, forces, forces_figure: the model's artifacts (model folder).
         extrapolation, extrapolation_figure: the extrapolation protocol's record and figure (paper §4.3, Fig. 5; model folder).
         diagnosis: the diagnosis folder (``report.md``, ``report.json``, ``figures/``, ``refit.pt``).
@@ -79,6 +90,7 @@ class Artifacts:
     system_dir: Path
     model_dir: Path
     clip: Path
+    prepare_preview: Path
     views: Path
     stage1: Path
     chart: Path
@@ -106,6 +118,7 @@ class Artifacts:
             system_dir=s,
             model_dir=m,
             clip=s / "clip.npz",
+            prepare_preview=s / "prepare.png",
             views=s / "views",
             stage1=s / "stage1.pt",
             chart=s / "chart.npz",
@@ -159,6 +172,28 @@ class Artifacts:
         """The resolved configuration saved by ``stage``: ``config/<stage>.yaml`` beside its output."""
         up = stage in ("ingest", "views", "stage1", "chart")
         return (self.system_dir if up else self.model_dir) / "config" / f"{stage}.yaml"
+
+    def stopped(self, stage: str) -> Path:
+        """Where ``stage``'s stop record lives (:data:`STOPPED_FILE`): beside its output, in the system folder
+        for the stages up to the chart, in the model folder from Stage 2 on."""
+        up = stage in ("download", "ingest", "views", "stage1", "chart")
+        return (self.system_dir if up else self.model_dir) / STOPPED_FILE
+
+    def load_stopped(self, upto: str = "stage2") -> dict | None:
+        """The stop record of a stage up to ``upto`` (:data:`STOP_STAGES`) that left this run without its
+        artifacts, or ``None``: ``{"stage", "reason", "time", "path"}``, the system folder's first.
+
+        A record that cannot be read (not JSON, no ``stage``) is ignored.
+        """
+        last = STOP_STAGES.index(upto)
+        for path in dict.fromkeys((self.system_dir / STOPPED_FILE, self.model_dir / STOPPED_FILE)):
+            try:
+                rec = json.loads(path.read_text())
+            except (OSError, ValueError):
+                continue
+            if isinstance(rec, dict) and rec.get("stage") in STOP_STAGES[: last + 1]:
+                return {**rec, "path": str(path)}
+        return None
 
     @property
     def report_md(self) -> Path:

@@ -23,7 +23,7 @@ from typing import Callable
 
 from omegaconf import DictConfig
 
-from lagsplat.cli_common import apply_variant, compose, find_conf_dir
+from lagsplat.cli_common import apply_variant, clear_stop, compose, find_conf_dir, record_stop
 from lagsplat.stages import stage_chart, stage_download, stage_evaluate, stage_figures, stage_ingest, stage_stage1, stage_stage2, stage_views
 from lagsplat.stages_baselines import stage_extrapolation, stage_extrapolation_table
 from lagsplat.stages_deformation import stage_deformation
@@ -81,7 +81,12 @@ def stage_all(cfg: DictConfig) -> None:
     names = ("ingest", "views", "stage1", "chart", "stage2", "evaluate", "figures")
     for name in names if cfg.system.get("views") else [n for n in names if n != "views"]:
         t0 = time.time()
-        STAGES[name](cfg)
+        try:
+            STAGES[name](cfg)
+        except Exception as exc:
+            exc.lagsplat_stage = name  # the stage that stopped, for its stop record (main)
+            raise
+        clear_stop(cfg, name)
         print(f"[lagsplat] {cfg.system.name}: {name} done in {time.time() - t0:.1f} s", flush=True)
 
 
@@ -173,7 +178,14 @@ def run_logged(stage: str, cfg: DictConfig) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point. Returns the process exit code (0 ok, 1 error, 2 usage)."""
+    """Entry point. Returns the process exit code (0 ok, 1 error, 2 usage).
+
+    A pipeline stage (:data:`lagsplat.artifacts.STOP_STAGES`) that stops with a one-line
+    ``ValueError`` (a ``ClipError`` from ingest, Stage 2 refusing a chart that failed the
+    quality gate, ...) leaves ``stopped.json`` ``{stage, reason, time}`` beside its output
+    (:func:`lagsplat.cli_common.record_stop`); the stage's next success removes it. The
+    ``diagnose`` stage then writes a ``cannot_diagnose`` report with that reason and exits 0.
+    """
     argv = sys.argv[1:] if argv is None else argv
     if not argv or argv[0] in ("-h", "--help", "help"):
         print(USAGE)
@@ -188,6 +200,7 @@ def main(argv: list[str] | None = None) -> int:
     from lagsplat.io.clip import ClipError
     from lagsplat.io.download import DownloadError
 
+    cfg, running = None, False
     try:
         from lagsplat.config_check import ConfigError, validate_config
 
@@ -208,10 +221,14 @@ def main(argv: list[str] | None = None) -> int:
             torch.set_num_threads(int(cfg.threads))
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message="Converting a tensor with requires_grad=True to a scalar")
+            running = True
             run_logged(stage, cfg)
+        clear_stop(cfg, stage)  # a stage that succeeds undoes its own stop record (and any downstream of it)
     except (ClipError, DownloadError, FileNotFoundError, KeyError, ValueError) as exc:
         msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         print(f"lagsplat {stage}: error: {msg}", file=sys.stderr)
+        if running and isinstance(exc, ValueError):  # the clip or the chart refused (not a missing upstream file):
+            record_stop(cfg, getattr(exc, "lagsplat_stage", stage), msg)  # results/<system>/stopped.json, read by diagnose
         return 1
     except Exception as exc:  # hydra config errors etc.
         if type(exc).__module__.startswith(("hydra", "omegaconf")):

@@ -6,6 +6,7 @@ Used by :mod:`lagsplat.cli` (the entry point) and the stage modules
 
 from __future__ import annotations
 
+import json
 import os
 import re
 from pathlib import Path
@@ -17,7 +18,7 @@ from omegaconf import DictConfig, OmegaConf
 if TYPE_CHECKING:
     from lagsplat.artifacts import Artifacts
 
-__all__ = ["find_conf_dir", "compose", "artifacts_of", "apply_variant", "save_stage_config", "plain", "data_kind"]
+__all__ = ["find_conf_dir", "compose", "artifacts_of", "apply_variant", "save_stage_config", "plain", "data_kind", "record_stop", "clear_stop"]
 
 
 def find_conf_dir() -> Path:
@@ -118,3 +119,45 @@ def data_kind(system: DictConfig) -> str:
         return str(system.data)
     sources = list(system.get("sources") or []) or [system.get("source") or {}]
     return "synthetic" if all(src.get("synth") for src in sources) else "real"
+
+
+def record_stop(cfg: DictConfig, stage: str, reason: str) -> Path | None:
+    """Record that pipeline ``stage`` stopped with the one-line ``reason``: ``stopped.json`` ``{stage, reason, time}``
+    written atomically beside the stage's output (:meth:`lagsplat.artifacts.Artifacts.stopped`), so that the
+    diagnosis can report the run (verdict ``cannot_diagnose``) instead of failing on a missing artifact.
+
+    Returns:
+        The record's path, or ``None`` for a stage outside :data:`lagsplat.artifacts.STOP_STAGES` or when it
+        cannot be written (the stage's own error is what the user needs; this never raises ``OSError``).
+    """
+    import time
+
+    from lagsplat.artifacts import STOP_STAGES
+    from lagsplat.io.atomic import write_json
+
+    if stage not in STOP_STAGES:
+        return None
+    try:
+        path = artifacts_of(cfg).stopped(stage)
+        return write_json(path, {"stage": stage, "reason": str(reason), "time": time.strftime("%Y-%m-%dT%H:%M:%S%z")})
+    except (OSError, KeyError, ValueError):
+        return None
+
+
+def clear_stop(cfg: DictConfig, stage: str) -> bool:
+    """Remove the stop record beside ``stage``'s output when it is ``stage``'s or a later stage's (a stage that
+    succeeds undoes its own stop and any stop downstream of it). Returns whether a record was removed."""
+    from lagsplat.artifacts import STOP_STAGES
+
+    if stage not in STOP_STAGES:
+        return False
+    try:
+        path = artifacts_of(cfg).stopped(stage)
+        rec = json.loads(path.read_text())
+    except (OSError, ValueError, KeyError):
+        return False
+    recorded = rec.get("stage") if isinstance(rec, dict) else None
+    if recorded in STOP_STAGES and recorded not in STOP_STAGES[STOP_STAGES.index(stage) :]:
+        return False  # an earlier stage's stop: still stands
+    path.unlink(missing_ok=True)
+    return True

@@ -91,7 +91,7 @@ class SourceConfig:
 @dataclass
 class SplitConfig:
     """The contiguous train / held-out split (``system.split``): ``n_train = int(train_fraction * T)``, fraction in (0, 1],
-    or ``auto`` (video sources; :func:`lagsplat.prepare.auto_train_fraction`: three periods of the motion held out;
+    or ``auto`` (video sources; :func:`lagsplat.prepare.auto_split`: three periods of the motion held out;
     the command line's default for a video whose configuration gives no split)."""
 
     train_fraction: Union[Literal["auto"], float] = 0.8

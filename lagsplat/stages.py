@@ -58,13 +58,15 @@ def stage_ingest(cfg: DictConfig) -> None:
     if "train_fraction" not in (system.get("split") or {}) and "path" in (system.get("source") or {}):
         system["split"] = {**(system.get("split") or {}), "train_fraction": "auto"}  # a recording: three periods held out
     a = artifacts_of(cfg)
-    ingest_to_file(system, a.clip)
+    ingest_to_file(system, a.clip, preview=a.prepare_preview if "path" in (system.get("source") or {}) else None)
     clip = a.load_clip()
     prepared = clip.meta.get("prepare")
     if prepared:  # the automatic choices, printed and written into the resolved configuration
         from lagsplat.prepare import Preparation
 
-        print(f"[lagsplat] {cfg.system.name}: prepared {Preparation(**prepared).summary()}", flush=True)
+        print(f"[lagsplat] {cfg.system.name}: prepared {Preparation(**prepared).summary()} (drawn in {a.prepare_preview})", flush=True)
+        if clip.no_held_out:
+            print(f"[lagsplat] {cfg.system.name}: too short for the held-out protocol: identified on all its frames, {clip.no_held_out}", flush=True)
         with open_dict(cfg):
             cfg.system.crop, cfg.system.resize = clip.meta["crop"], clip.meta["resize"]
             cfg.system.split = {**plain(cfg.system.get("split") or {}), "train_fraction": clip.meta["split"]["train_fraction"]}
@@ -155,7 +157,8 @@ def stage_stage2(cfg: DictConfig, a: "Artifacts | None" = None) -> None:
 
 
 def stage_evaluate(cfg: DictConfig) -> None:
-    """Upstream artifacts -> ``metrics.json``."""
+    """Upstream artifacts -> ``metrics.json``; a clip without held-out frames (``Clip.no_held_out``) is read in-sample,
+    its note in ``metrics.json``'s ``held_out`` (:mod:`lagsplat.evaluate.in_sample`)."""
     from lagsplat.evaluate import SETTINGS_GROUP, protocol_for, run_protocol
     from lagsplat.io.atomic import write_json
 
@@ -177,9 +180,13 @@ def stage_evaluate(cfg: DictConfig) -> None:
         for entry in m.values():
             if isinstance(entry, dict):
                 entry["caution"] = f"read on a chart that {gate_summary(gate)}"
+    doc = {}
+    if clip.no_held_out is not None:  # identified on all its frames: the held-out metrics are null, the in-sample ones say what they can
+        doc["held_out"] = clip.no_held_out
     write_json(
         a.metrics,
         {
+            **doc,
             "system": cfg.system.name,
             "variant": cfg.get("variant"),
             "protocol": protocol,

@@ -79,6 +79,11 @@ def stage_diagnose(cfg: DictConfig) -> None:
     ``metrics.json`` (of the variant when ``variant`` is set); settings in the
     ``diagnose`` group, the gap protocol in ``evaluate``; the refit uses the
     Stage-2 settings saved in ``stage2.pt``. See :mod:`lagsplat.diagnose.report`.
+
+    When an earlier stage stopped (its ``stopped.json``: ingest refused the clip,
+    Stage 2 refused a chart that failed the quality gate), the report has the
+    verdict ``cannot_diagnose`` with that stage's reason, and the stage exits 0:
+    a report written is the diagnose stage's success, so a batch scores every clip.
     """
     from lagsplat.diagnose.report import DiagnoseConfig, diagnose_system
     from lagsplat.evaluate import EvalConfig
@@ -94,6 +99,7 @@ def stage_diagnose(cfg: DictConfig) -> None:
         f"{cfg.system.name}: {rep['verdict_text']}"
         + (f"; held-out eps_q {gap['before']['eps_q']:.4f}" if gap.get("before") else "")
         + (f" -> {gap['after']['eps_q']:.4f} ({100 * red:+.0f} %)" if red is not None else "")
+        + (f"; {rep['held_out']}, held-out refit validation skipped" if rep.get("held_out") else "")
         + f"; report: {a.report_md}"
     )
     from lagsplat.io.atomic import atomic_write

@@ -253,7 +253,8 @@ def test_data_kind_of_each_system():
 
 
 def test_a_chart_that_fails_the_gate_stops_before_stage2_and_is_marked_when_forced(tmp_path):
-    """Two Stage-1 steps draw no motion: the gate fails, Stage 2 refuses in one line; chart.gate=false runs on and marks every metric."""
+    """Two Stage-1 steps draw no motion: the gate fails, Stage 2 refuses in one line (and the diagnosis reports that);
+    chart.gate=false runs on and marks every metric."""
     base = [sys.executable, "-m", "lagsplat"]
     common = ["system=toy_tiny", f"results_dir={tmp_path}", "stage1.steps=2", "stage1.retries=0", "progress=false"]
     for stage in ("ingest", "stage1", "chart"):
@@ -265,9 +266,18 @@ def test_a_chart_that_fails_the_gate_stops_before_stage2_and_is_marked_when_forc
     assert r.returncode == 1 and len(lines) == 1, r.stderr
     assert "chart.npz" in lines[0] and "failed" in lines[0] and "Stage 2 not run" in lines[0]
     assert not (tmp_path / "toy_tiny" / "stage2.pt").exists()
+    # the refusal is recorded; the diagnosis reports it (cannot_diagnose, the gate's reason) and exits 0
+    reason = lines[0].split("error: ", 1)[1]
+    assert json.loads((tmp_path / "toy_tiny" / "stopped.json").read_text())["stage"] == "stage2"
+    r = run(base + ["diagnose"] + common)
+    assert r.returncode == 0, r.stderr
+    rep = json.loads((tmp_path / "toy_tiny" / "diagnosis" / "report.json").read_text())
+    assert rep["verdict"] == "cannot_diagnose" and rep["stopped"]["reason"] == reason and "coverage" in rep["verdict_text"]
+    assert reason in (tmp_path / "toy_tiny" / "diagnosis" / "report.md").read_text()
     for stage in ("stage2", "evaluate"):
         r = run(base + [stage] + common + ["chart.gate=false"])
         assert r.returncode == 0, r.stderr
+    assert not (tmp_path / "toy_tiny" / "stopped.json").exists()  # Stage 2 ran: its stop no longer stands
     m = json.loads((tmp_path / "toy_tiny" / "metrics.json").read_text())
     assert m["read_on_failed_chart"] is True and m["chart_gate"]["passed"] is False
     assert all("caution" in e for e in m["metrics"].values())

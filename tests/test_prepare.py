@@ -109,7 +109,7 @@ def test_ingest_applies_auto_and_records_it(tmp_path):
 
 def test_the_motion_frequency_is_read_and_sets_the_automatic_split(tmp_path):
     from lagsplat.ingest import ingest
-    from lagsplat.prepare import HELD_OUT_PERIODS, auto_train_fraction
+    from lagsplat.prepare import HELD_OUT_PERIODS, auto_split, auto_train_fraction
 
     path = _write(tmp_path / "swing.mp4", _scene(T=300))  # 1 Hz at 30 fps, 10 periods
     p = prepare_video(path, fps=30.0)
@@ -118,5 +118,163 @@ def test_the_motion_frequency_is_read_and_sets_the_automatic_split(tmp_path):
     held = clip.meta["split"]["n_held_out"]
     assert HELD_OUT_PERIODS * 30 + 3 <= held <= HELD_OUT_PERIODS * 30 + 5
     assert auto_train_fraction(1000, 1.0, 30.0) == 0.8  # a long clip keeps the default split
-    with pytest.raises(ClipError, match="too short for its motion"):
-        auto_train_fraction(150, 1.0, 30.0, "short.mp4")
+    # 5 periods: too short for 3 + 3 periods, identified on all its frames
+    assert auto_split(150, 1.0, 30.0) == (1.0, "no held-out validation (5.0 periods)")
+    with pytest.raises(ClipError, match=r"short.mp4: too short to identify: .*1.5 periods.*set `frames`"):
+        auto_split(300, 1.0, 30.0, periods=1.5, src="short.mp4")  # the object moves for 1.5 periods only
+
+
+# --- recordings as people film them: other motion in the frame, a crop, a motion that stops, a short take ---
+
+W_ROOM, H_ROOM, FPS = 240, 180, 30.0
+
+
+def _room(seed: int = 0) -> np.ndarray:
+    """A textured, cluttered static room (float RGB ``[H, W, 3]``)."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[:H_ROOM, :W_ROOM]
+    bg = (120 + 25 * np.sin(xx / 7.0) * np.cos(yy / 11.0))[..., None] * np.array([1.0, 0.95, 0.85])
+    bg += rng.normal(0, 8, (H_ROOM, W_ROOM, 1))
+    bg[120:124] = (90, 80, 60)  # a track
+    return bg
+
+
+def _film(path, n_frames: int, draw, noise: float = 2.5, seed: int = 0) -> str:
+    """Render ``draw(frame, t)`` over the room for ``n_frames`` frames at :data:`FPS` and write an MP4."""
+    rng = np.random.default_rng(seed + 1)
+    bg = _room(seed)
+    frames = []
+    for i in range(n_frames):
+        f = bg.copy()
+        draw(f, i / FPS)
+        f += rng.normal(0, noise, f.shape)
+        frames.append(np.clip(f, 0, 255).astype(np.uint8))
+    return _write(path, np.stack(frames), FPS)
+
+
+def _cart(f: np.ndarray, x: float) -> None:
+    """A 16 x 10 px red cart on the track at ``x`` px."""
+    f[110:120, int(round(x)) - 8 : int(round(x)) + 8] = (210, 40, 35)
+
+
+def _person(f: np.ndarray, t: float, x0: float = 222.0) -> None:
+    """A person seated at the right edge, cut by the border, shifting slowly and irregularly."""
+    dx = 6 * np.sin(2 * np.pi * 0.11 * t) + 4 * np.sin(2 * np.pi * 0.29 * t + 1.0) + (5.0 if t > 7.0 else 0.0)
+    x = int(round(x0 + dx))
+    f[60:170, x : x + 40] = (40, 45, 70)  # body
+    cv2.circle(f, (x + 18, 45), 13, (150, 110, 90), -1)  # head
+
+
+def _walker(f: np.ndarray, t: float, t_in: float, speed: float = 40.0) -> None:
+    """A passer-by walking in from the left edge at ``t_in`` s (``speed`` px/s)."""
+    if t >= t_in:
+        x = int(round(-30 + speed * (t - t_in)))
+        f[50:175, max(0, x) : max(0, x + 30)] = (60, 90, 50)
+
+
+def test_a_person_moving_at_the_edge_is_set_aside_and_the_cart_read(tmp_path):
+    f_cart = 0.55  # 6.6 periods in 12 s
+
+    def draw(f, t):
+        _cart(f, 100 + 35 * np.exp(-0.05 * t) * np.cos(2 * np.pi * f_cart * t))
+        _person(f, t)
+        _walker(f, t, t_in=10.5)
+
+    path = _film(tmp_path / "cart_person.mp4", 360, draw)
+    p = prepare_video(path, fps=FPS, preview=tmp_path / "prepare.png")
+    assert abs(p.frequency_hz / f_cart - 1) < 0.03
+    x0, y0, x1, y1 = p.crop
+    assert x0 <= 100 - 35 - 8 and x1 >= 100 + 35 + 8 and x1 < 222  # the cart's whole track, not the person
+    assert y0 <= 110 and y1 >= 120 and y1 - y0 < 60
+    assert p.dropped and any("right" in d for d in p.dropped)  # the person, named where it is
+    assert "set aside" in p.summary()
+    assert (tmp_path / "prepare.png").stat().st_size > 10_000
+    # the same frames cut before the walker: still the cart's frequency, not the person's
+    p2 = prepare_video(path, fps=FPS, stop=300)
+    assert abs(p2.frequency_hz / f_cart - 1) < 0.03
+
+
+def _bob(f: np.ndarray, t: float, f_hz: float, pivot=(120.0, -260.0), length: float = 400.0, amp_deg: float = 9.0) -> None:
+    """A 7 px bob on a thin string from a pivot above the frame, swinging at ``f_hz``."""
+    a = np.radians(amp_deg) * np.cos(2 * np.pi * f_hz * t)
+    x, y = pivot[0] + length * np.sin(a), pivot[1] + length * np.cos(a)
+    cv2.line(f, (int(pivot[0]), int(pivot[1])), (int(round(x)), int(round(y))), (60, 60, 60), 1)
+    cv2.circle(f, (int(round(x)), int(round(y))), 7, (30, 30, 200), -1)
+
+
+def test_a_user_crop_is_where_the_motion_is_read(tmp_path):
+    f_cart, f_other = 0.8, 0.35
+
+    def draw(f, t):
+        _cart(f, 70 + 30 * np.cos(2 * np.pi * f_cart * t))
+        cv2.circle(f, (int(round(175 + 35 * np.sin(2 * np.pi * f_other * t))), 60), 22, (240, 240, 40), -1)  # a larger, brighter swing
+
+    path = _film(tmp_path / "two.mp4", 360, draw)
+    whole = prepare_video(path, fps=FPS)
+    assert abs(whole.frequency_hz / f_other - 1) < 0.05  # left alone, the stronger oscillation is taken
+    crop = [20, 95, 130, 135]
+    p = prepare_video(path, fps=FPS, crop=crop)
+    assert p.crop == crop and p.user_crop
+    assert abs(p.frequency_hz / f_cart - 1) < 0.03  # inside the crop, the cart
+    assert p.resize[0] / p.resize[1] == pytest.approx(110 / 40, rel=0.1)
+    with pytest.raises(ClipError, match=r"lies outside the 240x180 frame \(set `crop`"):
+        prepare_video(path, fps=FPS, crop=[0, 0, 300, 100])
+
+
+def _coulomb(t: np.ndarray, f_hz: float, x0: float, mu: float) -> np.ndarray:
+    """A spring cart with dry friction, released at ``x0`` (px from the spring's rest): each half period is
+    harmonic about ``+-mu`` (the friction's offset, px), so every turning point is ``2 mu`` closer to the rest;
+    the cart sticks at the first turning point within ``mu`` of it."""
+    w, half = 2 * np.pi * f_hz, 0.5 / f_hz
+    turns = [x0]
+    while abs(turns[-1]) > mu:
+        turns.append(2 * mu * np.sign(turns[-1]) - turns[-1])
+    k = np.minimum((t / half).astype(int), len(turns) - 1)
+    x = np.array([turns[-1]] * len(t), float)
+    for i in np.flatnonzero(k < len(turns) - 1):
+        c = mu * np.sign(turns[k[i]])
+        x[i] = c + (turns[k[i]] - c) * np.cos(w * (t[i] - k[i] * half))
+    return x
+
+
+def test_a_motion_that_comes_to_rest_is_read_while_it_moves(tmp_path):
+    from lagsplat.ingest import ingest
+
+    f_cart, t = 0.71, np.arange(360) / FPS
+    x = _coulomb(t, f_cart, 40.0, 2.6)  # 4.5 periods, then stuck at -1.6 px for the last 5.7 s
+    stop_s = 9 * 0.5 / f_cart
+    assert np.all(x[t > stop_s] == x[-1]) and x[-1] != 0
+
+    path = _film(tmp_path / "sticks.mp4", 360, lambda f, ti: _cart(f, 120 + x[int(round(ti * FPS))]))
+    p = prepare_video(path, fps=FPS)
+    assert abs(p.frequency_hz / f_cart - 1) < 0.03
+    assert stop_s - 2.0 < p.moving_s[1] < stop_s + 0.7  # about when it came to rest (its last small swings read as still)
+    clip = ingest({"name": "sticks", "source": {"path": path, "fps": FPS}, "crop": "auto", "resize": "auto", "split": {"train_fraction": "auto"}})
+    assert clip.meta["split"]["n_held_out"] >= 3 * FPS / f_cart and "no_held_out" not in clip.meta["split"]
+
+
+def test_a_short_take_of_a_bob_on_a_long_string_is_identified_without_held_out_frames(tmp_path):
+    from lagsplat.ingest import check_length, ingest
+
+    f_bob = 0.56  # 124 frames hold 2.3 periods; the bob's height runs at twice that
+    path = _film(tmp_path / "bob.mp4", 124, lambda f, ti: _bob(f, ti, f_bob))
+    p = prepare_video(path, fps=FPS)
+    assert abs(p.frequency_hz / f_bob - 1) < 0.03
+    clip = ingest({"name": "bob", "source": {"path": path, "fps": FPS}, "crop": "auto", "resize": "auto", "split": {"train_fraction": "auto"}})
+    assert clip.meta["split"]["n_held_out"] == 0 and clip.meta["split"]["no_held_out"] == "no held-out validation (2.3 periods)"
+    check_length(clip, "bob.mp4")  # accepted: Stage 2 reads all its frames
+    short = _film(tmp_path / "bob_short.mp4", 60, lambda f, ti: _bob(f, ti, f_bob))  # 1.1 periods
+    with pytest.raises(ClipError, match=r"bob_short.mp4: too short to identify: .*set `frames`"):
+        ingest({"name": "bob", "source": {"path": short, "fps": FPS}, "crop": "auto", "resize": "auto", "split": {"train_fraction": "auto"}})
+
+
+def test_a_refusal_names_the_setting_to_change_and_is_drawn(tmp_path):
+    from lagsplat.ingest import ingest
+
+    frames = _scene(T=120, amplitude=140.0, x0=250.0)  # the square swings out past the right border
+    path = _write(tmp_path / "out.mp4", frames)
+    with pytest.raises(ClipError, match=r"out.mp4: outside the model class: the moving object leaves the frame .*set `crop`.*`frames`"):
+        ingest({"name": "out", "source": {"path": path, "fps": 30.0}, "crop": "auto", "resize": "auto"}, preview=tmp_path / "prepare.png")
+    assert (tmp_path / "prepare.png").stat().st_size > 10_000  # what the analysis saw, drawn all the same
+    with pytest.raises(ClipError, match=r"nothing moves: .*check `frames`"):
+        analyse_motion(_scene(amplitude=0.0)[:, ::2, ::2], "still.mp4")

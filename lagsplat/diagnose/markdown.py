@@ -87,6 +87,9 @@ def verdict_section(rep: Mapping[str, Any]) -> list[str]:
     L: list[str] = [f"# Sim-to-real gap diagnosis: {rep.get('title') or rep.get('system')}", ""]
     verdict = rep["verdict_text"]
     L += [f"**Verdict: {verdict}.**", ""]
+    if rep.get("held_out"):  # a clip identified on all its frames (lagsplat.io.clip.Clip.no_held_out)
+        L += [f"**{rep['held_out'][:1].upper() + rep['held_out'][1:]}**: the clip is too short for the held-out protocol and was "
+              "identified on all its frames; the ranking below reads the training residual, and the held-out refit validation is skipped.", ""]  # fmt: skip
     L += _reliability_lines(rep.get("reliability"))
     null = dg["null"]
     if rep["verdict"] == "cannot_diagnose":
@@ -252,6 +255,9 @@ def gap_section(rep: Mapping[str, Any]) -> list[str]:
     L: list[str] = []
     gap = rep["gap"]
     if gap.get("unavailable"):
+        if rep.get("held_out"):
+            return ["", "## Held-out gap", "", f"Not measured: {rep['held_out']} (the clip was identified on all its frames). "
+                    "The diagnosis above reads the training frames only and stands without it."]  # fmt: skip
         return ["", "## Held-out gap", "", f"Not measured: {gap['unavailable']}. The diagnosis above reads the training frames only and stands without it."]
     fr_def = gap["definition"]["frames"]
     L += ["", "## Held-out gap", "", fr_def[:1].upper() + fr_def[1:] + ".", ""]

@@ -21,7 +21,10 @@
 Frames: the diagnosis (residual, selection) and the localisation read the
 *training* frames only (``diagnose.split``); the refit reads the training
 frames (windows and model selection, as Stage 2); the held-out frames are
-read only by the gap measurement.
+read only by the gap measurement. A clip identified on all its frames
+(:attr:`lagsplat.io.clip.Clip.no_held_out`) has none: the ranking is read off
+the training residual as usual, ``report.json``'s ``held_out`` carries the
+clip's note, and the held-out gap and the refit it validates are skipped, saying so.
 
 The steps live beside it: the diagnosis (:func:`lagsplat.diagnose.diagnose_chart`),
 the localisation (:mod:`lagsplat.diagnose.localise`), the refit
@@ -65,7 +68,7 @@ from lagsplat.diagnose.refit import (
 from lagsplat.diagnose.refit_choice import choose_by_refit
 from lagsplat.diagnose.refit_io import save_refit
 from lagsplat.diagnose.refit_terms import refit_spec
-from lagsplat.diagnose.report_checks import held_out_check, no_model_report, reliability
+from lagsplat.diagnose.report_checks import held_out_check, reliability, stopped_run_report
 from lagsplat.diagnose.where import WhereConfig, split_code
 from lagsplat.diagnose.where_plots import plot_where
 from lagsplat.io.atomic import atomic_write, write_json
@@ -254,8 +257,10 @@ def _report_record(
     rel = reliability(chart, run.stage2_history, diag)
     ranked = "nothing significant" if diag.winner == "none" else ", ".join(diag.labels)
     verdict, text = (diag.winner, ranked) if rel["reliable"] else (CANNOT_DIAGNOSE, "cannot diagnose: " + "; ".join(rel["reasons"]))
+    note = getattr(run.clip, "no_held_out", None)
     report = {
         "system": system, "title": title, "verdict": verdict, "verdict_text": text,
+        "held_out": note,  # None: the held-out frames score the gap; a string: the clip has none (Clip.no_held_out)
         "residual_ranking": {"winner": diag.winner, "text": ranked},  # what the residual says; the verdict only when reliable
         "reliability": rel,
         "summary": diag.summary(),
@@ -267,7 +272,7 @@ def _report_record(
         "frames": {
             "diagnosis_split": cfg.split, "n_diagnosis_frames": int(n_which),
             "n_held_out_frames": int(np.sum(np.asarray(chart.split) == HELD_OUT)),
-            "held_out_used_for": "the gap only (before / after / control)",
+            "held_out_used_for": "the gap only (before / after / control)" if note is None else f"nothing ({note})",
         },
         "config": cfg.to_dict(),
         "timings": timings,
@@ -319,12 +324,19 @@ def diagnose_artifacts(
 
     t0 = time.perf_counter()
     runs = {"identified model (before)": (model, chart)}
+    note = getattr(clip, "no_held_out", None)  # a clip identified on all its frames (lagsplat.io.clip.Clip.no_held_out)
     try:
+        if note is not None:
+            raise ClipError(f"{note}: the clip was identified on all its frames")
         gap = _gap_record(run.gap(chart, model), metrics_json)
     except ClipError as e:  # the diagnosis reads the training frames only: it stands without a held-out gap
         gap = {"unavailable": str(e), "before": None, "after": None, "control": None, "reduction": None, "reduction_vs_control": None}
-        refit_rec = {"done": False, "reason": f"no held-out gap to score a refit on ({e})"}
+        why = f"{note}: the held-out refit validation is skipped" if note is not None else f"no held-out gap to score a refit on ({e})"
+        refit_rec = {"done": False, "reason": why}
         (run.out / DIAGNOSIS_FILES["refit"]).unlink(missing_ok=True)  # an earlier run's refit no longer applies
+        for fname in DIAGNOSIS_FIGURES.values():  # figures of an earlier run that no longer apply
+            if f"figures/{fname}" not in figures.values():
+                (run.out / "figures" / fname).unlink(missing_ok=True)
     else:
         diag, refit_rec = _refit_step(run, diag, gap, runs, timings)
         _gap_figure(run, runs, figures, refit_rec["done"], title or system)
@@ -353,23 +365,21 @@ def diagnose_system(
     Returns:
         The report.
 
-    A run stopped at the chart-quality gate (no ``stage2.pt``, the chart failing its
-    checks) gets the verdict "cannot diagnose" with the reasons
-    (:func:`~lagsplat.diagnose.report_checks.no_model_report`).
+    A run an earlier stage stopped (its ``stopped.json``, :meth:`~lagsplat.artifacts.Artifacts.load_stopped`:
+    ingest refused the clip, Stage 2 refused a chart that failed the quality gate, ...) gets the verdict
+    "cannot diagnose" with that stage's reason (:func:`~lagsplat.diagnose.report_checks.stopped_report`);
+    so does a run stopped at the chart-quality gate without that record (no ``stage2.pt``, the chart
+    failing its checks; :func:`~lagsplat.diagnose.report_checks.no_model_report`).
 
     Raises:
-        FileNotFoundError: naming the first missing artifact.
+        FileNotFoundError: naming the first missing artifact (no stop recorded).
     """
     from lagsplat.train.stage2 import Stage2Config
 
     a = artifacts if isinstance(artifacts, Artifacts) else Artifacts.at(artifacts)
-    a.require("clip", "stage1", "chart")
-    if not a.stage2.exists() and not reliability(chart := a.load_chart())["reliable"]:  # stopped at the chart-quality gate
-        rep, md = no_model_report(chart, a.system_dir.name, title)
-        write_json(a.diagnosis / DIAGNOSIS_FILES["report_json"], rep)
-        with atomic_write(a.diagnosis / DIAGNOSIS_FILES["report_md"]) as tmp:
-            tmp.write_text(md)
-        return rep
+    stopped = stopped_run_report(a, title)  # an earlier stage stopped: ingest refused the clip, Stage 2 the chart, ...
+    if stopped is not None:
+        return stopped
     a.require("stage2")
     clip, ae, chart = a.load_clip(), a.load_stage1(), a.load_chart()
     model, ck = a.load_stage2()

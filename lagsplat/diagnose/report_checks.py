@@ -18,7 +18,7 @@ import numpy as np
 
 from lagsplat.diagnose.markdown import fmt_pct
 
-__all__ = ["reliability", "CHECK_METRICS", "CAUTION_MEANING", "held_out_check", "no_model_report"]
+__all__ = ["reliability", "CHECK_METRICS", "CAUTION_MEANING", "held_out_check", "no_model_report", "stopped_report", "stopped_run_report"]
 
 #: What each failed caution of :func:`reliability` means, in the report's words
 CAUTION_MEANING = {
@@ -177,3 +177,68 @@ def no_model_report(chart: Any, system: str, title: str = "") -> tuple[dict[str,
                      "The run stopped before Stage 2 because the chart does not support a model, so there is no residual to read. "
                      "Improve Stage 1 first (a tighter crop, more steps or Gaussians; docs/preparation.md).", ""])  # fmt: skip
     return rep, md
+
+
+#: What to do after each stage's stop, in the report's words
+_STOP_ADVICE = {
+    "ingest": "The clip was refused before any training; docs/preparation.md says what each reason means and which setting overrides it.",
+    "views": "The novel views of this 3-D system could not be made; see docs/3d.md.",
+    "stage1": "Stage 1 stopped; improve it first (a tighter crop, more steps or Gaussians; docs/preparation.md).",
+    "chart": "The chart could not be built from Stage 1; improve Stage 1 first (docs/preparation.md).",
+    "stage2": "When the chart failed its quality gate, improve Stage 1 first (a tighter crop, more steps or Gaussians; docs/preparation.md).",
+}
+
+
+def stopped_report(stop: Mapping[str, Any], system: str, title: str = "") -> tuple[dict[str, Any], str]:
+    """``(report.json content, report.md text)`` of a run that an earlier stage stopped.
+
+    ``stop`` is the stage's record (``stopped.json``, :meth:`lagsplat.artifacts.Artifacts.load_stopped`:
+    ``stage``, ``reason``, ``time``): ingest refused the clip, or Stage 2 refused a chart that failed the
+    chart-quality gate, ... No identified model exists, so nothing is read; the verdict is
+    ``"cannot_diagnose"`` with the stage and its one-line reason (``stopped``: the record).
+    """
+    stage, reason = str(stop.get("stage", "?")), str(stop.get("reason", "")).strip() or "no reason recorded"
+    text = f"cannot diagnose: the {stage} stage stopped: {reason}"
+    rec = {k: stop.get(k) for k in ("stage", "reason", "time")}
+    rep = {"system": system, "title": title or system, "verdict": "cannot_diagnose", "verdict_text": text, "stopped": rec,
+           "reliability": None, "residual_ranking": None, "diagnosis": None, "gap": None,
+           "refit": {"done": False, "reason": f"no identified model: the {stage} stage stopped"}}  # fmt: skip
+    md = "\n".join([f"# Sim-to-real gap diagnosis: {title or system}", "", f"**Verdict: {text}.**", "",
+                     f"The {stage} stage stopped{' at ' + str(stop['time']) if stop.get('time') else ''}, so there is no identified model "
+                     "and no residual to read. " + _STOP_ADVICE.get(stage, ""), ""])  # fmt: skip
+    return rep, md
+
+
+def stopped_run_report(a: Any, title: str = "") -> dict[str, Any] | None:
+    """Write the ``cannot_diagnose`` report of a run stopped before Stage 2 could give a model, or return ``None``.
+
+    Stopped: a stage up to Stage 2 left its stop record (:meth:`lagsplat.artifacts.Artifacts.load_stopped`;
+    :func:`stopped_report`), or there is no ``stage2.pt`` and the chart fails its checks (the gate's verdict
+    without a record; :func:`no_model_report`). ``report.json`` and ``report.md`` are written atomically under
+    ``a.diagnosis``.
+
+    Args:
+        a: the run's :class:`~lagsplat.artifacts.Artifacts`.
+        title: the report's title (default the system's name).
+
+    Returns:
+        The report (``report.json``'s content), or ``None`` when the run was not stopped.
+
+    Raises:
+        FileNotFoundError: naming the first of ``clip.npz``, ``stage1.pt``, ``chart.npz`` missing when no stop is recorded.
+    """
+    from lagsplat.artifacts import DIAGNOSIS_FILES
+    from lagsplat.io.atomic import atomic_write, write_json
+
+    stop = a.load_stopped()
+    if stop is not None:
+        rep, md = stopped_report(stop, a.system_dir.name, title)
+    else:
+        a.require("clip", "stage1", "chart")
+        if a.stage2.exists() or reliability(chart := a.load_chart())["reliable"]:
+            return None
+        rep, md = no_model_report(chart, a.system_dir.name, title)  # stopped at the chart-quality gate
+    write_json(a.diagnosis / DIAGNOSIS_FILES["report_json"], rep)
+    with atomic_write(a.diagnosis / DIAGNOSIS_FILES["report_md"]) as tmp:
+        tmp.write_text(md)
+    return rep

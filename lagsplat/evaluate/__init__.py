@@ -40,7 +40,8 @@ Protocol = Callable[[Clip, AutoEncoder, Chart, Any, Mapping[str, Any], Mapping[s
 
 
 def observed_truth_frequency(clip: Clip, truth_path: str | Path) -> float:
-    """The true frequency on the clip's held-out frames (Hz): the spectral peak
+    """The true frequency on the clip's held-out frames (Hz; on all its frames for a clip marked
+    :attr:`~lagsplat.io.clip.Clip.no_held_out`): the spectral peak
     (:func:`lagsplat.timeseries.spectral_peak_frequency`) of the first coordinate of ``q`` in the NPZ
     ``truth_path``, one row per source frame (the clip's frames start at ``meta["frames"][0]``).
 
@@ -55,7 +56,8 @@ def observed_truth_frequency(clip: Clip, truth_path: str | Path) -> float:
         if "q" not in z.files:
             raise ValueError(f"{path}: the truth needs q (the true coordinate per source frame)")
         q = np.asarray(z["q"], float).reshape(len(z["q"]), -1)[:, 0]
-    idx = int((clip.meta.get("frames") or [0])[0] or 0) + clip.held_out_idx
+    # a clip identified on all its frames (Clip.no_held_out) is read in-sample: the truth over the whole clip
+    idx = int((clip.meta.get("frames") or [0])[0] or 0) + (clip.held_out_idx if clip.no_held_out is None else np.arange(clip.n_frames))
     if len(idx) == 0 or idx[-1] >= len(q):
         raise ValueError(f"{path}: {len(q)} truth rows, the clip's held-out frames reach source frame {idx[-1] if len(idx) else '-'}")
     return float(spectral_peak_frequency(q[idx], clip.dt))

@@ -42,7 +42,7 @@ from lagsplat.models.autoencoder import AutoEncoder
 from lagsplat.evaluate.common import decode_mse, decoded_psnr_ssim, metric_entry
 from lagsplat.evaluate.rest import held_out_rest, rest_metrics
 
-__all__ = ["EvalConfig", "evaluate"]
+__all__ = ["EvalConfig", "evaluate", "frequency_windows", "modal_metrics"]
 
 
 @dataclass
@@ -76,15 +76,23 @@ def evaluate(clip: Clip, ae: AutoEncoder, chart: Chart, model: Lagrangian, cfg: 
     When the object is at rest in the held-out frames (a motion stopped by dry
     friction), the oscillation metrics are ``None`` and the rest is scored instead
     (:mod:`lagsplat.evaluate.rest`: ``held_out_at_rest``, ``rest_time_s``, ``eps_rest``).
+    A clip identified on all its frames (:attr:`Clip.no_held_out <lagsplat.io.clip.Clip.no_held_out>`)
+    is read in-sample instead (:func:`lagsplat.evaluate.in_sample.evaluate_in_sample`): the
+    held-out metrics are ``None`` with the clip's note.
 
     Raises:
-        ClipError: if the held-out segment is shorter than two natural periods
-            (plus the 3 frames the initial state needs).
+        ClipError: if the clip has no held-out frames and no ``no_held_out`` note, or the
+            held-out segment is shorter than two natural periods (plus the 3 frames the
+            initial state needs).
     """
     dt = float(np.median(np.diff(chart.t)))
     G = metrics.normalise_trace(chart.G_bar)
     top = metrics.top_direction(G)
     held = chart.segments(HELD_OUT)
+    if not held and clip.no_held_out is not None:  # identified on all its frames: read in-sample
+        from lagsplat.evaluate.in_sample import evaluate_in_sample
+
+        return evaluate_in_sample(clip, ae, chart, model, cfg, clip.no_held_out, source)
     if not held:
         raise ClipError(f"{source}: the clip has no held-out frames to evaluate on")
     ho = max(held, key=len)
@@ -93,7 +101,7 @@ def evaluate(clip: Clip, ae: AutoEncoder, chart: Chart, model: Lagrangian, cfg: 
     n = len(q_s)
     rest = held_out_rest(chart, G, cfg.sigma)
     if rest is not None:  # the motion stopped before the held-out part: nothing oscillates there to score
-        return {**rest_metrics(clip, ae, chart, model, cfg, G, rest), **_modes(clip, chart, model)}
+        return {**rest_metrics(clip, ae, chart, model, cfg, G, rest), **modal_metrics(clip, chart, model)}
     if n < 16:
         raise ClipError(f"{source}: held-out segment has {n} frames, too short to measure a frequency")
     f_enc = timeseries.spectral_peak_frequency(metrics.project(q_s, top), dt)
@@ -105,30 +113,7 @@ def evaluate(clip: Clip, ae: AutoEncoder, chart: Chart, model: Lagrangian, cfg: 
             f"({(H + 3) * dt:.2f} s at {f_enc:.3f} Hz); lower split.train_fraction or use a longer clip"
         )
     q_std = metrics.g_rms_spread(q_s, G)
-
-    # ---- frequency
-    lo = metrics.rollout_start(cfg.sigma, n, 16)  # past the smoothing's edge (module docstring)
-    w = int(min(n - lo, max(16, round(cfg.freq_window_periods * period))))
-    rows = []
-    for a in range(lo, n - w + 1, w):
-        seg = q_s[a : a + w]
-        if metrics.g_rms_spread(seg, G) < cfg.min_amplitude * q_std:
-            continue
-        a_ = np.array([min(a, n - 3)])
-        q0, v0 = initial_state(q_s, a_, dt)
-        sim, _ = rollout(model, q0, v0, dt, w, u=actuation_schedule(u_ho[a : a + w][None], dt))
-        sim = sim[0].numpy()
-        if not np.isfinite(sim).all():
-            rows.append((timeseries.spectral_peak_frequency(metrics.project(seg, top), dt), float("nan")))
-            continue
-        rows.append(
-            (
-                timeseries.spectral_peak_frequency(metrics.project(seg, top), dt),
-                timeseries.spectral_peak_frequency(metrics.project(sim, top), dt),
-            )
-        )
-    f_enc_w = np.array([r[0] for r in rows])
-    f_sim_w = np.array([r[1] for r in rows])
+    f_enc_w, f_sim_w, w = frequency_windows(model, q_s, u_ho, dt, top, G, period, cfg)
     eps_freq = float(np.mean(np.abs(f_sim_w - f_enc_w) / f_enc_w))
 
     # ---- latent NRMSE and image error over two periods
@@ -147,7 +132,7 @@ def evaluate(clip: Clip, ae: AutoEncoder, chart: Chart, model: Lagrangian, cfg: 
 
     horizon = f"{cfg.n_periods:g} natural periods = {H} frames = {H * dt:.3f} s, {int(finite.sum())}/{len(starts)} windows (seed {cfg.seed})"
     out: dict[str, dict] = {
-        "eps_freq": metric_entry(eps_freq, "mean over windows of |f_sim - f_enc| / f_enc; spectral peak (Hann, log-parabolic) of the projection on G_bar's top eigenvector; free rollout from each window start", f"{len(rows)} window(s) of {w} frames = {w * dt:.2f} s", "fraction"),
+        "eps_freq": metric_entry(eps_freq, "mean over windows of |f_sim - f_enc| / f_enc; spectral peak (Hann, log-parabolic) of the projection on G_bar's top eigenvector; free rollout from each window start", f"{len(f_enc_w)} window(s) of {w} frames = {w * dt:.2f} s", "fraction"),
         "f_sim_hz": metric_entry(float(np.nanmean(f_sim_w)), "frequency of the free rollouts (mean over frequency windows)", f"{w * dt:.2f} s", "Hz"),
         "f_enc_hz": metric_entry(float(np.mean(f_enc_w)), "frequency of the encoded held-out video (mean over frequency windows)", f"{w * dt:.2f} s", "Hz"),
         "f_enc_segment_hz": metric_entry(f_enc, "frequency of the whole encoded held-out segment; sets the two-period horizon", f"{n * dt:.2f} s", "Hz"),
@@ -165,7 +150,7 @@ def evaluate(clip: Clip, ae: AutoEncoder, chart: Chart, model: Lagrangian, cfg: 
             "all frames",
             "ratio",
         )
-    out.update(_modes(clip, chart, model))
+    out.update(modal_metrics(clip, chart, model))
     if "f_observed_hz" in clip.meta.get("truth", {}):
         f_true = float(clip.meta["truth"]["f_observed_hz"])
         out["f_truth_hz"] = metric_entry(f_true, "generator's true frequency on the held-out segment (lagsplat.synth)", "", "Hz")
@@ -188,7 +173,50 @@ def evaluate(clip: Clip, ae: AutoEncoder, chart: Chart, model: Lagrangian, cfg: 
     return out
 
 
-def _modes(clip: Clip, chart: Chart, model: Lagrangian) -> dict[str, dict]:
+def frequency_windows(
+    model: Lagrangian, q_s: np.ndarray, u: np.ndarray, dt: float, top: np.ndarray, G: np.ndarray, period: float, cfg: EvalConfig
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """The windowed frequency comparison behind ``eps_freq`` (paper §4.1; module docstring).
+
+    The segment is tiled by windows of ``min(n - lo, max(16, freq_window_periods * period))``
+    frames from ``lo`` (:func:`lagsplat.metrics.rollout_start`, past the smoothing's edge);
+    windows whose G-RMS spread is below ``min_amplitude`` of the segment's are skipped; from
+    each window start the model runs free for the window length, driven by the measured
+    actuation, and both frequencies are the spectral peak of the projection on ``top``.
+
+    Args:
+        model: the Lagrangian.
+        q_s: ``[n, d]`` smoothed encoded segment (whitened chart).
+        u: ``[n, n_u]`` its actuation (``n_u`` may be 0).
+        dt: frame interval, s.
+        top: ``[d]`` G_bar's most visible direction.
+        G: ``[d, d]`` trace-normalised G_bar.
+        period: the encoded motion's period, frames.
+        cfg: settings (``sigma``, ``freq_window_periods``, ``min_amplitude``).
+
+    Returns:
+        ``(f_enc [m], f_sim [m], w)``: per window the encoded and the simulated frequency (Hz;
+        ``nan`` for a rollout that diverged) and the window length in frames.
+    """
+    n = len(q_s)
+    q_std = metrics.g_rms_spread(q_s, G)
+    lo = metrics.rollout_start(cfg.sigma, n, 16)  # past the smoothing's edge (module docstring)
+    w = int(min(n - lo, max(16, round(cfg.freq_window_periods * period))))
+    rows = []
+    for a in range(lo, n - w + 1, w):
+        seg = q_s[a : a + w]
+        if metrics.g_rms_spread(seg, G) < cfg.min_amplitude * q_std:
+            continue
+        a_ = np.array([min(a, n - 3)])
+        q0, v0 = initial_state(q_s, a_, dt)
+        sim, _ = rollout(model, q0, v0, dt, w, u=actuation_schedule(u[a : a + w][None], dt))
+        sim = sim[0].numpy()
+        f_seg = timeseries.spectral_peak_frequency(metrics.project(seg, top), dt)
+        rows.append((f_seg, timeseries.spectral_peak_frequency(metrics.project(sim, top), dt) if np.isfinite(sim).all() else float("nan")))
+    return np.array([r[0] for r in rows]), np.array([r[1] for r in rows]), w
+
+
+def modal_metrics(clip: Clip, chart: Chart, model: Lagrangian) -> dict[str, dict]:
     """The model's linearised modes at rest, and their errors against the clip's known truth when it has one."""
     out: dict[str, dict] = {}
     modes = model.modal_analysis()

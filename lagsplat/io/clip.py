@@ -132,6 +132,22 @@ class Clip:
         """Indices of held-out frames, int64 ``[n_held_out]``."""
         return np.flatnonzero(self.split == HELD_OUT)
 
+    @property
+    def no_held_out(self) -> str | None:
+        """The note of a clip identified on all its frames, or ``None``.
+
+        A clip too short for the held-out protocol (between about 2 and 6 periods of
+        motion) arrives with every frame in training and ``meta["split"]["no_held_out"]``,
+        a one-line string such as ``"no held-out validation (2.4 periods)"``; Stage 2 then
+        trains on all frames and the evaluation and the diagnosis read it in-sample.
+        ``None`` when the clip has held-out frames or carries no such note.
+        """
+        split_meta = self.meta.get("split") if isinstance(self.meta, dict) else None
+        note = split_meta.get("no_held_out") if isinstance(split_meta, dict) else None
+        if not isinstance(note, str) or not note or (self.split == HELD_OUT).any():
+            return None
+        return note
+
     def validate(self, source: str | Path = "<clip>") -> "Clip":
         """Check shapes, dtypes and values; return ``self``.
 

@@ -63,10 +63,11 @@ def physical_rows(inputs: list[Path]) -> pd.DataFrame:
                 "eps_freq_pct": _pct(v["eps_freq"]),
                 "eps_q": v["eps_q"],
                 "eps_I_over_AE": v["eps_I_over_AE"],
-                "eps_AE_1e-4": 1e4 * v["eps_AE"],
+                "eps_AE_1e-4": None if v["eps_AE"] is None else 1e4 * v["eps_AE"],
                 "f_sim_hz": v["f_sim_hz"],
                 "f_enc_hz": v["f_enc_hz"],
                 "source": m.get("provenance", ""),
+                "held_out": m.get("held_out", ""),
             }
         )
     return pd.DataFrame(rows)
@@ -76,12 +77,16 @@ def physical_table(inputs: list[Path], out_tex: Path) -> tuple[Path, Path]:
     """Write ``out_tex`` (paper Table 2 layout) and the same rows as ``.csv`` beside it.
 
     Columns: System, d, eps_freq (%), eps_q, eps_I (as a multiple of eps_AE),
-    eps_AE (1e-4); the CSV adds the two frequencies and the data source.
+    eps_AE (1e-4); the CSV adds the two frequencies, the data source and ``held_out``:
+    for a clip identified on all its frames, its note (its held-out metrics are
+    ``--`` in the table, the note a comment at the end of its row; its frequencies
+    are read in-sample, :mod:`lagsplat.evaluate.in_sample`), else empty.
     """
     df = physical_rows(inputs)
     out_tex = Path(out_tex)
     body = "\n".join(
-        f"{r.system} & {r.d} & {_tex(r.eps_freq_pct, '.1f')} & {_tex(r.eps_q, '.3f')} & ${r.eps_I_over_AE:.1f}$ & ${r['eps_AE_1e-4']:.2f}$ \\\\"
+        f"{r.system} & {r.d} & {_tex(r.eps_freq_pct, '.1f')} & {_tex(r.eps_q, '.3f')} & {_tex(r.eps_I_over_AE, '.1f')} & {_tex(r['eps_AE_1e-4'], '.2f')} \\\\"
+        + (f" % {r.held_out}" if r.held_out else "")
         for _, r in df.iterrows()
     )
     tex = (
@@ -233,9 +238,10 @@ def seed_table(inputs: list[Path], seeds: list[int], out_md: Path) -> tuple[Path
         "| " + " | ".join(head) + " |",
         "|" + "|".join("---:" for _ in head) + "|",
     ]
-    for _, r in df.iterrows():
-        lines.append(f"| {r['seed']} | " + " | ".join(f"{r[c]:{_SEED_COLS[c]}}" for c in cols) + " |")
-    stats = {"mean": df[cols].mean(), "std": df[cols].std(ddof=1), "min": df[cols].min(), "max": df[cols].max()}
+    for _, r in df.iterrows():  # a metric not measured (held-out frames at rest, or none held out) prints as --
+        lines.append(f"| {r['seed']} | " + " | ".join("--" if pd.isna(r[c]) else f"{r[c]:{_SEED_COLS[c]}}" for c in cols) + " |")
+    num = df[cols].astype(float)
+    stats = {"mean": num.mean(), "std": num.std(ddof=1), "min": num.min(), "max": num.max()}
     for name, v in stats.items():
         cells = ["" if pd.isna(v[c]) else f"{v[c]:{_SEED_COLS[c]}}" for c in cols]
         lines.append(f"| **{name}** | " + " | ".join(cells) + " |")

@@ -15,19 +15,26 @@ from lagsplat import timeseries  # noqa: E402
 from lagsplat.artifacts import Artifacts  # noqa: E402
 from lagsplat.dynamics.integrators import actuation_schedule, initial_state, rollout  # noqa: E402
 from lagsplat.io.atomic import atomic_write  # noqa: E402
-from lagsplat.io.clip import HELD_OUT  # noqa: E402
+from lagsplat.io.clip import HELD_OUT, TRAIN  # noqa: E402
 
 __all__ = ["rollout_figure", "held_out_frequency", "metrics_line", "visibility_basis"]
 
 
-def metrics_line(metrics: dict) -> str:
+def metrics_line(metrics: dict, no_held_out: str | None = None) -> str:
     """The key metrics of a ``metrics.json`` block in one line, those present and finite (paper §4.1):
-    ``eps_freq`` (%), ``eps_q``, ``eps_I / eps_AE``, and the soft-robot protocol's ``mse_0p5s``."""
+    ``eps_freq`` (%), ``eps_q``, ``eps_I / eps_AE``, and the soft-robot protocol's ``mse_0p5s``; for a clip
+    without held-out frames (``no_held_out``, ``metrics.json``'s ``held_out`` note) the in-sample
+    ``eps_freq_in_sample`` and the damping ratios ``zeta_sim`` / ``zeta_enc``, followed by the note."""
     parts = []
-    for key, fmt in (("eps_freq", "eps_freq {:.2%}"), ("eps_q", "eps_q {:.3f}"), ("eps_I_over_AE", "eps_I / eps_AE {:.2f}"), ("mse_0p5s", "MSE(0.5 s) {:.2e}")):
+    keys = (("eps_freq", "eps_freq {:.2%}"), ("eps_q", "eps_q {:.3f}"), ("eps_I_over_AE", "eps_I / eps_AE {:.2f}"), ("mse_0p5s", "MSE(0.5 s) {:.2e}"))
+    if no_held_out:
+        keys = (("eps_freq_in_sample", "eps_freq in-sample {:.2%}"), ("zeta_sim", "zeta model {:.3f}"), ("zeta_enc", "video {:.3f}"))
+    for key, fmt in keys:
         v = (metrics.get(key) or {}).get("value")
         if isinstance(v, (int, float)) and np.isfinite(v):
             parts.append(fmt.format(v))
+    if no_held_out:
+        return ", ".join(parts) + f"  (in-sample: {no_held_out})"
     return ", ".join(parts) + ("  (held-out frames)" if parts else "")
 
 
@@ -67,6 +74,10 @@ def rollout_figure(artifacts: Artifacts | str | Path, title: str = "", provenanc
     ``trace G_bar`` in the label), encoded vs predicted, held-out shaded.
     Bottom: at three held-out times, the real frame, the render at the encoded
     ``q`` (the autoencoder's own floor) and the render at the predicted ``q``.
+    A clip identified on all its frames (``metrics.json``'s ``held_out`` note,
+    :mod:`lagsplat.evaluate.in_sample`) has no held-out part: the rollout starts
+    past the smoothing's edge of its longest training segment and runs through it,
+    in-sample, the note in the title.
 
     Args:
         artifacts: the run's :class:`~lagsplat.artifacts.Artifacts` (clip, stage1, chart,
@@ -86,13 +97,19 @@ def rollout_figure(artifacts: Artifacts | str | Path, title: str = "", provenanc
     a.require("clip", "stage1", "chart", "stage2", "metrics")
     clip, chart, ae = a.load_clip(), a.load_chart(), a.load_stage1()
     model, _ = a.load_stage2()
-    metrics = a.load_metrics()["metrics"]
+    doc = a.load_metrics()
+    metrics, note = doc["metrics"], doc.get("held_out")
     f_enc = held_out_frequency(metrics)
     dt = float(np.median(np.diff(chart.t)))
-    ho = max(chart.segments(HELD_OUT), key=len)
-    period = int(round(1.0 / (f_enc * dt)))
-    s0 = max(int(ho[0]) - period, 0)
-    if chart.episode[s0] != chart.episode[ho[0]]:  # a held-out recording: start at its first frame
+    held = chart.segments(HELD_OUT)
+    if held:
+        ho = max(held, key=len)
+        period = int(round(1.0 / (f_enc * dt)))
+        s0 = max(int(ho[0]) - period, 0)
+        if chart.episode[s0] != chart.episode[ho[0]]:  # a held-out recording: start at its first frame
+            s0 = int(ho[0])
+    else:  # a clip identified on all its frames: the rollout runs through the longest training segment, in-sample
+        ho = max(chart.segments(TRAIN), key=len)
         s0 = int(ho[0])
     # smooth from `edge` frames earlier where the recording has them, else start `edge` frames in:
     # the smoothing's replicated edge would bias the initial velocity (lagsplat.timeseries.smoothing_edge)
@@ -124,7 +141,8 @@ def rollout_figure(artifacts: Artifacts | str | Path, title: str = "", provenanc
     gs = fig.add_gridspec(dd + 3, 3, height_ratios=[2.0] * dd + [img_h + 0.3] * 3)
     for k in range(dd):
         ax = fig.add_subplot(gs[k, :])
-        ax.axvspan(chart.t[ho[0]], chart.t[ho[-1]], color="0.9", label="held out")
+        if held:
+            ax.axvspan(chart.t[ho[0]], chart.t[ho[-1]], color="0.9", label="held out")
         ax.plot(t, enc_c[:, k], ".", ms=2.5, color="k", label="encoded")
         ax.plot(t, pred_c[:, k], "-", lw=1.2, color="tab:red", label="predicted (free rollout)")
         ax.set_ylabel(f"q{k + 1}: mode {k + 1} of G_bar\n({100 * share[k]:.0f} % of the visibility)", fontsize=8)
@@ -133,7 +151,7 @@ def rollout_figure(artifacts: Artifacts | str | Path, title: str = "", provenanc
             ax.axvline(chart.t[p], color="tab:blue", lw=0.6, ls=":")
         if k == 0:
             ax.legend(loc="upper right", fontsize=7, ncol=4)
-            ax.set_title(title + ("\n" if title else "") + metrics_line(metrics), fontsize=9)
+            ax.set_title(title + ("\n" if title else "") + metrics_line(metrics, None if held else (note or "no held-out frames")), fontsize=9)
     ax.set_xlabel("time (s)")
     labels = ["real", "at encoded q", "at predicted q"]
     for r, imgs in enumerate([real, r_enc, r_pred]):
