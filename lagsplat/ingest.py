@@ -121,7 +121,7 @@ def check_length(clip: Clip, src: str) -> Clip:
         if seg["training"] < MIN_SEGMENT_FRAMES:
             raise ClipError(
                 f"{src}: too short: {clip.n_frames} frames give {seg['training']} training frames in a row; "
-                f"Stage 2 needs at least {MIN_SEGMENT_FRAMES} ({note})"
+                f"Stage 2 needs at least {MIN_SEGMENT_FRAMES} ({note}; set `frames` to a longer range)"
             )
         return clip
     if min(seg.values()) < MIN_SEGMENT_FRAMES:
@@ -136,7 +136,7 @@ def check_length(clip: Clip, src: str) -> Clip:
         raise ClipError(
             f"{src}: too short: {clip.n_frames} frames give {seg['training']} training and {seg['held-out']} held-out frames "
             f"in a row; Stage 2 and the evaluation need at least {MIN_SEGMENT_FRAMES} of each "
-            f"(about {int(np.ceil(need))} frames at this split)"
+            f"(about {int(np.ceil(need))} frames at this split; set `frames` to a longer range, or `split.train_fraction`)"
         )
     return clip
 

@@ -107,8 +107,10 @@ class Part:
         cx, cy = (self.box[0] + self.box[2]) / 2 / w, (self.box[1] + self.box[3]) / 2 / h
         side = "left" if cx < 0.33 else "right" if cx > 0.67 else ""
         level = "top" if cy < 0.33 else "bottom" if cy > 0.67 else ""
-        name = "-".join(s for s in (level, side) if s) or "centre"
-        return f"at the {name} edge" if self.touches_border and name != "centre" else f"in the {name}" if name == "centre" else f"at the {name}"
+        name = "-".join(s for s in (level, side) if s)
+        if not name:
+            return "in the centre"
+        return f"at the {name} edge" if self.touches_border else f"at the {name}"
 
     def describe(self) -> str:
         """How it moves, in words: its frequency, periods and peak share."""
