@@ -308,6 +308,7 @@ def environment() -> dict[str, str]:
 
     env = {
         "machine": f"{_cpu_model()}, {os.cpu_count()} CPUs; {platform.system()} {platform.machine()}; Python {platform.python_version()}",
+        "vector": vector_extensions(),
         "torch": f"{torch.__version__}, {_threads(torch.get_num_threads())}",
     }
     if torch.cuda.is_available():
@@ -320,6 +321,37 @@ def environment() -> dict[str, str]:
         env["numba"] = "not installed"
     env["commit"] = git_commit()
     return env
+
+
+def vector_extensions() -> str:
+    """The CPU's widest vector extension and what the compiled kernels target: ``"AVX-512 (512-bit); numba target
+    skylake-avx512"``. Read from ``/proc/cpuinfo`` flags (Linux) and llvmlite's host CPU name; ``"unknown"`` parts
+    where neither is available."""
+    flags: set[str] = set()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("flags"):
+                flags = set(line.split(":", 1)[1].split())
+                break
+    except OSError:
+        pass
+    if "avx512f" in flags:
+        widest = "AVX-512 (512-bit)"
+    elif "avx2" in flags:
+        widest = "AVX2 (256-bit)"
+    elif "avx" in flags:
+        widest = "AVX (256-bit)"
+    elif flags:
+        widest = "SSE only (128-bit)"
+    else:
+        widest = "unknown"
+    try:
+        import llvmlite.binding as llvm
+
+        target = llvm.get_host_cpu_name()
+    except (ImportError, RuntimeError):
+        target = "unknown"
+    return f"{widest}; numba target {os.environ.get('NUMBA_CPU_NAME') or target}"
 
 
 def _threads(n: int) -> str:

@@ -37,6 +37,9 @@ KEEP_SHARE = 0.3
 #: A rotation (:func:`image_winding`): at least this many net turns of the object's image, and this share of all its
 #: turning. Every oscillation of the realistic suite and the real clips stays within 0.9 net turns and 7 % of its turning.
 ROTATION_TURNS, ROTATION_SHARE = 2.0, 0.5
+#: A pixel of a part kept with the object changes with the object's rhythm when its power at the object's frequency
+#: and harmonics holds this share (:func:`periodic_pixels`).
+PIXEL_SHARE = 0.25
 #: The object may shrink at the image border in at most this share of the frames.
 MAX_LEAVING = 0.05
 
@@ -100,6 +103,33 @@ def image_winding(x: np.ndarray, changing: np.ndarray) -> tuple[float, float]:
     return float(step[far].sum() / (2 * np.pi)), float(np.abs(step[far]).sum() / (2 * np.pi))
 
 
+def periodic_pixels(x: np.ndarray, region: np.ndarray, frequency_hz: float, dt: float) -> np.ndarray:
+    """The pixels of ``region`` whose intensity changes with the object's rhythm, ``[h, w]`` bool.
+
+    A pixel the object or its shadow passes over changes once or twice a period; a person beside it does not. Per
+    pixel, the share of its intensity's power (over ``x [n, h, w]``, the frames where the object moves; Hann window)
+    within two resolution bins of the frequency and of its multiples (a small, fast object passes a pixel as a short
+    pulse, whose power spreads over many harmonics), above what a flat spectrum puts there, must reach
+    :data:`PIXEL_SHARE`. All of ``region`` is kept when there are fewer than 8 frames or the frequency is unknown.
+    """
+    n = x.shape[0]
+    if n < 8 or not np.isfinite(frequency_hz) or frequency_hz <= 0 or not region.any():
+        return region
+    ys, xs = np.nonzero(region)
+    v = x[:, ys, xs].astype(np.float64)
+    power = np.abs(np.fft.rfft((v - v.mean(0)) * np.hanning(n)[:, None], axis=0)) ** 2  # [n//2 + 1, m]
+    freqs = np.fft.rfftfreq(n, dt)
+    near = np.zeros(len(freqs), bool)
+    for j in range(1, max(2, int(freqs[-1] / frequency_hz) + 1)):
+        near |= np.abs(freqs - j * frequency_hz) <= 2.0 / (n * dt)
+    near[0] = False
+    white = near[1:].mean()
+    share = (power[near].sum(0) / np.maximum(power[1:].sum(0), 1e-300) - white) / max(1.0 - white, 1e-9)
+    keep = np.zeros_like(region)
+    keep[ys[share >= PIXEL_SHARE], xs[share >= PIXEL_SHARE]] = True
+    return keep
+
+
 def _dropped_text(dropped: list, w: int, h: int) -> list[str]:
     return [f"a part {p.where(w, h)} (x {p.box[0]}-{p.box[2]}, y {p.box[1]}-{p.box[3]} of {w}x{h}): {p.verdict}" for p in dropped]
 
@@ -148,12 +178,16 @@ def analyse_motion(frames: np.ndarray, src: str = "<clip>", dt: float = 1.0 / 30
     out["parts"] = parts
     if parts:
         kept, dropped, note = choose_object(parts)
-        region = binary_dilation(np.logical_or.reduce([p.region for p in kept]), iterations=2)
         obj = kept[0]
+        # a part kept for moving with the object (its shadow) may hold, joined to it in space, something that moves on
+        # its own (a person beside the shadow): of such a part, only the pixels that change with the object's rhythm
+        others = [p.region & periodic_pixels(x[obj.span[0] : obj.span[1]], p.region, obj.frequency_hz, dt) for p in kept[1:]]
+        region = binary_dilation(np.logical_or.reduce([obj.region] + others), iterations=2)  # the box's
+        reach = binary_dilation(np.logical_or.reduce([p.region for p in kept]), iterations=2)  # where it can leave the frame
         out.update(dropped=_dropped_text(dropped, w, h), dropped_parts=dropped, note=note, kept=kept, frequency_hz=obj.frequency_hz, peak_share=obj.peak_share,
                    span=obj.span, periods=obj.periods, path=obj.path)  # fmt: skip
     else:  # nothing stands out as a part (a faint, spread change): the whole frame
-        region = np.ones((h, w), bool)
+        region = reach = np.ones((h, w), bool)
         out.update(kept=[], frequency_hz=float("nan"), peak_share=0.0, span=(0, T), periods=0.0, path=np.zeros(T))
     # the static scene: the median frame; for an object that comes to rest, the median over the frames where it moves
     # (else it sits in the median where it rests, and vanishes from its own foreground while at rest)
@@ -188,7 +222,7 @@ def analyse_motion(frames: np.ndarray, src: str = "<clip>", dt: float = 1.0 / 30
     # (compression leaves still blocks unchanged from frame to frame, so the frame-to-frame floor above can miss the
     # sensor noise a departure carries), and its spatial extent
     dev_noise = 1.4826 * float(np.median(np.abs(x - bg)))
-    fg_obj = dev > max(4.0 * dev_noise, 6.0 * floor, 0.25 * top_obj)
+    fg_obj = np.abs(x - bg) * reach[None] > max(4.0 * dev_noise, 6.0 * floor, 0.25 * top_obj)
     area_obj = binary_opening(fg_obj, iterations=1, structure=np.ones((1, 2, 2))).sum((1, 2)).astype(float)  # without noise specks
     med_obj = float(np.median(area_obj[area_obj > 0])) if (area_obj > 0).any() else 0.0
     touches = (fg_obj & border).sum((1, 2)) > 0  # a sliver at the border counts
