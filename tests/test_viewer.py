@@ -345,3 +345,39 @@ def test_the_status_lines_wrap_instead_of_being_cut_off_at_900_px() -> None:
 
     border = 2 * px("#view", "border")
     assert 2 * px("body", "margin") + px("#view", "width") + border + px("#wrap", "gap") + px("#panel", "min-width") <= 900
+
+
+def test_the_websocket_accepts_only_its_own_page():
+    """Any page open in the user's browser could drive the model through ws://127.0.0.1:<port>/ws; only the
+    viewer's own page (same Origin and Host, a loopback Host) or a client that sends no Origin may connect."""
+    import asyncio
+
+    import aiohttp
+
+    from lagsplat.viewer.server import Viewer, same_origin
+
+    assert same_origin("http://127.0.0.1:8765", "127.0.0.1:8765", 8765)
+    assert same_origin(None, "localhost:8765", 8765)
+    assert not same_origin("https://example.com", "127.0.0.1:8765", 8765)  # another site's page
+    assert not same_origin("http://127.0.0.1:8765", "127.0.0.1:9999", 8765)
+    assert not same_origin("http://evil.example:8765", "evil.example:8765", 8765)  # DNS rebinding to 127.0.0.1
+    viewer = Viewer(Session(*synthetic_pendulum()), port=0)
+    url = viewer.start()
+    host = url.split("//")[1].rstrip("/")
+
+    async def status(origin: str | None) -> int:
+        headers = {"Origin": origin} if origin else {}
+        async with aiohttp.ClientSession() as http:
+            try:
+                async with http.ws_connect(url + "ws", headers=headers, timeout=10) as ws:
+                    await ws.close()
+                    return 101
+            except aiohttp.WSServerHandshakeError as exc:
+                return exc.status
+
+    try:
+        assert asyncio.run(status("https://example.com")) == 403
+        assert asyncio.run(status(f"http://{host}")) == 101
+        assert asyncio.run(status(None)) == 101
+    finally:
+        viewer.stop()

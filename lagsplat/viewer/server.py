@@ -50,7 +50,7 @@ import numpy as np
 
 from lagsplat.viewer.session import Session
 
-__all__ = ["Session", "Viewer", "bind_socket", "encode_image"]
+__all__ = ["Session", "Viewer", "bind_socket", "encode_image", "same_origin", "LOOPBACK_NAMES"]
 
 _IN_FLIGHT = 2  # frames sent but not yet acknowledged by a page
 
@@ -73,6 +73,32 @@ def encode_image(img: np.ndarray, fmt: str = "png") -> bytes:
     if not ok:
         raise ValueError(f"could not encode a {img.shape} image as {fmt}")
     return buf.tobytes()
+
+
+LOOPBACK_NAMES = ("127.0.0.1", "localhost", "[::1]")
+"""The host names the viewer answers to (it binds to the loopback interface only)."""
+
+
+def same_origin(origin: str | None, host: str | None, port: int) -> bool:
+    """Whether a WebSocket handshake comes from the viewer's own page.
+
+    A browser sends ``Origin`` with every WebSocket handshake, so any page open in the user's browser could
+    otherwise connect to ``ws://127.0.0.1:<port>/ws`` and drive the model. Accepted: a ``Host`` naming the
+    loopback interface at the viewer's ``port`` (:data:`LOOPBACK_NAMES`; a page on another name that resolves to
+    127.0.0.1, DNS rebinding, is refused), and an ``Origin`` that is absent (not a browser: a script, a test) or
+    ``http://<that Host>``. RFC 6455 §10.2 (origin considerations).
+
+    Args:
+        origin: the ``Origin`` header, or ``None``.
+        host: the ``Host`` header (``name:port``).
+        port: the port the viewer listens on.
+    """
+    if not host:
+        return False
+    name, _, p = host.rpartition(":")
+    if name not in LOOPBACK_NAMES or p != str(port):
+        return False
+    return origin is None or origin.rstrip("/") == f"http://{host}"
 
 
 def bind_socket(host: str, port: int) -> socket.socket:
@@ -231,6 +257,8 @@ class Viewer:
     async def _ws(self, request):
         from aiohttp import WSMsgType, web
 
+        if not same_origin(request.headers.get("Origin"), request.host, self.port):
+            raise web.HTTPForbidden(text="the viewer's WebSocket accepts its own page only (Origin and Host differ, or Host is not loopback)")
         ws = web.WebSocketResponse(compress=False, heartbeat=20.0)
         await ws.prepare(request)
         client = {"new": asyncio.Event(), "credits": asyncio.Semaphore(_IN_FLIGHT), "ws": ws}
@@ -285,7 +313,7 @@ class Viewer:
             sock = bind_socket(self.host, self.port)
             site = web.SockSite(runner, sock)
             await site.start()
-            port = sock.getsockname()[1]
+            port = self.port = sock.getsockname()[1]  # the port bound (port 0: the one the system chose)
             host = f"[{self.host}]" if ":" in self.host else self.host
             self.url = f"http://{host}:{port}/"
             workers = [threading.Thread(target=f, name=f"lagsplat-view-{n}", daemon=True) for n, f in (("sim", self._sim_loop), ("render", self._render_loop))]
