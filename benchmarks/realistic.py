@@ -61,10 +61,12 @@ from lagsplat.timeseries import spectral_peak_frequency  # noqa: E402
 
 def truth_frequency(truth_npz: Path, n_train: int | None = None) -> float:
     """Frequency (Hz) of the true first coordinate on the held-out frames (after ``n_train``; default: the
-    last 20 %), by the evaluation's spectral peak."""
+    last 20 %), by the evaluation's spectral peak; over the whole clip for a clip identified without
+    held-out frames (``n_train`` all of it), as its in-sample ``f_sim_hz`` is read."""
     z = np.load(truth_npz)
     q, t = z["q"], z["t"]
-    ho = q[(int(0.8 * len(q)) if n_train is None else n_train) :, :1]
+    start = int(0.8 * len(q)) if n_train is None else n_train
+    ho = q[start if start < len(q) - 8 else 0 :, :1]
     return float(spectral_peak_frequency(ho, float(np.median(np.diff(t)))))
 
 
