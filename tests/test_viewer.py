@@ -369,7 +369,7 @@ def test_the_websocket_accepts_only_its_own_page():
         headers = {"Origin": origin} if origin else {}
         async with aiohttp.ClientSession() as http:
             try:
-                async with http.ws_connect(url + "ws", headers=headers, timeout=10) as ws:
+                async with http.ws_connect(url + "ws", headers=headers) as ws:
                     await ws.close()
                     return 101
             except aiohttp.WSServerHandshakeError as exc:
