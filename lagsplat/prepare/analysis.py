@@ -26,6 +26,7 @@ import numpy as np
 from scipy.ndimage import binary_dilation, binary_opening, gaussian_filter, label
 
 from lagsplat.io.clip import ClipError
+from lagsplat.prepare.frequency import harmonic_share
 from lagsplat.prepare.parts import choose_object, find_parts
 
 __all__ = ["PreparationRefused", "analyse_motion", "image_winding", "CHANGE_FRACTION", "KEEP_SHARE", "ROTATION_TURNS", "ROTATION_SHARE", "MAX_LEAVING"]
@@ -118,13 +119,7 @@ def periodic_pixels(x: np.ndarray, region: np.ndarray, frequency_hz: float, dt: 
     ys, xs = np.nonzero(region)
     v = x[:, ys, xs].astype(np.float64)
     power = np.abs(np.fft.rfft((v - v.mean(0)) * np.hanning(n)[:, None], axis=0)) ** 2  # [n//2 + 1, m]
-    freqs = np.fft.rfftfreq(n, dt)
-    near = np.zeros(len(freqs), bool)
-    for j in range(1, max(2, int(freqs[-1] / frequency_hz) + 1)):
-        near |= np.abs(freqs - j * frequency_hz) <= 2.0 / (n * dt)
-    near[0] = False
-    white = near[1:].mean()
-    share = (power[near].sum(0) / np.maximum(power[1:].sum(0), 1e-300) - white) / max(1.0 - white, 1e-9)
+    share = harmonic_share(power, np.fft.rfftfreq(n, dt), frequency_hz, 2.0 / (n * dt))
     keep = np.zeros_like(region)
     keep[ys[share >= PIXEL_SHARE], xs[share >= PIXEL_SHARE]] = True
     return keep

@@ -20,7 +20,7 @@ from scipy.ndimage import gaussian_filter1d, maximum_filter1d, median_filter, un
 
 from lagsplat.timeseries import spectral_peak_frequency
 
-__all__ = ["principal_path", "moving_span", "path_frequency", "turning_points", "PAD", "MOVING_LEVEL"]
+__all__ = ["principal_path", "moving_span", "path_frequency", "turning_points", "harmonic_share", "PAD", "MOVING_LEVEL"]
 
 #: Zero-padding factor of the periodogram (a finer grid for the peak; the resolution stays ``1 / duration``).
 PAD = 8
@@ -113,6 +113,30 @@ def _crossing_frequency(p: np.ndarray, dt: float, f0: float) -> float:
     return periods / spans if spans > 0 else float("nan")
 
 
+def harmonic_share(power: np.ndarray, freqs: np.ndarray, f0: float, halfwidth: float, harmonics: int | None = None) -> np.ndarray:
+    """Share of a periodogram's power in bands about ``f0`` and its multiples, above what a flat spectrum puts there.
+
+    Args:
+        power: ``[k, ...]`` power per frequency bin (bin 0 the mean, left out), any trailing axes (several signals).
+        freqs: ``[k]`` the bins' frequencies, Hz.
+        f0: the fundamental, Hz (> 0).
+        halfwidth: each band's half width, Hz.
+        harmonics: how many multiples of ``f0`` (the fundamental included); ``None``: all up to the last bin.
+
+    Returns:
+        ``[...]`` in [0, 1]: ``(raw - white) / (1 - white)`` with ``raw`` the bands' share of the power and ``white``
+        their share of the bins (1 for a periodic signal, about 0 for white noise).
+    """
+    top = harmonics if harmonics is not None else max(1, int(freqs[-1] / f0))
+    near = np.zeros(len(freqs), bool)
+    for j in range(1, top + 1):
+        near |= np.abs(freqs - j * f0) <= halfwidth
+    near[0] = False
+    white = float(near[1:].mean())
+    raw = power[near].sum(0) / np.maximum(power[1:].sum(0), 1e-300)
+    return np.clip((raw - white) / max(1.0 - white, 1e-9), 0.0, 1.0)
+
+
 def turning_points(p: np.ndarray, share: float = 0.25) -> int:
     """How many times a path turns back: reversals of direction by more than ``share`` of its range (1st to 99th
     percentile), so the noise about a turning point or a stop counts none. A path of ``k`` periods turns about
@@ -179,12 +203,7 @@ def path_frequency(p: np.ndarray, dt: float) -> tuple[float, float]:
     # of the position's spectrum): the fundamental's and harmonics' bands against what a flat spectrum puts there
     v = gaussian_filter1d(np.gradient(p), 1.0)
     power = np.abs(np.fft.rfft((v - v.mean()) * window, PAD * n)) ** 2
-    near = np.zeros_like(freqs, dtype=bool)
-    for j in range(1, HARMONICS + 1):  # an impact or a large swing is periodic but not sinusoidal
-        near |= np.abs(freqs - j * f0) <= 2.0 * res
-    raw = float(power[near].sum() / max(power[1:].sum(), 1e-300))
-    white = float(near[1:].mean())
-    share = max(0.0, (raw - white) / max(1.0 - white, 1e-9))
+    share = float(harmonic_share(power, freqs, f0, 2.0 * res, HARMONICS))  # an impact or a large swing: harmonics too
     f = f0
     if f0 * n * dt < CROSSING_PERIODS:  # few periods: the spectrum's bins are coarse, the crossings time whole periods
         fc = _crossing_frequency(p, dt, f0)
