@@ -54,3 +54,13 @@ def test_a_motion_that_still_moves_keeps_the_oscillation_metrics() -> None:
     ae, chart, clip, model = _stopping(rest=0.0, stop_s=40.0)  # still swinging in the held-out frames
     m = evaluate(clip, ae, chart, model, EvalConfig(n_windows=8))
     assert "held_out_at_rest" not in m and m["eps_q"]["value"] is not None and m["eps_freq"]["value"] < 0.2
+
+
+def test_a_motion_that_comes_to_rest_early_in_the_held_out_frames_is_scored_by_its_rest() -> None:
+    # held out from 6 s; the swing (0.8 Hz) dies out by 7.5 s: under two periods move there, then 2.5 s at rest
+    ae, chart, clip, model = _stopping(rest=0.06, stop_s=7.5)
+    m = evaluate(clip, ae, chart, model, EvalConfig(n_windows=8))
+    assert m["held_out_at_rest"]["value"] == 1 and m["eps_q"]["value"] is None
+    assert 6.2 < m["rest_time_s"]["value"] <= 7.5
+    assert m["rest_position"]["value"][0] == pytest.approx(0.06, abs=0.005)
+    assert m["eps_rest"]["value"] > 0.1  # the frictionless model swings on about q = 0

@@ -99,8 +99,8 @@ def evaluate(clip: Clip, ae: AutoEncoder, chart: Chart, model: Lagrangian, cfg: 
     q_s = timeseries.gaussian_smooth(chart.q[ho], cfg.sigma)
     u_ho = chart.u[ho]  # measured actuation drives every rollout (paper Eq. 6); [n, 0] if none
     n = len(q_s)
-    rest = held_out_rest(chart, G, cfg.sigma)
-    if rest is not None:  # the motion stopped before the held-out part: nothing oscillates there to score
+    rest = held_out_rest(chart, G, cfg.sigma, cfg.n_periods)
+    if rest is not None:  # the motion stopped before or early in the held-out part: too little oscillates there to score
         return {**rest_metrics(clip, ae, chart, model, cfg, G, rest), **modal_metrics(clip, chart, model)}
     if n < 16:
         raise ClipError(f"{source}: held-out segment has {n} frames, too short to measure a frequency")

@@ -2,8 +2,9 @@
 
 A free decay under dry friction ends at rest, often off the centre of the
 swing, and a clip split by time (paper §4.1) can then hold out only still
-frames. The held-out frequency and the NRMSE over the held-out spread are then
-noise over noise (an NRMSE in the hundreds). :func:`held_out_rest` detects
+frames, or frames that stop moving well before two periods. The held-out
+frequency and the NRMSE over the held-out spread are then noise over noise (an
+NRMSE in the hundreds) or shorter than their horizon. :func:`held_out_rest` detects
 the case; :func:`rest_metrics` scores what the still frames show instead:
 when and where the object came to rest, and whether the model, run free from
 the last training state through the held-out frames, comes to rest there too.
@@ -45,20 +46,27 @@ def _settle_index(dev: np.ndarray, tol: float) -> int | None:
     return None if out[-1] == len(dev) - 1 else int(out[-1] + 1)
 
 
-def held_out_rest(chart: Any, G: np.ndarray, sigma: float) -> dict[str, Any] | None:
+def held_out_rest(chart: Any, G: np.ndarray, sigma: float, n_periods: float = 2.0) -> dict[str, Any] | None:
     """Whether the encoded motion is at rest on the longest held-out segment, and since when.
+
+    Two cases count as at rest: the whole held-out segment is still, or the motion comes to
+    rest inside it (its last third is still) after fewer moving frames than ``n_periods``
+    periods of the training motion (plus the 3 frames an initial state needs), too few for
+    the oscillation metrics' horizon (paper §4.1).
 
     Args:
         chart: the chart (``q [T,d]``, ``t``, ``split``, ``episode``).
         G: ``[d,d]`` metric (``G_bar`` normalised to trace ``d``).
         sigma: smoothing of the latents, frames (as the evaluation).
+        n_periods: the oscillation metrics' horizon in periods of the training motion.
 
     Returns:
         ``None`` when the held-out frames move (G-RMS spread at least :data:`REST_SHARE` of the
         training frames'); otherwise ``{"rest_position" [d] (whitened), "rest_time_s" (s from the
         start of the take, when the motion last left the :data:`MOVING_SHARE` band about the
         rest position), "spread_train", "held_out" (frame indices), "train_before" (the training
-        segment just before, or None)}``.
+        segment just before, or None), "rest_from" (index into ``held_out`` of its first frame at
+        rest)}``.
     """
     held, train = chart.segments(HELD_OUT), chart.segments(TRAIN)
     if not held or not train:
@@ -66,16 +74,42 @@ def held_out_rest(chart: Any, G: np.ndarray, sigma: float) -> dict[str, Any] | N
     ho = max(held, key=len)
     s_tr = metrics.g_rms_spread(np.concatenate([timeseries.gaussian_smooth(chart.q[s], sigma) for s in train]), G)
     q_ho = timeseries.gaussian_smooth(chart.q[ho], sigma)
-    if s_tr <= 0 or metrics.g_rms_spread(q_ho, G) >= REST_SHARE * s_tr:
+    if s_tr <= 0:
         return None
-    rest = q_ho.mean(0)
+    rest_from = 0
+    if metrics.g_rms_spread(q_ho, G) >= REST_SHARE * s_tr:
+        rest_from = _stops_inside(chart, train, q_ho, G, s_tr, sigma, n_periods)
+        if rest_from is None:
+            return None
+    rest = q_ho[rest_from:].mean(0)
     take = np.flatnonzero(chart.episode == chart.episode[ho[0]])
     take = take[take <= ho[-1]]
     q_take = timeseries.gaussian_smooth(chart.q[take], sigma)
     k = _settle_index(_dev(q_take, rest, G), MOVING_SHARE * s_tr)
     before = [s for s in train if s[-1] + 1 == ho[0]]
     return {"rest_position": rest, "rest_time_s": float(chart.t[take[k or 0]] - chart.t[take[0]]), "spread_train": s_tr, "held_out": ho,
-            "train_before": before[0] if before else None}  # fmt: skip
+            "train_before": before[0] if before else None, "rest_from": rest_from}  # fmt: skip
+
+
+def _stops_inside(chart: Any, train: list, q_ho: np.ndarray, G: np.ndarray, s_tr: float, sigma: float, n_periods: float) -> int | None:
+    """Index into the held-out segment where a motion that stops inside it comes to rest, or ``None``.
+
+    ``None`` unless the segment's last third is still (G-RMS spread below :data:`REST_SHARE` of the
+    training spread) and the frames before the rest are fewer than ``n_periods`` periods of the
+    training motion plus 3 (:func:`held_out_rest`).
+    """
+    tail = q_ho[2 * len(q_ho) // 3 :]
+    if len(tail) < 3 or metrics.g_rms_spread(tail, G) >= REST_SHARE * s_tr:
+        return None
+    k = _settle_index(_dev(q_ho, tail.mean(0), G), MOVING_SHARE * s_tr)
+    if k is None:
+        return None
+    dt = float(np.median(np.diff(chart.t)))
+    longest = max(train, key=len)
+    q_tr = timeseries.gaussian_smooth(chart.q[longest], sigma)
+    f_tr = timeseries.spectral_peak_frequency(metrics.project(q_tr, metrics.top_direction(G)), dt)
+    horizon = int(round(n_periods / (f_tr * dt))) + 3 if f_tr > 0 else len(q_ho)
+    return k if k < horizon else None
 
 
 def rest_metrics(clip: Any, ae: Any, chart: Any, model: Any, cfg: Any, G: np.ndarray, rest: dict[str, Any]) -> dict[str, dict]:
@@ -102,7 +136,8 @@ def rest_metrics(clip: Any, ae: Any, chart: Any, model: Any, cfg: Any, G: np.nda
     sim, _ = rollout(model, q0, v0, dt, lead + len(ho), u=actuation_schedule(u[None] if u.shape[1] else None, dt))
     sim = sim[0].numpy()[lead:]
     finite = bool(np.isfinite(sim).all())
-    dev = _dev(sim, pos, G) if finite else np.full(len(ho), np.inf)
+    at_rest = rest.get("rest_from", 0)
+    dev = _dev(sim[at_rest:], pos, G) if finite else np.full(len(ho) - at_rest, np.inf)
     settle = _settle_index(_dev(sim, sim[-1], G), MOVING_SHARE * s_tr) if finite else None
     t0 = float(chart.t[np.flatnonzero(chart.episode == chart.episode[ho[0]])[0]])
     eps_I = float(decode_mse(ae, chart, sim, clip.images[ho], cfg.render_batch).mean()) if finite else float("inf")
@@ -111,11 +146,11 @@ def rest_metrics(clip: Any, ae: Any, chart: Any, model: Any, cfg: Any, G: np.nda
     why = "not measured: the object is at rest in the held-out frames (held_out_at_rest; see eps_rest)"
     out = {k: metric_entry(None, why, horizon) for k in NOT_MEASURED}
     out.update(
-        held_out_at_rest=metric_entry(1, f"the held-out frames' G-RMS spread is below {REST_SHARE:g} of the training frames'", horizon, "flag"),
+        held_out_at_rest=metric_entry(1, f"the held-out frames' G-RMS spread is below {REST_SHARE:g} of the training frames', or they come to rest within {cfg.n_periods:g} periods", horizon, "flag"),
         rest_time_s=metric_entry(rest["rest_time_s"], f"when the encoded motion last left a band of {MOVING_SHARE:g} training spreads about its rest position, from the start of the take", "", "s"),
-        rest_position=metric_entry(np.asarray(pos, float).tolist(), "mean encoded state of the held-out frames (whitened chart)", horizon, "whitened q"),
+        rest_position=metric_entry(np.asarray(pos, float).tolist(), "mean encoded state of the held-out frames at rest (whitened chart)", horizon, "whitened q"),
         model_rest_time_s=metric_entry(None if settle is None else float(chart.t[ho[settle]] - t0), "when the model's free rollout settles within the same band about its final state (None: still moving)", horizon, "s"),
-        eps_rest=metric_entry(float(np.sqrt(np.mean(dev**2)) / s_tr), "G-RMS distance of the model's free rollout from the observed rest position / G-RMS spread of the training frames", horizon, "0 = rests where the object rests"),
+        eps_rest=metric_entry(float(np.sqrt(np.mean(dev**2)) / s_tr), f"G-RMS distance of the model's free rollout from the observed rest position over the {len(ho) - at_rest} held-out frames at rest / G-RMS spread of the training frames", horizon, "0 = rests where the object rests"),
         eps_I=metric_entry(eps_I, "image MSE of decode(q_sim) against the real frames, pixels in [0,1], training resolution", horizon, "MSE"),
         eps_AE=metric_entry(eps_AE, "autoencoder floor: MSE of decode(encode(frame)) on held-out frames", f"{len(ho)} held-out frames", "MSE"),
         eps_I_over_AE=metric_entry(eps_I / eps_AE, "eps_I / eps_AE", horizon, "ratio"),
