@@ -120,6 +120,10 @@ class ConditionedGaussians(nn.Module):
         d: latent dimension.
         backend: rasteriser backend (see :func:`lagsplat.render.rasterize.rasterize`).
         background: RGB behind all primitives, in [0, 1] (default black).
+        backdrop: ``(h, w)``: a static layer, a learned ``[3,h,w]`` image behind the primitives in place of
+            ``background`` (:meth:`set_backdrop`, :meth:`backdrop_image`). It does not depend on ``q``, so it
+            adds nothing to ``J``, to ``G_bar`` or to the generalized force (paper Eq. 9): what never moves is
+            drawn by it, and the primitives are spent on what moves. ``None`` (the paper's decoder): none.
 
     The module consumes the *raw* encoder output ``z`` (the unwhitened chart);
     :class:`lagsplat.chart.Chart` maps whitened states back before decoding.
@@ -138,10 +142,13 @@ class ConditionedGaussians(nn.Module):
         d: int,
         backend: Backend = "auto",
         background: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        backdrop: tuple[int, int] | None = None,
     ) -> None:
         super().__init__()
         if n_gaussians < 1 or d < 1:
             raise ValueError(f"need n_gaussians >= 1 and d >= 1, got {n_gaussians}, {d}")
+        if backdrop is not None and (len(backdrop) != 2 or min(int(v) for v in backdrop) < 1):
+            raise ValueError(f"backdrop must be (height, width) >= 1, got {backdrop}")
         self.K, self.d, self.backend = int(n_gaussians), int(d), backend
         self.latent_block = self.d
         n = self.n_space + d
@@ -153,14 +160,38 @@ class ConditionedGaussians(nn.Module):
         self.L_raw = nn.Parameter(torch.zeros(self.K, n * (n + 1) // 2))
         self.logit_alpha = nn.Parameter(torch.zeros(self.K))
         self.logit_color = nn.Parameter(torch.zeros(self.K, 3))
+        # the static layer's colours as logits, [3,h,w]; grey until set_backdrop
+        self.backdrop_raw = None if backdrop is None else nn.Parameter(torch.zeros(3, int(backdrop[0]), int(backdrop[1])))
 
     def options(self) -> dict:
-        """Constructor keywords beyond ``(K, d, backend, background)``, saved in ``stage1.pt`` (none here)."""
-        return {}
+        """Constructor keywords beyond ``(K, d, backend, background)``, saved in ``stage1.pt``: the static layer's size."""
+        return {} if self.backdrop_raw is None else {"backdrop": list(self.backdrop_raw.shape[1:])}
 
     def primitive_parameters(self) -> list[nn.Parameter]:
         """The per-primitive parameters (first dimension ``K``): what recycling resets rows of."""
-        return [p for n, p in self.named_parameters() if "." not in n]
+        return [p for n, p in self.named_parameters() if "." not in n and n != "backdrop_raw"]
+
+    @torch.no_grad()
+    def set_backdrop(self, image: Tensor) -> None:
+        """Set the static layer to ``image [3,h,w]`` in [0, 1] (clamped to [0.01, 0.99]), e.g. the median of the training frames.
+
+        Raises:
+            ValueError: if the decoder has no static layer, or ``image`` is not ``[3,h,w]`` of its size.
+        """
+        if self.backdrop_raw is None:
+            raise ValueError("this decoder has no static layer (build it with backdrop=(h, w))")
+        if tuple(image.shape) != tuple(self.backdrop_raw.shape):
+            raise ValueError(f"backdrop image must be {tuple(self.backdrop_raw.shape)}, got {tuple(image.shape)}")
+        self.backdrop_raw.copy_(torch.logit(image.clamp(0.01, 0.99)))
+
+    def backdrop_image(self, height: int, width: int) -> Tensor | None:
+        """The static layer at ``height x width`` (bilinear when that is not its own size), ``[3,H,W]`` in (0, 1); ``None`` without one."""
+        if self.backdrop_raw is None:
+            return None
+        img = torch.sigmoid(self.backdrop_raw)
+        if tuple(img.shape[1:]) != (height, width):
+            img = F.interpolate(img[None], size=(height, width), mode="bilinear", align_corners=False)[0]
+        return img
 
     # ---------------------------------------------------------------- geometry
     def spatial_mean(self, raw: Tensor) -> Tensor:
@@ -307,18 +338,30 @@ class ConditionedGaussians(nn.Module):
                 same compositing weights the visible brush of
                 :mod:`lagsplat.force` uses.
 
+        With a static layer the primitives are composited over zero with one more channel, their
+        coverage ``A = 1 - prod_i (1 - a_i)``, and the image is ``rgb + (1 - A) backdrop``; the
+        ``extra`` channels keep a zero background (no force acts on the static layer).
+
         Returns:
             ``(image [B,3,H,W] in [0, 1], extra image [B,C,H,W] or None)``.
         """
         means, gate, g = self.condition(z, geom)
         colors, bg = g.colors, self.background
+        backdrop = self.backdrop_image(height, width)
+        n_extra = 0 if extra is None else extra.shape[-1]
         if extra is not None:
             colors = colors if extra.dim() == 2 else colors.expand(extra.shape[0], -1, -1)
             colors = torch.cat([colors, extra.to(colors.dtype)], -1)
-            bg = torch.cat([bg, bg.new_zeros(extra.shape[-1])])
+            bg = torch.cat([bg, bg.new_zeros(n_extra)])
+        if backdrop is not None:  # the coverage channel, everything over zero
+            colors = torch.cat([colors, colors.new_ones(*colors.shape[:-1], 1)], -1)
+            bg = bg.new_zeros(3 + n_extra + 1)
         uv, covs, opacities, colors = self.screen(means, gate, g, colors, height, width, camera)
         img = rasterize(uv, covs, opacities, colors, height, width, background=bg, backend=backend or self.backend)
-        return img[:, :3].clamp(0.0, 1.0), (img[:, 3:] if extra is not None else None)
+        rgb = img[:, :3]
+        if backdrop is not None:
+            rgb = rgb + (1.0 - img[:, -1:]) * backdrop.to(rgb)[None]
+        return rgb.clamp(0.0, 1.0), (img[:, 3 : 3 + n_extra] if extra is not None else None)
 
     def render_motion(self, z: Tensor, height: int, width: int, q_std: Tensor) -> tuple[Tensor, Tensor]:
         """Render ``z [B,d]`` with its motion field, ``sum_i T_i a_i J_i diag(q_std)`` in pixels.

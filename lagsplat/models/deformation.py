@@ -70,6 +70,7 @@ class DeformationGaussians(ConditionedGaussians):
         background: RGB behind all primitives, in [0, 1].
         hidden: widths of the MLP trunk's SiLU layers (at least one).
         n_freqs: Fourier octaves of ``gamma`` (0: the position alone).
+        backdrop: the static layer's ``(h, w)`` (:class:`~lagsplat.models.decoder.ConditionedGaussians`), or ``None``.
 
     Raises:
         ValueError: on ``n_gaussians < 1``, ``d < 1``, an empty or non-positive ``hidden`` or ``n_freqs < 0``.
@@ -85,8 +86,9 @@ class DeformationGaussians(ConditionedGaussians):
         background: tuple[float, float, float] = (0.0, 0.0, 0.0),
         hidden: tuple[int, ...] = (64, 64),
         n_freqs: int = 4,
+        backdrop: tuple[int, int] | None = None,
     ) -> None:
-        super().__init__(n_gaussians, d, backend, background)
+        super().__init__(n_gaussians, d, backend, background, backdrop)
         hidden = tuple(int(h) for h in hidden)
         if not hidden or min(hidden) < 1 or int(n_freqs) < 0:
             raise ValueError(f"need hidden widths >= 1 (at least one layer) and n_freqs >= 0, got {hidden}, {n_freqs}")
@@ -106,7 +108,7 @@ class DeformationGaussians(ConditionedGaussians):
 
     def options(self) -> dict:
         """Constructor keywords beyond ``(K, d, backend, background)``, saved in ``stage1.pt``."""
-        return {"hidden": list(self.hidden), "n_freqs": self.n_freqs}
+        return {**super().options(), "hidden": list(self.hidden), "n_freqs": self.n_freqs}
 
     # ---------------------------------------------------------------- geometry
     def cholesky(self) -> Tensor:
@@ -296,16 +298,21 @@ def build_decoder(
     kind: str, n_gaussians: int, d: int, backend: Backend = "auto", background=(0.0, 0.0, 0.0), **options
 ) -> ConditionedGaussians:
     """A decoder of family ``kind`` (:data:`DECODERS`); ``options`` go to the deformation decoder
-    (``hidden``, ``n_freqs``) and the 3-D decoder (``camera``, ``depth_range``).
+    (``hidden``, ``n_freqs``), the 3-D decoder (``camera``, ``depth_range``) and both 2-D decoders (``backdrop``:
+    the static layer's ``(h, w)``).
 
     Raises:
-        ValueError: for an unknown ``kind`` (naming the known ones).
+        ValueError: for an unknown ``kind`` (naming the known ones), or a static layer on the 3-D decoder
+            (one image behind every view would be wrong in all but one).
     """
     if kind not in DECODERS:
         raise ValueError(f"unknown decoder {kind!r}; expected one of {sorted(DECODERS)} (stage1.decoder)")
     if kind == "conditioned":
-        return ConditionedGaussians(n_gaussians, d, backend=backend, background=tuple(background))
+        return ConditionedGaussians(n_gaussians, d, backend=backend, background=tuple(background), backdrop=options.get("backdrop"))
     if kind == "conditioned3d":
+        if options.get("backdrop") is not None:
+            raise ValueError("the 3-D decoder has no static layer (stage1.static_layer applies to the 2-D decoders)")
+        options.pop("backdrop", None)
         if "camera" not in options:
             raise ValueError("the 3-D decoder needs the main camera (decoder option 'camera'; a 3-D system's views give it)")
         return ConditionedGaussians3D(n_gaussians, d, backend=backend, background=tuple(background), **options)

@@ -27,19 +27,28 @@ from lagsplat.models.decoder import DIAG_FLOOR, ConditionedGaussians, inverse_so
 __all__ = ["placement_probability", "overload", "split_overloaded"]
 
 
-def placement_probability(frame: Tensor, motion_std: Tensor | None = None, w_motion: float = 1.0) -> Tensor:
+def placement_probability(frame: Tensor, motion_std: Tensor | None = None, w_motion: float = 1.0, backdrop: Tensor | None = None) -> Tensor:
     """Probability ``[H*W]`` (unnormalised) of placing a primitive at each pixel.
 
     ``0.8 |grad I| / max + 0.2`` (the reference's edge-favouring draw), plus
     ``w_motion * std / max`` where ``motion_std`` is the per-pixel temporal
     standard deviation of the training frames (``None`` or ``w_motion = 0``: the
-    reference draw).
+    reference draw). With a static layer (``backdrop``) the edges are its to draw:
+    ``|frame - backdrop| / max + 0.05`` (channel mean) replaces the edge term.
 
     Args:
         frame: ``[3,H,W]`` image in [0, 1].
         motion_std: ``[H,W]`` temporal standard deviation, or ``None``.
         w_motion: weight of the motion term.
+        backdrop: ``[3,H,W]`` the decoder's static layer, or ``None``.
     """
+    if backdrop is not None:
+        dep = (frame - backdrop.to(frame)).abs().mean(0).flatten()
+        prob = dep / dep.max().clamp_min(1e-12) + 0.05
+        if motion_std is not None and w_motion > 0:
+            m = motion_std.flatten().to(prob)
+            prob = prob + w_motion * m / m.max().clamp_min(1e-12)
+        return prob
     gray = frame.mean(0)
     gx = torch.zeros_like(gray)
     gy = torch.zeros_like(gray)

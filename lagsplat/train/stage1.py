@@ -54,7 +54,11 @@ class Stage1Config:
     (:func:`static_stereo_depth`), on the pixels whose stereo match is reliable. On the 3-D pendulum
     (64 px, 1500 steps, four training views 40 degrees apart) 0.1 lowered every camera's PSNR by 3-5 dB and
     widened the novel-view gap (4.8 to 5.7 dB), so it stays off by default; nine training views 10 degrees
-    apart, without it, bring the gap to 0.4 dB.
+    apart, without it, bring the gap to 0.4 dB. ``static_layer`` gives a 2-D decoder a static layer
+    (:class:`~lagsplat.models.decoder.ConditionedGaussians` ``backdrop``): a learned image behind the
+    primitives, started at the per-pixel median of the training frames, with the primitives placed where
+    the first frame departs from it and where the frames change (:func:`~lagsplat.models.densify.placement_probability`);
+    off, the paper's decoder draws the whole scene with its primitives.
     """
 
     n_gaussians: int = 1024
@@ -95,6 +99,7 @@ class Stage1Config:
     views_per_step: int = 1
     depth_range: tuple[float, float] | None = None
     w_depth: float = 0.0
+    static_layer: bool = False
 
     @classmethod
     def from_mapping(cls, m: Mapping[str, Any]) -> "Stage1Config":
@@ -177,7 +182,13 @@ def train_stage1(
         opts = {"camera": views.cameras[0], "depth_range": tuple(cfg.depth_range) if cfg.depth_range else scene_depth_range(views.cameras)}
         V = torch.from_numpy(np.ascontiguousarray(views.images[clip.train_idx]))  # uint8 [N,M,h,w,3]
         view_cams, train_views = views.cameras[1:], views.train_views
+    if cfg.static_layer:
+        opts["backdrop"] = (H, W)  # build_decoder refuses it for the 3-D decoder
     dec = build_decoder(cfg.decoder, cfg.n_gaussians, d, backend=cfg.backend, background=cfg.background, **opts)
+    backdrop = None
+    if cfg.static_layer:
+        backdrop = X.median(0).values  # [3,H,W]: what the frames show most of the time
+        dec.set_backdrop(backdrop)
     with torch.no_grad():
         z0 = torch.cat([enc(X[i : i + 256]) for i in range(0, N, 256)])
     motion_std = X.std(0).mean(0) if cfg.w_motion_init > 0 else None  # [H,W] temporal std of the training frames
@@ -190,7 +201,7 @@ def train_stage1(
 
     depth_target = static_stereo_depth(frames, views, clip.train_idx, dec.depth_range) if V is not None and cfg.w_depth > 0 else None
 
-    dec.init_from_frame(X[0], z0, sxy, cfg.sigma_q_floor, generator=gen, prob=placement_probability(X[0], motion_std, cfg.w_motion_init),
+    dec.init_from_frame(X[0], z0, sxy, cfg.sigma_q_floor, generator=gen, prob=placement_probability(X[0], motion_std, cfg.w_motion_init, backdrop),
                         **({"depth": stereo_depth(0, 0)} if V is not None else {}))  # fmt: skip
     model = AutoEncoder(enc, dec, H, W).to(dev)
     X = X.to(dev)
