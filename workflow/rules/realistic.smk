@@ -5,17 +5,19 @@
 #   snakemake -c2 realistic_suite                                   # every clip, into the cache folder
 #   snakemake -c2 realistic_suite --config realistic_dir=/scratch/clips
 #   snakemake -c2 realistic_nuisance                                # the nuisance clips (distractor, sticks, short, long string)
+#   snakemake -c2 realistic_backdrops                               # the backdrop clips (other walls, distractors, object sizes)
 #
 # Config keys: realistic_dir (default data/cache/realistic; not committed); realistic_args (extra flags of
 # every scoring job, e.g. "--diagnose --true-law": the diagnosis too, scored against the clip's effect, and the
 # clip's ground-truth law in its chart, benchmarks/_oracle.py). One job per clip, each logged.
 #   snakemake -c2 realistic_short_scores   # the diagnosis with the training part cut to three periods (after realistic_scores)
-from lagsplat.synth.realistic import nuisance_clips, outside_class_clips, realistic_suite
+from lagsplat.synth.realistic import backdrop_clips, nuisance_clips, outside_class_clips, realistic_suite
 
 REALISTIC_DIR = str(config.get("realistic_dir", "data/cache/realistic"))
 REALISTIC_CLIPS = [e["name"] for e in realistic_suite()]
 OUTSIDE_CLASS_CLIPS = [e["name"] for e in outside_class_clips()]  # rendered with the suite; the pipeline must stop on them
 NUISANCE_CLIPS = [e["name"] for e in nuisance_clips()]  # what the clip preparation is measured on; not scored
+BACKDROP_CLIPS = [e["name"] for e in backdrop_clips()]  # held out for Stage 1: other backdrops, distractors, object sizes
 
 
 rule realistic_clip:
@@ -26,7 +28,7 @@ rule realistic_clip:
     log:
         f"{RESULTS}/logs/realistic/{{clip}}.log",
     wildcard_constraints:
-        clip="|".join(re.escape(c) for c in REALISTIC_CLIPS + OUTSIDE_CLASS_CLIPS + NUISANCE_CLIPS),
+        clip="|".join(re.escape(c) for c in REALISTIC_CLIPS + OUTSIDE_CLASS_CLIPS + NUISANCE_CLIPS + BACKDROP_CLIPS),
     threads: 1
     shell:
         f"python -m lagsplat.synth.realistic --clip {{wildcards.clip}} --out {REALISTIC_DIR} > {{log}} 2>&1"
@@ -43,6 +45,14 @@ rule realistic_nuisance:
     sticks, a clip of 2.5 periods, a long string; each with its observed frequency in <clip>.truth.npz."""
     input:
         [f"{REALISTIC_DIR}/{c}.mp4" for c in NUISANCE_CLIPS],
+
+
+rule realistic_backdrops:
+    """The backdrop clips (lagsplat.synth.realistic.backdrops): the suite's oscillators in front of a checker, wood,
+    photographs or a cluttered wall, with other props, a turning fan or swaying plant, a moving light, and objects
+    half to twice the suite's size; each with the suite's truth keys in <clip>.truth.npz."""
+    input:
+        [f"{REALISTIC_DIR}/{c}.mp4" for c in BACKDROP_CLIPS],
 
 
 REALISTIC_ROWS = f"{RESULTS}/benchmarks/realistic"
