@@ -224,10 +224,41 @@ def turning_frequency(turning_frames: list[float], fps: float) -> tuple[float, i
     return (k - 1) / 2.0 / span, (k - 1) // 2
 
 
+def kymograph_frequency(
+    frames: np.ndarray, columns: list[int], rows: list[int], threshold: float, prominence: float, min_gap: int, fps: float
+) -> tuple[float, int, np.ndarray]:
+    """Frequency (Hz) of a vertical oscillation too blurred to track, from its kymograph.
+
+    Each frame's strip ``columns = [x0, x1]`` is averaged across to one column of grey levels; a row
+    departs where it differs from that row's median over the range by more than ``threshold`` grey
+    levels, and the object's lowest point is the lowest departing row within ``rows = [y0, y1]``.
+    Its maxima (one per period, at least ``prominence`` px deep and ``min_gap`` frames apart) are same-phase events:
+    ``f = (k - 1) / (time between the first and the last)``.
+
+    Returns:
+        ``(hz, periods, y)``: ``y [T]`` the lowest point per frame (px; ``nan`` where nothing departs).
+
+    Raises:
+        ValueError: fewer than 2 maxima.
+    """
+    from scipy.signal import find_peaks
+
+    K = frames[:, :, columns[0] : columns[1]].astype(np.float32).mean(2)  # [T, H]
+    dep = np.abs(K - np.median(K, 0))[:, rows[0] : rows[1]] > threshold
+    y = np.array([rows[0] + np.flatnonzero(d)[-1] if d.any() else np.nan for d in dep])
+    s = np.nan_to_num(y - np.nanmedian(y))
+    peaks, _ = find_peaks(s, prominence=prominence, distance=min_gap)
+    if len(peaks) < 2:
+        raise ValueError(f"need at least 2 maxima of the kymograph's lowest point, got {len(peaks)}")
+    return (len(peaks) - 1) / ((peaks[-1] - peaks[0]) / fps), len(peaks) - 1, y
+
+
 def measure_reference(entry: dict, plot: str | Path | None = None) -> dict:
     """Re-measure one manifest entry's reference frequency, without lagsplat's preparation.
 
-    Uses ``entry["turning_frames"]`` when present (hand-marked), else the template tracker on
+    Uses ``entry["turning_frames"]`` when present (hand-marked), then ``entry["reference_kymograph"]``
+    (:func:`kymograph_frequency`: ``columns``, ``rows``, ``threshold``, ``prominence``, ``min_gap``; for a motion too
+    blurred to track), else the template tracker on
     ``entry["reference_track"]`` (``box`` in the first frame of ``frames``, ``search_px``,
     ``update``; optional ``measure`` ``[a, b]``: the sub-range, relative to ``frames[0]``, where the
     object moves, default all; ``count``: ``"crossings"`` (default, :func:`crossing_frequency`) or
@@ -247,9 +278,16 @@ def measure_reference(entry: dict, plot: str | Path | None = None) -> dict:
     if entry.get("turning_frames"):
         hz, periods = turning_frequency(entry["turning_frames"], fps)
         return {"hz": hz, "periods": periods, "spectral_hz": float("nan"), "method": "hand-marked turning points", "frames_tracked": 0}
+    if entry.get("reference_kymograph"):
+        rk = entry["reference_kymograph"]
+        start, stop = entry["frames"]
+        frames = read_gray(clip_path(entry), start, stop)
+        hz, periods, y = kymograph_frequency(frames, rk["columns"], rk["rows"], rk["threshold"], rk["prominence"], rk["min_gap"], fps)
+        spec = spectral_peak_frequency(np.nan_to_num(y - np.nanmedian(y)), 1.0 / fps)
+        return {"hz": hz, "periods": periods, "spectral_hz": spec, "method": "kymograph of a vertical strip, lowest point's maxima", "frames_tracked": len(y)}
     rt = entry.get("reference_track")
     if not rt:
-        raise ValueError(f"{entry['name']}: neither turning_frames nor reference_track in the manifest")
+        raise ValueError(f"{entry['name']}: neither turning_frames, reference_kymograph nor reference_track in the manifest")
     start, stop = entry["frames"]
     frames = read_gray(clip_path(entry), start, stop)
     xy = track_template(frames, rt["box"], rt.get("search_px", 40), rt.get("update", 0.0))

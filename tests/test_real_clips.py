@@ -6,6 +6,7 @@ import importlib.util
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -16,7 +17,7 @@ _spec.loader.exec_module(rc)
 KEYS = {"name", "file", "source_repo", "source_commit", "source_path", "source_url", "sha256", "licence", "derived", "fps",
         "frames", "what", "nuisances", "reference_hz", "reference_method", "reference_periods", "split"}  # fmt: skip
 #: Cheap clips whose reference the test re-measures (short, small frames).
-CHEAP = ["pendulum_drag", "oscillating_cart_short", "spring_wars_short"]
+CHEAP = ["pendulum_drag", "oscillating_cart_short", "spring_wars_short", "lab_spring"]
 
 
 @pytest.fixture(scope="module")
@@ -36,7 +37,7 @@ def test_manifest_well_formed(manifest):
         start, stop = e["frames"]
         assert start >= 0 and (stop is None or stop > start)
         assert e["fps"] > 0 and e["reference_hz"] > 0 and math.isfinite(e["reference_hz"])
-        assert e.get("turning_frames") or e.get("reference_track"), e["name"]
+        assert e.get("turning_frames") or e.get("reference_track") or e.get("reference_kymograph"), e["name"]
 
 
 def test_files_present_and_intact(manifest):
@@ -60,3 +61,15 @@ def test_reference_reproduces(manifest, name):
     entry = next(e for e in manifest if e["name"] == name)
     r = rc.measure_reference(entry)
     assert abs(r["hz"] - entry["reference_hz"]) <= 0.01 * entry["reference_hz"], (name, r["hz"], entry["reference_hz"])
+
+
+def test_kymograph_frequency_reads_a_blurred_vertical_oscillation():
+    fps, f = 60.0, 0.9
+    t = np.arange(600) / fps
+    frames = np.full((len(t), 120, 40), 200.0, np.float32)
+    rows = np.arange(120)[None, :]
+    bottom = 60 + 30 * np.sin(2 * np.pi * f * t)[:, None]  # the object's lowest point, px
+    frames[:] -= 120.0 * ((rows <= bottom) & (rows >= bottom - 15))[:, :, None]  # a dark block hanging down to it
+    hz, periods, y = rc.kymograph_frequency(frames, [10, 30], [0, 120], 25.0, 20.0, 30, fps)
+    assert periods >= 7 and abs(hz - f) <= 0.01 * f
+    assert np.nanmax(y) == pytest.approx(90, abs=1)
