@@ -1,13 +1,17 @@
 """Stage-1 training speed: seconds per step, where a step spends them, and a side-by-side comparison.
 
-Two operating points, each on a synthetic pendulum clip rendered at its size
-(:func:`lagsplat.synth.pendulum.make_pendulum_clip`, 20 s at 30 fps):
+Three operating points: a synthetic pendulum clip rendered at the setting's size
+(:func:`lagsplat.synth.pendulum.make_pendulum_clip`, 20 s at 30 fps), and a user's clip
+(a realistic-suite render, ``lagsplat.synth.realistic``, rendered first if it is not cached):
 
 ========== ========= ====== ========= ===== ===============================
 setting    image     batch  Gaussians d     Stage-1 settings
 ========== ========= ====== ========= ===== ===============================
 toy        64 x 64   16     1024      1     ``system=toy`` (the main job)
 softrobot  32 x 32   64     2048      4     ``system=krauss_2seg``, batch 64
+realistic  48 x 64   16     1024      1     ``system=realistic``: the suite's 128 x 128
+                                              pendulum, cropped and resized by the
+                                              automatic preparation as ingest does
 ========== ========= ====== ========= ===== ===============================
 
 For each it prints
@@ -63,7 +67,10 @@ sys.path.insert(0, str(ROOT))  # the checkout under test (a worktree of another 
 SETTINGS = {  # the system whose configured Stage-1 settings are used, and what is set on top
     "toy": {"system": "toy", "size": 64, "set": {}},
     "softrobot": {"system": "krauss_2seg", "size": 32, "set": {"batch": 64}},
+    # a user's clip: the realistic suite's 128 x 128 pendulum, prepared automatically (crop and resolution) as ingest does
+    "realistic": {"system": "realistic", "clip": "pendulum-none-s0-128", "set": {}},
 }
+REALISTIC_CACHE = Path(os.environ.get("LAGSPLAT_REALISTIC_CACHE", HERE.parent / "data" / "cache" / "realistic"))
 PHASES = ("stage1.encode", "stage1.decode", "stage1.loss", "stage1.backward", "stage1.optimizer", "stage1.recycle")
 RASTER = ("rasterize.cpu.forward", "rasterize.cpu.backward")
 
@@ -88,11 +95,34 @@ def _config(setting: str, steps: int):
 
 
 def _clip(setting: str):
-    """The synthetic pendulum clip at the setting's size."""
-    from lagsplat.synth.pendulum import make_pendulum_clip
+    """The setting's clip: the synthetic pendulum at its size, or a realistic-suite clip (rendered into
+    ``data/cache/realistic`` if it is not there) ingested with the ``realistic`` system's automatic preparation."""
+    s = SETTINGS[setting]
+    if "clip" not in s:
+        from lagsplat.synth.pendulum import make_pendulum_clip
 
-    size = SETTINGS[setting]["size"]
-    return make_pendulum_clip(size=(size, size))
+        return make_pendulum_clip(size=(s["size"], s["size"]))
+    from lagsplat.cli import compose
+    from lagsplat.ingest import ingest
+
+    path = REALISTIC_CACHE / f"{s['clip']}.mp4"
+    if not path.exists():
+        from lagsplat.synth.realistic import make_clip
+
+        make_clip(s["clip"], REALISTIC_CACHE)
+    os.environ["LAGSPLAT_CONF"] = str(ROOT / "conf")
+    from omegaconf import OmegaConf
+
+    cfg = compose([f"system={s['system']}", f"system.source.path={path}"])
+    system = OmegaConf.to_container(cfg.system, resolve=True)
+    system.update(crop="auto", resize="auto", split={"train_fraction": "auto"})  # what the ingest stage does for a recording
+    return ingest(system)
+
+
+def _size(setting: str) -> int:
+    """The edge (px) of the square scene the rasteriser ratio is timed on: the setting's, or the prepared clip's longer side."""
+    s = SETTINGS[setting]
+    return s["size"] if "size" in s else max(_clip(setting).images.shape[1:3])
 
 
 def worker(setting: str, steps: int, threads: int) -> dict:
@@ -208,7 +238,7 @@ def main(argv: list[str] | None = None) -> None:
             medians = alternating_medians(roots, args.rounds, lambda root: seconds_per_step(root, setting, args.steps, args.threads))
             base = medians["this checkout"]
             row = {"setting": setting, "s/step": f"{base:.4f}", "frames/s": f"{cfg.batch / base:.0f}", **against_columns(medians, "s/step")}
-            fwd, fb, _ = bench_one("cpu", cfg.batch, cfg.n_gaussians, SETTINGS[setting]["size"], 5)
+            fwd, fb, _ = bench_one("cpu", cfg.batch, cfg.n_gaussians, _size(setting), 5)
             row["raster fwd+bwd / fwd"] = f"{fb / fwd:.2f}"
             rows.append(row)
             print(f"  done: {row}", flush=True)
