@@ -12,6 +12,7 @@ from torch.profiler import record_function
 
 from lagsplat.io.clip import TRAIN, Clip
 from lagsplat.models.autoencoder import AutoEncoder, frames_to_tensor
+from lagsplat.models.decoder import latent_gate
 from lagsplat.models.deformation import build_decoder
 from lagsplat.models.densify import placement_probability, split_overloaded
 from lagsplat.motion import motion_masks
@@ -58,7 +59,11 @@ class Stage1Config:
     (:class:`~lagsplat.models.decoder.ConditionedGaussians` ``backdrop``): a learned image behind the
     primitives, started at the per-pixel median of the training frames, with the primitives placed where
     the first frame departs from it and where the frames change (:func:`~lagsplat.models.densify.placement_probability`);
-    off, the paper's decoder draws the whole scene with its primitives.
+    off, the paper's decoder draws the whole scene with its primitives. The layer makes hiding every
+    primitive cheap, and the encoder then learns to do so (its encodings leave every latent gate, the
+    image is the layer alone); so with it, ``w_center`` times ``|mean z|^2 + |std z - 1|^2`` over the
+    batch keeps the encodings centred with unit spread, and a primitive that no training state shows
+    is recycled as a dead one.
     """
 
     n_gaussians: int = 1024
@@ -100,6 +105,7 @@ class Stage1Config:
     depth_range: tuple[float, float] | None = None
     w_depth: float = 0.0
     static_layer: bool = False
+    w_center: float = 0.1
 
     @classmethod
     def from_mapping(cls, m: Mapping[str, Any]) -> "Stage1Config":
@@ -264,6 +270,8 @@ def train_stage1(
                 loss = loss + cfg.w_nonlocal * nonlocal_filter_penalty(enc.large_kernels())
             if static is not None:
                 loss = loss + cfg.w_static * static_motion_penalty(motion, static)
+            if backdrop is not None and cfg.w_center > 0 and len(idx) > 1:  # the encodings may not flee every primitive's gate
+                loss = loss + cfg.w_center * (z.mean(0).pow(2) + (z.std(0) - 1.0).pow(2)).sum()
             if centres is not None and len(centres):
                 c = torch.as_tensor(rng.choice(centres, size=max(1, cfg.batch // 2)), device=dev)
                 loss = loss + cfg.w_temporal * temporal_curvature_penalty(enc(X[torch.cat([c - 1, c, c + 1])]).reshape(3, len(c), -1), z)
@@ -289,6 +297,10 @@ def train_stage1(
         if step >= cfg.recycle_warmup and at_period and step + cfg.recycle_every < cfg.steps:
             with torch.no_grad(), record_function("stage1.recycle"):
                 dead = torch.sigmoid(dec.logit_alpha) < cfg.alpha_dead
+                if backdrop is not None:  # the static layer makes hiding every primitive cheap: one that no training state shows is dead too
+                    g = dec.geometry()
+                    Z = torch.cat([enc(X[i : i + 256]) for i in range(0, N, 256)])
+                    dead |= torch.sigmoid(dec.logit_alpha) * latent_gate(Z, g.mu_q, g.L_qq, g.L_qq_inv).amax(0) < cfg.alpha_dead
                 n_dead = int(dead.sum())
                 if n_dead:
                     j = int(rng.integers(N))
