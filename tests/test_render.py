@@ -590,22 +590,33 @@ def test_cpu_gradients_equal_dense_in_double_to_1e_5(H, W, B, C, seed) -> None:
 
 
 def test_exp_polynomial_is_within_one_ulp_on_the_cut_range() -> None:
-    """:func:`cpu_kernels.exp_neg` against float64 ``exp`` on ``[-4.5, 0]`` (every float32 alpha the rule keeps)."""
+    """Both forms of :func:`cpu_kernels.exp_neg` against float64 ``exp`` on ``[-4.5, 0]`` (every float32 alpha
+    the rule keeps), and bit for bit against each other (the kernels' choice by target changes no image)."""
     from numba import njit
 
-    @njit
-    def run(x):  # pragma: no cover - compiled
-        out = np.empty_like(x)
-        for i in range(x.shape[0]):
-            out[i] = ck.exp_neg(x[i])
-        return out
+    def runner(f):
+        @njit
+        def run(x):  # pragma: no cover - compiled
+            out = np.empty_like(x)
+            for i in range(x.shape[0]):
+                out[i] = f(x[i])
+            return out
+
+        return run
 
     x = np.linspace(-4.5, 0.0, 200_001).astype(np.float32)
     ref = np.exp(x.astype(np.float64))
-    rel = np.abs(run(x).astype(np.float64) - ref) / ref
-    assert rel.max() < 2.0e-7  # float32 ulp at 1 is 1.19e-7
-    assert run(np.array([0.0], np.float32))[0] == 1.0
-    assert run(np.array([-50.0], np.float32))[0] == pytest.approx(math.exp(-4.5), rel=2e-7)  # clamped
+    outs = []
+    for f in (ck.exp_neg_shift, ck.exp_neg_select):
+        run = runner(f)
+        out = run(x)
+        rel = np.abs(out.astype(np.float64) - ref) / ref
+        assert rel.max() < 2.0e-7  # float32 ulp at 1 is 1.19e-7
+        assert run(np.array([0.0], np.float32))[0] == 1.0
+        assert run(np.array([-50.0], np.float32))[0] == pytest.approx(math.exp(-4.5), rel=2e-7)  # clamped
+        outs.append(out)
+    assert np.array_equal(outs[0], outs[1])
+    assert ck.exp_neg in (ck.exp_neg_shift, ck.exp_neg_select)
 
 
 _GRAD_SCRIPT = """

@@ -8,7 +8,7 @@ straight loop over the tile rows its support box covers, flattened
 (``i = row * TILE + column``), so that LLVM vectorises it: ``TILE = 16`` is
 one AVX-512 register of float32, every per-pixel quantity lives in a
 tile-local array, the exponential is a branch-free polynomial
-(:func:`exp_neg`), and the cut, cap and support tests are selects, not
+(:data:`exp_neg`, in the form that vectorises on the target CPU), and the cut, cap and support tests are selects, not
 branches.
 
 The backward pass replays the forward loop front to back with the same
@@ -29,6 +29,8 @@ flattened primitives.
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 from numba import njit, prange
 
@@ -43,31 +45,34 @@ _F0 = np.float32(0.0)
 _F1 = np.float32(1.0)
 
 
-@njit(inline="always", error_model="numpy")
-def exp_neg(x):  # pragma: no cover - compiled
-    """``exp(x)`` in float32 for ``x`` in ``[-4.5, 0]`` (the Gaussian falloff ``-d2/2`` inside the 3-sigma cut).
+def _polynomial_docs(variant: str) -> str:
+    return f"""``exp(x)`` in float32 for ``x`` in ``[-4.5, 0]`` (the Gaussian falloff ``-d2/2`` inside the 3-sigma cut).
 
     Branch-free so that the pixel loops vectorise: ``x = k ln2 + r`` with
     integer ``k`` in ``[-7, 0]`` and ``|r| <= 0.35`` (ln 2 split in two so the
     reduction is exact), ``exp(r)`` by its Taylor polynomial to degree 7 and
-    ``2^k`` by three selects of exact powers of two. Everything stays in
-    float32: a float-to-integer conversion has a packed form for 32-bit
-    integers only from AVX-512 on, and without it LLVM leaves the loop scalar
-    on an AVX2 CPU. Relative error at most 1.2e-7 (about one float32 ulp) on
-    the whole range, measured in ``tests/test_render.py``. Inputs below -4.5
-    are clamped to it (their alphas are cut anyway).
+    {variant} Relative error at most 1.2e-7 (about one float32 ulp) on the
+    whole range, measured in ``tests/test_render.py``; both variants give the
+    same bits. Inputs below -4.5 are clamped to it (their alphas are cut anyway).
     """
+
+
+@njit(inline="always", error_model="numpy")
+def exp_neg_shift(x):  # pragma: no cover - compiled
+    x = max(x, np.float32(-4.5))
+    k = int(x * _LOG2E - np.float32(0.5))  # truncation toward zero = round to nearest for x <= 0
+    kf = np.float32(k)
+    r = (x - kf * _LN2_HI) - kf * _LN2_LO
+    p = _taylor7(r)
+    return p * (np.float32(1 << (k + 8)) * np.float32(1.0 / 256.0))
+
+
+@njit(inline="always", error_model="numpy")
+def exp_neg_select(x):  # pragma: no cover - compiled
     x = max(x, np.float32(-4.5))
     kf = np.ceil(x * _LOG2E - np.float32(0.5))  # = round to nearest for x <= 0 (a truncation toward zero)
     r = (x - kf * _LN2_HI) - kf * _LN2_LO
-    p = np.float32(1.0 / 5040.0)
-    p = p * r + np.float32(1.0 / 720.0)
-    p = p * r + np.float32(1.0 / 120.0)
-    p = p * r + np.float32(1.0 / 24.0)
-    p = p * r + np.float32(1.0 / 6.0)
-    p = p * r + np.float32(0.5)
-    p = p * r + _F1
-    p = p * r + _F1
+    p = _taylor7(r)
     m = -kf  # 0 .. 7: 2^k = 2^-m, its binary digits as selects
     s = np.float32(1.0 / 16.0) if m >= np.float32(4.0) else _F1
     m = m - np.float32(4.0) if m >= np.float32(4.0) else m
@@ -75,6 +80,46 @@ def exp_neg(x):  # pragma: no cover - compiled
     m = m - np.float32(2.0) if m >= np.float32(2.0) else m
     s = s * np.float32(0.5) if m >= np.float32(1.0) else s
     return p * s
+
+
+@njit(inline="always", error_model="numpy")
+def _taylor7(r):  # pragma: no cover - compiled
+    """``exp(r)`` for ``|r| <= 0.35``: its Taylor polynomial to degree 7 (Horner, float32)."""
+    p = np.float32(1.0 / 5040.0)
+    p = p * r + np.float32(1.0 / 720.0)
+    p = p * r + np.float32(1.0 / 120.0)
+    p = p * r + np.float32(1.0 / 24.0)
+    p = p * r + np.float32(1.0 / 6.0)
+    p = p * r + np.float32(0.5)
+    p = p * r + _F1
+    return p * r + _F1
+
+
+exp_neg_shift.__doc__ = _polynomial_docs(
+    "``2^k`` from an integer shift. For AVX-512 targets, whose packed float-to-int64 conversion keeps the loop "
+    "vectorised: the form the kernels were tuned with there."
+)
+exp_neg_select.__doc__ = _polynomial_docs(
+    "``2^k`` by three selects of exact powers of two, all in float32. For targets without AVX-512 (AVX2): "
+    "there the float-to-integer conversion of :func:`exp_neg_shift` is scalar and keeps the loop scalar."
+)
+
+
+def _targets_avx512() -> bool:
+    """Whether numba compiles for a CPU with AVX-512: ``NUMBA_CPU_FEATURES`` when set (a chosen target), else the host's."""
+    feats = os.environ.get("NUMBA_CPU_FEATURES")
+    if feats is None:
+        try:
+            import llvmlite.binding as llvm
+
+            feats = llvm.get_host_cpu_features().flatten()
+        except (ImportError, RuntimeError):
+            return False
+    return "+avx512f" in feats.split(",")
+
+
+#: The exponential the kernels use, chosen by the target's vector extension (:func:`_targets_avx512`).
+exp_neg = exp_neg_shift if _targets_avx512() else exp_neg_select
 
 
 @njit(cache=True)
