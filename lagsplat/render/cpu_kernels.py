@@ -45,20 +45,17 @@ _F0 = np.float32(0.0)
 _F1 = np.float32(1.0)
 
 
-def _polynomial_docs(variant: str) -> str:
-    return f"""``exp(x)`` in float32 for ``x`` in ``[-4.5, 0]`` (the Gaussian falloff ``-d2/2`` inside the 3-sigma cut).
-
-    Branch-free so that the pixel loops vectorise: ``x = k ln2 + r`` with
-    integer ``k`` in ``[-7, 0]`` and ``|r| <= 0.35`` (ln 2 split in two so the
-    reduction is exact), ``exp(r)`` by its Taylor polynomial to degree 7 and
-    {variant} Relative error at most 1.2e-7 (about one float32 ulp) on the
-    whole range, measured in ``tests/test_render.py``; both variants give the
-    same bits. Inputs below -4.5 are clamped to it (their alphas are cut anyway).
-    """
-
-
 @njit(inline="always", error_model="numpy")
 def exp_neg_shift(x):  # pragma: no cover - compiled
+    """``exp(x)`` in float32 for ``x`` in ``[-4.5, 0]`` (the Gaussian falloff ``-d2/2`` inside the 3-sigma cut).
+
+    Branch-free so that the pixel loops vectorise: ``x = k ln2 + r`` with integer ``k`` in
+    ``[-7, 0]`` and ``|r| <= 0.35`` (ln 2 split in two so the reduction is exact), ``exp(r)`` by
+    :func:`_taylor7`, and ``2^k`` from an integer shift: the form for AVX-512 targets, whose
+    packed float-to-int64 conversion keeps the loop vectorised (the one the kernels were tuned with).
+    Relative error at most 1.2e-7 (one float32 ulp), the same bits as :func:`exp_neg_select`
+    (``tests/test_render.py``). Inputs below -4.5 are clamped to it (their alphas are cut anyway).
+    """
     x = max(x, np.float32(-4.5))
     k = int(x * _LOG2E - np.float32(0.5))  # truncation toward zero = round to nearest for x <= 0
     kf = np.float32(k)
@@ -69,6 +66,15 @@ def exp_neg_shift(x):  # pragma: no cover - compiled
 
 @njit(inline="always", error_model="numpy")
 def exp_neg_select(x):  # pragma: no cover - compiled
+    """``exp(x)`` in float32 for ``x`` in ``[-4.5, 0]`` (the Gaussian falloff ``-d2/2`` inside the 3-sigma cut).
+
+    Branch-free so that the pixel loops vectorise: ``x = k ln2 + r`` with integer ``k`` in
+    ``[-7, 0]`` and ``|r| <= 0.35`` (ln 2 split in two so the reduction is exact), ``exp(r)`` by
+    :func:`_taylor7`, and ``2^k`` by three selects of exact powers of two, all in float32: the
+    form for targets without AVX-512 (AVX2), where the float-to-integer conversion of
+    :func:`exp_neg_shift` is scalar and keeps the loop scalar. Same bits and error as
+    :func:`exp_neg_shift`; inputs below -4.5 are clamped to it.
+    """
     x = max(x, np.float32(-4.5))
     kf = np.ceil(x * _LOG2E - np.float32(0.5))  # = round to nearest for x <= 0 (a truncation toward zero)
     r = (x - kf * _LN2_HI) - kf * _LN2_LO
@@ -93,16 +99,6 @@ def _taylor7(r):  # pragma: no cover - compiled
     p = p * r + np.float32(0.5)
     p = p * r + _F1
     return p * r + _F1
-
-
-exp_neg_shift.__doc__ = _polynomial_docs(
-    "``2^k`` from an integer shift. For AVX-512 targets, whose packed float-to-int64 conversion keeps the loop "
-    "vectorised: the form the kernels were tuned with there."
-)
-exp_neg_select.__doc__ = _polynomial_docs(
-    "``2^k`` by three selects of exact powers of two, all in float32. For targets without AVX-512 (AVX2): "
-    "there the float-to-integer conversion of :func:`exp_neg_shift` is scalar and keeps the loop scalar."
-)
 
 
 def _targets_avx512() -> bool:

@@ -195,8 +195,12 @@ def train_stage1(
     if cfg.static_layer:
         backdrop = X.median(0).values  # [3,H,W]: what the frames show most of the time
         dec.set_backdrop(backdrop)
+    def encode_all() -> Tensor:
+        """``[N,d]`` encodings of all training frames, in batches of 256 (call under ``no_grad``)."""
+        return torch.cat([enc(X[i : i + 256]) for i in range(0, N, 256)])
+
     with torch.no_grad():
-        z0 = torch.cat([enc(X[i : i + 256]) for i in range(0, N, 256)])
+        z0 = encode_all()
     motion_std = X.std(0).mean(0) if cfg.w_motion_init > 0 else None  # [H,W] temporal std of the training frames
     sxy = dec.spatial_sigma(cfg.sigma_xy)  # the initial spatial extent in the decoder's units
 
@@ -297,9 +301,9 @@ def train_stage1(
         if step >= cfg.recycle_warmup and at_period and step + cfg.recycle_every < cfg.steps:
             with torch.no_grad(), record_function("stage1.recycle"):
                 dead = torch.sigmoid(dec.logit_alpha) < cfg.alpha_dead
-                if backdrop is not None:  # the static layer makes hiding every primitive cheap: one that no training state shows is dead too
+                Z = encode_all() if backdrop is not None else None  # every training frame's encoding, encoded once
+                if Z is not None:  # the static layer makes hiding every primitive cheap: one that no training state shows is dead too
                     g = dec.geometry()
-                    Z = torch.cat([enc(X[i : i + 256]) for i in range(0, N, 256)])
                     dead |= torch.sigmoid(dec.logit_alpha) * latent_gate(Z, g.mu_q, g.L_qq, g.L_qq_inv).amax(0) < cfg.alpha_dead
                 n_dead = int(dead.sum())
                 if n_dead:
@@ -313,7 +317,7 @@ def train_stage1(
                             target = V[j, train_views[m]].to(dev).permute(2, 0, 1).float().div_(255.0)
                         extra = {"camera": cam, "depth": stereo_depth(j, m + 1)}
                     rendered = dec(zj, target.shape[1], target.shape[2], camera=cam)[0]
-                    zs = torch.cat([enc(X[i : i + 256]) for i in range(0, N, 256)]).std(0)
+                    zs = (encode_all() if Z is None else Z).std(0)
                     n_split = int(round(cfg.split_share * n_dead))
                     to_split = dead & (torch.cumsum(dead.long(), 0) <= n_split)
                     used, split = split_overloaded(dec, to_split, zs, sxy) if n_split else (torch.zeros_like(dead),) * 2
