@@ -42,20 +42,17 @@ def placement_probability(frame: Tensor, motion_std: Tensor | None = None, w_mot
         w_motion: weight of the motion term.
         backdrop: ``[3,H,W]`` the decoder's static layer, or ``None``.
     """
-    if backdrop is not None:
+    if backdrop is not None:  # the layer draws the edges: where the frame departs from it
         dep = (frame - backdrop.to(frame)).abs().mean(0).flatten()
         prob = dep / dep.max().clamp_min(1e-12) + 0.05
-        if motion_std is not None and w_motion > 0:
-            m = motion_std.flatten().to(prob)
-            prob = prob + w_motion * m / m.max().clamp_min(1e-12)
-        return prob
-    gray = frame.mean(0)
-    gx = torch.zeros_like(gray)
-    gy = torch.zeros_like(gray)
-    gx[:, :-1] = gray[:, 1:] - gray[:, :-1]
-    gy[:-1, :] = gray[1:, :] - gray[:-1, :]
-    mag = torch.sqrt(gx**2 + gy**2).flatten()
-    prob = 0.8 * mag / mag.max().clamp_min(1e-12) + 0.2
+    else:
+        gray = frame.mean(0)
+        gx = torch.zeros_like(gray)
+        gy = torch.zeros_like(gray)
+        gx[:, :-1] = gray[:, 1:] - gray[:, :-1]
+        gy[:-1, :] = gray[1:, :] - gray[:-1, :]
+        mag = torch.sqrt(gx**2 + gy**2).flatten()
+        prob = 0.8 * mag / mag.max().clamp_min(1e-12) + 0.2
     if motion_std is not None and w_motion > 0:
         m = motion_std.flatten().to(prob)
         prob = prob + w_motion * m / m.max().clamp_min(1e-12)
