@@ -92,7 +92,7 @@ CHECKS: dict[str, Bound] = {
     "chart.n_metric_samples": POSITIVE_INT, "chart.rho": POSITIVE, "chart.refine_iters": COUNT,
     # stage2 (Stage2Config)
     "stage2.c0": NON_NEGATIVE, "stage2.dissipation_init": NON_NEGATIVE, "stage2.hidden[]": POSITIVE_INT,
-    "stage2.eps_V": NON_NEGATIVE, "stage2.zeta_floor": NON_NEGATIVE, "stage2.stride": POSITIVE_INT, "stage2.sigma": NON_NEGATIVE,
+    "stage2.eps_V": NON_NEGATIVE, "stage2.zeta_floor": NON_NEGATIVE, "stage2.stride": POSITIVE_INT, "stage2.max_step_phase": NON_NEGATIVE, "stage2.sigma": NON_NEGATIVE,
     "stage2.w_q": NON_NEGATIVE, "stage2.w_v": NON_NEGATIVE, "stage2.lr": POSITIVE, "stage2.lr_potential_input": POSITIVE, "stage2.w_actuation_linear": NON_NEGATIVE, "stage2.rollout_steps": POSITIVE_INT, "stage2.potential_kinks": NON_NEGATIVE, "stage2.potential_kinks_alternatives[]": NON_NEGATIVE, "stage2.epochs": POSITIVE_INT,
     "stage2.batch": POSITIVE_INT, "stage2.windows_per_epoch": POSITIVE_INT, "stage2.grad_clip": POSITIVE,
     "stage2.select_every": POSITIVE_INT, "stage2.select_from": NON_NEGATIVE, "stage2.select_windows": POSITIVE_INT, "stage2.select_periods": POSITIVE,

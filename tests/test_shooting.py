@@ -60,6 +60,28 @@ def test_shooting_loss_scores_every_chained_step():
     torch.testing.assert_close(got, want / 3)
 
 
+def test_one_frame_velocities_and_substeps_match_the_frame_rate_verlet_map():
+    """With ``k_v = 1`` the targets are one-frame central differences, and a step of ``h`` run as ``n`` sub-steps
+    scores exactly what ``n`` chained steps of ``h / n`` give."""
+    t = np.arange(30) * 0.1
+    q = np.stack([t**3, 3 * t], 1)
+    _, v0, _, V, _ = multi_step_windows(q, 0.1, 2, 2, k_v=1)
+    c = 0 + 2 + 2
+    np.testing.assert_allclose(V[0, 0], [(q[c + 1, 0] - q[c - 1, 0]) / 0.2, 3.0], atol=1e-12)
+    with pytest.raises(ValueError, match="k_v=3"):
+        multi_step_windows(q, 0.1, 2, 2, k_v=3)
+    torch.manual_seed(0)
+    model = Lagrangian(1, "scalar", 1.0, 0.2, (8, 8), 0.01, True)
+    model.init_energy_scales(2 * math.pi, 0.01)
+    q0, v0 = torch.tensor([[1.0]]), torch.tensor([[0.3]])
+    Q, V, h, A = torch.zeros(1, 1, 1), torch.zeros(1, 1, 1), 0.1, torch.eye(1)
+    got = shooting_loss(model, q0, v0, Q, V, torch.zeros(1, 2, 0), h, A, 1.0, 1.0, substeps=2)
+    qa, va = verlet_step(model, *verlet_step(model, q0, v0, h / 2), h / 2)
+    torch.testing.assert_close(got, (qa[0, 0] ** 2 + (h * va[0, 0]) ** 2))
+    assert Stage2Config(stride=2, max_step_phase=0.5).substeps(1 / (9 * 0.1), 0.1) == 2  # 9 frames per period
+    assert Stage2Config(stride=2, max_step_phase=0.5).substeps(1 / (30 * 0.1), 0.1) == 1  # 30 frames per period
+
+
 def test_spread_kinks_put_each_kink_inside_the_data_and_keep_g_convex():
     x = torch.linspace(-2.0, 3.0, 200)[:, None]
     g = ICNN(1, (16, 16))

@@ -19,12 +19,16 @@ DT = 1 / 30
 pytestmark = [pytest.mark.usefixtures("one_torch_thread"), pytest.mark.slow]
 
 
-def test_the_default_budget_identifies_an_exact_oscillator_to_half_a_percent() -> None:
+@pytest.mark.parametrize("f", [0.7, 30 / 9], ids=["43-frames-per-period", "9-frames-per-period"])
+def test_the_default_budget_identifies_an_exact_oscillator(f: float) -> None:
+    """At 9 frames per period the stride-2 step runs as one-frame Verlet steps (``stage2.max_step_phase``):
+    -1.4 % at the default 300 epochs (-0.03 % at 600, still converging); as one step of two frames it read the
+    frequency 6.6 % low. At 43 frames per period the bound is half a percent."""
     from omegaconf import OmegaConf
 
     from lagsplat.cli_common import plain
 
-    f, zeta, n = 0.7, 0.01, int(40 / DT)
+    zeta, n = 0.01, int((40 if f < 1 else 12) / DT)
     w = 2 * math.pi * f
     wd = w * math.sqrt(1 - zeta**2)
     t = np.arange(n) * DT
@@ -38,4 +42,4 @@ def test_the_default_budget_identifies_an_exact_oscillator_to_half_a_percent() -
     with torch.no_grad():
         r = rollout(model, torch.tensor([[1.0]]), torch.zeros(1, 1), DT, 3000)[0][0].numpy()[:, 0]
     f_model = timeseries.spectral_peak_frequency(r, DT)
-    assert abs(f_model / (wd / (2 * math.pi)) - 1) < 0.005, f_model
+    assert abs(f_model / (wd / (2 * math.pi)) - 1) < (0.005 if f < 1 else 0.02), f_model

@@ -21,11 +21,13 @@ from lagsplat.dynamics.integrators import verlet_step
 __all__ = ["multi_step_windows", "step_error", "shooting_loss"]
 
 
-def multi_step_windows(q: np.ndarray, dt: float, k: int, K: int, u: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
+def multi_step_windows(
+    q: np.ndarray, dt: float, k: int, K: int, u: np.ndarray | None = None, k_v: int | None = None
+) -> tuple[np.ndarray, ...]:
     """Windows of ``K`` Verlet steps of ``h = k dt`` from one contiguous (smoothed) trajectory.
 
-    For every ``s``: start state ``(q[s+k], (q[s+2k] - q[s]) / 2k dt)``, targets
-    ``(q[s+k+jk], (q[s+(j+2)k] - q[s+jk]) / 2k dt)`` for ``j = 1..K``, and the actuation at the
+    For every ``s``: start state ``(q[s+k], (q[s+k+k_v] - q[s+k-k_v]) / 2 k_v dt)``, targets
+    ``(q[c], (q[c+k_v] - q[c-k_v]) / 2 k_v dt)`` at ``c = s+k+jk`` for ``j = 1..K``, and the actuation at the
     ``K + 1`` step boundaries ``u[s+k+jk]``, ``j = 0..K``. ``K = 1`` gives the windows of
     :func:`~lagsplat.train.stage2.one_step_windows`.
 
@@ -35,15 +37,19 @@ def multi_step_windows(q: np.ndarray, dt: float, k: int, K: int, u: np.ndarray |
         k: stride, frames (``>= 1``).
         K: steps per window (``>= 1``).
         u: ``[n,n_u]`` actuation per frame, or ``None``.
+        k_v: half-span of the velocity's central difference, frames, ``1 <= k_v <= k`` (default ``k``;
+            1 where the step is integrated in one-frame sub-steps, whose Verlet velocity is exactly the
+            one-frame central difference of its positions).
 
     Returns:
         ``(q0 [m,d], v0 [m,d], Q [m,K,d], V [m,K,d], U [m,K+1,n_u])`` with ``m = max(0, n - (K+2) k)``.
 
     Raises:
-        ValueError: if ``k < 1`` or ``K < 1``.
+        ValueError: if ``k < 1``, ``K < 1`` or ``k_v`` is outside ``[1, k]``.
     """
-    if k < 1 or K < 1:
-        raise ValueError(f"multi-step windows need a stride and a step count >= 1, got k={k}, K={K}")
+    k_v = k if k_v is None else int(k_v)
+    if k < 1 or K < 1 or not 1 <= k_v <= k:
+        raise ValueError(f"multi-step windows need a stride and a step count >= 1 and 1 <= k_v <= k, got k={k}, K={K}, k_v={k_v}")
     q = np.asarray(q)
     d = q.shape[1]
     u = np.zeros((len(q), 0), np.float32) if u is None else np.asarray(u)
@@ -51,7 +57,7 @@ def multi_step_windows(q: np.ndarray, dt: float, k: int, K: int, u: np.ndarray |
     if m <= 0:
         return np.zeros((0, d)), np.zeros((0, d)), np.zeros((0, K, d)), np.zeros((0, K, d)), np.zeros((0, K + 1, u.shape[1]))
     s = np.arange(m)
-    v = lambda c: (q[c + k] - q[c - k]) / (2 * k * dt)  # noqa: E731  (central difference at frame c)
+    v = lambda c: (q[c + k_v] - q[c - k_v]) / (2 * k_v * dt)  # noqa: E731  (central difference at frame c)
     steps = [s + k + j * k for j in range(K + 1)]
     Q = np.stack([q[c] for c in steps[1:]], 1)
     V = np.stack([v(c) for c in steps[1:]], 1)
@@ -65,13 +71,16 @@ def step_error(eq: Tensor, ev: Tensor, A: Tensor, w_q: float, w_v: float) -> Ten
     return w_q * torch.einsum("bi,ij,bj->b", eq, A, eq) + w_v * torch.einsum("bi,ij,bj->b", ev, A, ev)
 
 
-def shooting_loss(model, q0: Tensor, v0: Tensor, Q: Tensor, V: Tensor, U: Tensor, h: float, A: Tensor, w_q: float, w_v: float) -> Tensor:
+def shooting_loss(
+    model, q0: Tensor, v0: Tensor, Q: Tensor, V: Tensor, U: Tensor, h: float, A: Tensor, w_q: float, w_v: float, substeps: int = 1
+) -> Tensor:
     """Eq. 8's weighted one-step error averaged over ``K`` chained Verlet steps.
 
     ``mean_b mean_j [w_q e_q^T A e_q + w_v (h e_v)^T A (h e_v)] / d`` with ``e_q = q_j - Q_j``,
     ``e_v = qdot_j - V_j`` and ``(q_j, qdot_j)`` the model's state after ``j`` steps from ``(q0, v0)``.
     The actuation of step ``j`` is ``U[:, j]`` over its first half and ``U[:, j+1]`` over its second
-    (the one-step fit's rule).
+    (the one-step fit's rule). With ``substeps = n`` each step of ``h`` is ``n`` Verlet steps of ``h / n``
+    (the frame interval, :meth:`~lagsplat.train.stage2_config.Stage2Config.substeps`).
 
     Args:
         model: the Lagrangian (anything :func:`~lagsplat.dynamics.integrators.verlet_step` accepts).
@@ -81,6 +90,7 @@ def shooting_loss(model, q0: Tensor, v0: Tensor, Q: Tensor, V: Tensor, U: Tensor
         h: step, s.
         A: ``[d,d]`` metric of the error (the chart's ``G_bar``, whitened).
         w_q, w_v: weights of the position and velocity terms.
+        substeps: Verlet steps per step of ``h`` (``>= 1``).
 
     Returns:
         scalar loss.
@@ -89,7 +99,8 @@ def shooting_loss(model, q0: Tensor, v0: Tensor, Q: Tensor, V: Tensor, U: Tensor
     q, v, loss = q0, v0, torch.zeros((), dtype=q0.dtype, device=q0.device)
     for j in range(K):
         u_j = None if U.shape[2] == 0 else (lambda t, a=U[:, j], b=U[:, j + 1]: a if t < 0.5 * h else b)  # noqa: E731
-        q, v = verlet_step(model, q, v, h, u=u_j)
+        for i in range(substeps):
+            q, v = verlet_step(model, q, v, h / substeps, u=u_j, t=i * h / substeps)
         eq, ev = q - Q[:, j], h * (v - V[:, j])
         loss = loss + step_error(eq, ev, A, w_q, w_v).mean()
     return loss / (K * d)

@@ -108,7 +108,9 @@ class TrainingWindows:
         select_starts, select_horizon: the selection rollouts' start frames and length, states.
         q_std: the longest segment's ``G``-weighted rms spread (the NRMSE scale).
         shooting: the ``cfg.rollout_steps``-step windows of :func:`~lagsplat.train.shooting.multi_step_windows`
-            ``(q0, v0, Q, V, U)``, concatenated, float32 tensors (``K = 1``: the one-step windows).
+            ``(q0, v0, Q, V, U)``, concatenated, float32 tensors (``K = 1``: the one-step windows); their
+            velocities are one-frame central differences where ``substeps > 1``.
+        substeps: Verlet steps per training step (:meth:`Stage2Config.substeps` at ``f_train``).
     """
 
     dt: float
@@ -128,6 +130,7 @@ class TrainingWindows:
     select_horizon: int
     q_std: float
     shooting: tuple
+    substeps: int = 1
 
 
 def training_windows(chart: Chart, cfg: Stage2Config, seed: int = 0, what: str = "stage-2") -> TrainingWindows:
@@ -144,20 +147,22 @@ def training_windows(chart: Chart, cfg: Stage2Config, seed: int = 0, what: str =
     u_segs = [chart.u[s] for s in segs]
     wins = [one_step_windows(qs, dt, cfg.stride, us) for qs, us in zip(q_smooth, u_segs)]
     Q0, V0, Q1, V1, U0, U1 = (torch.as_tensor(np.concatenate([w[i] for w in wins]), dtype=torch.float32) for i in range(6))
-    K = cfg.effective_rollout_steps(chart.d)
-    multi = [multi_step_windows(qs, dt, cfg.stride, K, us) for qs, us in zip(q_smooth, u_segs)]
-    shooting = tuple(torch.as_tensor(np.concatenate([w[i] for w in multi]), dtype=torch.float32) for i in range(5))
-    if len(shooting[0]) == 0:
-        raise ValueError(f"no training segment is long enough for one {what} window of {K} steps (stage2.rollout_steps)")
     G = metrics.normalise_trace(chart.G_bar)
     i_long = int(np.argmax([len(x) for x in q_smooth]))
     longest = q_smooth[i_long]
     f_train = timeseries.spectral_peak_frequency(metrics.project(longest, metrics.top_direction(chart.G_bar)), dt)
+    K = cfg.effective_rollout_steps(chart.d)
+    substeps = cfg.substeps(f_train, dt) if np.isfinite(f_train) else 1
+    k_v = 1 if substeps > 1 else cfg.stride
+    multi = [multi_step_windows(qs, dt, cfg.stride, K, us, k_v) for qs, us in zip(q_smooth, u_segs)]
+    shooting = tuple(torch.as_tensor(np.concatenate([w[i] for w in multi]), dtype=torch.float32) for i in range(5))
+    if len(shooting[0]) == 0:
+        raise ValueError(f"no training segment is long enough for one {what} window of {K} steps (stage2.rollout_steps)")
     horizon = max(8, int(round(cfg.select_periods / (f_train * dt))))
     hi = len(longest) - horizon - 2
     starts = metrics.window_starts(0, hi, cfg.select_windows, seed) if hi > 0 else np.zeros(1, int)
     return TrainingWindows(dt, q_smooth, u_segs, Q0, V0, Q1, V1, U0, U1, G, f_train, longest, u_segs[i_long], starts,
-                           min(horizon, len(longest) - 2), metrics.g_rms_spread(longest, G), shooting)  # fmt: skip
+                           min(horizon, len(longest) - 2), metrics.g_rms_spread(longest, G), shooting, substeps)  # fmt: skip
 
 
 def train_stage2(
@@ -275,7 +280,7 @@ def _fit(
         tot, cnt = 0.0, 0
         for i in range(0, len(perm), cfg.batch):
             b = torch.as_tensor(perm[i : i + cfg.batch], device=dev)
-            loss = shooting_loss(model, S0[b], SV0[b], SQ[b], SV[b], SU[b], h, A, cfg.w_q, cfg.w_v)
+            loss = shooting_loss(model, S0[b], SV0[b], SQ[b], SV[b], SU[b], h, A, cfg.w_q, cfg.w_v, w.substeps)
             act = _actuation_map(model)
             if cfg.w_actuation_linear > 0 and act is not None:
                 loss = loss + cfg.w_actuation_linear * act.nonlinearity(S0[b])
@@ -301,6 +306,7 @@ def _fit(
     hist["selected_epoch"] = best[2]
     hist["selected_nrmse"] = best[0]
     hist["f_train_hz"] = f_train
+    hist["substeps"] = w.substeps
     return model.eval(), hist
 
 

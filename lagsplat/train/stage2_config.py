@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 from typing import Any, Literal, Mapping
 
@@ -47,6 +49,12 @@ class Stage2Config:
         learn_rest: train the rest state.
         zeta_floor: damping ratio the floor alone gives at initialisation.
         stride: frames per training step ``k`` (reference: 2).
+        max_step_phase: largest phase ``omega h`` (rad) of the training step ``h = k dt`` at the training
+            frames' observed frequency. Above it the step is integrated as ``k`` Verlet steps of one frame
+            and scored against one-frame central-difference velocities, so that the model fitted is the
+            frame-rate map every rollout runs (a Verlet step's frequency error grows as ``(omega h)^2 / 24``:
+            an exact oscillator filmed at 9 frames per period, stride 2, was identified 5.3 % low; 0.2 %
+            with the frame-interval steps). 0: always; a large value: never (the reference code).
         sigma: Gaussian smoothing of the encoded trajectory, frames (reference: 1).
         w_q, w_v: weights of position and velocity terms of Eq. 8.
         lr, epochs, batch, windows_per_epoch, grad_clip: optimisation.
@@ -105,6 +113,7 @@ class Stage2Config:
     learn_rest: bool = True
     zeta_floor: float = 0.01
     stride: int = 2
+    max_step_phase: float = 0.5
     sigma: float = 1.0
     w_q: float = 0.1
     w_v: float = 0.1
@@ -135,6 +144,12 @@ class Stage2Config:
         if self.mass != "auto":
             return self.mass
         return "scalar" if d == 1 and n_u > 0 else "learned"
+
+    def substeps(self, f_hz: float, dt: float) -> int:
+        """Verlet steps per training step of ``stride`` frames at an observed frequency ``f_hz`` (Hz) and frame
+        interval ``dt`` (s): ``stride`` where ``2 pi f_hz stride dt > max_step_phase``, else 1 (see
+        ``max_step_phase``)."""
+        return int(self.stride) if 2 * math.pi * f_hz * self.stride * dt > self.max_step_phase else 1
 
     def effective_rollout_steps(self, d: int) -> int:
         """Verlet steps per training window on a chart of dimension ``d``: ``rollout_steps`` for ``d == 1``,
