@@ -325,8 +325,9 @@ def environment() -> dict[str, str]:
 
 def vector_extensions() -> str:
     """The CPU's widest vector extension and what the compiled kernels target: ``"AVX-512 (512-bit); numba target
-    skylake-avx512"``. Read from ``/proc/cpuinfo`` flags (Linux) and llvmlite's host CPU name; ``"unknown"`` parts
-    where neither is available."""
+    skylake-avx512; torch kernels AVX512"``. Read from ``/proc/cpuinfo`` flags (Linux), llvmlite's host CPU name
+    (or ``NUMBA_CPU_NAME``) and torch's CPU capability (``ATEN_CPU_CAPABILITY`` lowers it); ``"unknown"`` parts
+    where one is not available."""
     flags: set[str] = set()
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
@@ -351,7 +352,13 @@ def vector_extensions() -> str:
         target = llvm.get_host_cpu_name()
     except (ImportError, RuntimeError):
         target = "unknown"
-    return f"{widest}; numba target {os.environ.get('NUMBA_CPU_NAME') or target}"
+    try:
+        import torch
+
+        aten = torch.backends.cpu.get_cpu_capability()
+    except (ImportError, AttributeError):
+        aten = "unknown"
+    return f"{widest}; numba target {os.environ.get('NUMBA_CPU_NAME') or target}; torch kernels {aten}"
 
 
 def _threads(n: int) -> str:
