@@ -124,7 +124,7 @@ def test_the_nuisance_clips_are_listed_apart_from_the_suite() -> None:
     names = [e["name"] for e in entries]
     suite = {e["name"] for e in realistic_suite() + outside_class_clips()}
     assert len(names) == len(set(names)) and not suite & set(names)
-    assert {e["nuisance"] for e in entries} == {"distractor", "walk_in", "sticks", "short", "long_string"}
+    assert {e["nuisance"] for e in entries} == {"distractor", "walk_in", "sticks", "short", "long_string", "handheld"}
     assert all(clip_spec(n)["nuisance"] for n in names)
     assert {e["system"] for e in _nuisance("distractor")} == {"pendulum", "spring_cart"}
 
@@ -191,3 +191,33 @@ def test_a_nuisance_clip_renders_at_its_own_length_with_its_observed_frequency(t
     truth = np.load(tmp_path / f"{entry['name']}.truth.npz")
     assert frames.shape == (round(entry["duration_s"] * 30), 128, 128, 3) and truth["q"].shape == (len(frames), 1)
     assert 0.5 < float(truth["observed_hz"]) < 1.1 and float(truth["moving_until_s"]) == pytest.approx(len(frames) / 30)
+
+
+def test_the_handheld_sway_is_slow_and_a_few_percent_of_the_frame() -> None:
+    from lagsplat.synth.realistic.nuisance import handheld_sway
+
+    t = np.arange(360) / 30
+    s = handheld_sway(0, t, 128, 96)
+    assert np.all(np.abs(s[:, 0]) < 0.04 * 128) and np.abs(s[:, 0]).max() > 0.01 * 128
+    assert np.all(np.abs(s[:, 1]) < 0.04 * 96) and np.all(np.abs(s[:, 2]) < np.radians(2.0))
+    assert np.abs(np.diff(s[:, :2], axis=0)).max() < 0.5  # px per frame: a sway, not a shake
+    np.testing.assert_array_equal(s, handheld_sway(0, t, 128, 96))
+
+
+def test_a_handheld_frame_is_the_mean_of_its_subframes_moved_by_the_sway() -> None:
+    from lagsplat.synth.realistic.nuisance import HANDHELD_SUBFRAMES, handheld_frames
+
+    entry = _nuisance("handheld")[0]
+    seen = []
+
+    def render(q):  # a bright column at the position q takes, one per sub-frame
+        seen.append(len(q))
+        out = np.zeros((len(q), 32, 48, 3), np.uint8)
+        cols = np.clip((24 + 40 * q[:, 0]).round().astype(int), 0, 47)
+        out[np.arange(len(q)), :, cols] = 255
+        return out
+
+    frames = handheld_frames(entry, 48, 32, 30.0, 2.0, render)
+    assert seen == [2 * 30 * HANDHELD_SUBFRAMES] and frames.shape == (60, 32, 48, 3)
+    lit = (frames[:, 16, :, 0] > 0).sum(1)
+    assert lit.max() > 1  # a fast frame smears the column over several pixels

@@ -40,7 +40,7 @@ from lagsplat.synth.effect_truth import EFFECTS
 from lagsplat.synth.realistic.backdrops import backdrop_clips, backdrop_motion, backdrop_scene
 from lagsplat.synth.realistic.camera import add_camera_nuisances, render_frames, write_mp4
 from lagsplat.synth.realistic.motion import Motion, double_pendulum_motion, one_dof_motion, slide_out_motion, spin_down_motion
-from lagsplat.synth.realistic.nuisance import nuisance_clips, nuisance_motion, nuisance_scene
+from lagsplat.synth.realistic.nuisance import handheld_frames, nuisance_clips, nuisance_motion, nuisance_scene
 from lagsplat.synth.realistic.scene import scene_xml
 
 __all__ = ["realistic_suite", "outside_class_clips", "nuisance_clips", "backdrop_clips", "clip_spec", "make_clip", "motion_of", "SIZES"]
@@ -141,7 +141,9 @@ def make_clip(
     duration_s = float(spec.get("duration_s", 12.0)) if duration_s is None else duration_s
     m = motion_of(spec, fps, duration_s)
     W, H = size or SIZES[spec["size"]]
-    if "nuisance" in spec:
+    if spec.get("nuisance") == "handheld":
+        clean = handheld_frames(spec, W, H, fps, duration_s, lambda q: render_frames(spec["system"], q, W, H))
+    elif "nuisance" in spec:
         scene = scene_xml(spec["system"], distance_m=2.2, **nuisance_scene(spec))
         clean = render_frames(spec["system"], m.q, W, H, xml=scene, extra_qpos=m.extras.get("distractor"))
     elif "backdrop" in spec:

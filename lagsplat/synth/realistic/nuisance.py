@@ -12,6 +12,10 @@ automatic preparation (``lagsplat.prepare``: crop, resolution, split, refusals) 
 * ``sticks``: strong dry friction; the spring cart (or pendulum) swings 3.5 to 4 times and then sticks
   off-centre for the last 40 to 45 % of the 12-s clip (:func:`~lagsplat.synth.realistic.nuisance_motion.sticks_motion`).
 * ``short``: a clip of only 2.5 observed periods (its ``duration_s``).
+* ``handheld``: filmed by a hand-held phone: a full-shutter motion blur (each frame the mean of
+  :data:`HANDHELD_SUBFRAMES` renders spread over its interval) and a slow sway of the whole picture
+  (:func:`handheld_sway`: a shift of 2 to 4 % of the frame and a tilt of 1 to 2 degrees, two
+  incommensurate sines at 0.15 to 0.35 Hz), so that every pixel moves a little.
 * ``long_string``: a small bob (2.5 cm) on a 1.38-m string hanging from the top of the frame; the bob's
   height moves at twice the swing frequency (0.42 Hz). 128 x 128 and a tall 96 x 160; 20 s long (8.4 periods:
   a 12-s take of 5 periods would be refused as too short before its frequency is used).
@@ -32,7 +36,11 @@ import numpy as np
 from lagsplat.synth.realistic.motion import Motion, one_dof_motion
 from lagsplat.synth.realistic.nuisance_motion import long_string_motion, nuisance_truth, short_duration_s, sticks_motion
 
-__all__ = ["nuisance_clips", "nuisance_motion", "nuisance_scene", "distractor_track", "FIGURE_XML", "LONG_STRING"]
+__all__ = ["nuisance_clips", "nuisance_motion", "nuisance_scene", "distractor_track", "handheld_sway", "handheld_frames", "FIGURE_XML",
+           "LONG_STRING", "HANDHELD_SUBFRAMES"]  # fmt: skip
+
+HANDHELD_SUBFRAMES = 6
+"""Renders averaged into one ``handheld`` frame (a shutter open for the whole frame interval)."""
 
 LONG_STRING = {"pivot_z": 1.58, "rod": 1.38, "string": 0.003, "bob": 0.025}
 """The long-string pendulum's geometry, m (:func:`~lagsplat.synth.realistic.scene.scene_xml`)."""
@@ -90,6 +98,8 @@ def nuisance_clips() -> list[dict[str, Any]]:
         _entry("spring_cart", "short", "s1", 1, periods=2.5, duration_s=short_duration_s("spring_cart", 1, 2.5)),
         _entry("pendulum", "long_string", "s0", 0, amplitude_deg=22.0, duration_s=20.0),
         _entry("pendulum", "long_string", "s1", 1, size="96x160", amplitude_deg=16.0, duration_s=20.0),
+        _entry("pendulum", "handheld", "s0", 0),
+        _entry("spring_cart", "handheld", "s1", 1),
     ]
 
 
@@ -132,7 +142,7 @@ def nuisance_motion(spec: dict[str, Any], fps: float = 30.0, duration_s: float =
         ValueError: on an unknown ``nuisance`` tag.
     """
     nuisance, system, seed = spec["nuisance"], spec["system"], int(spec["seed"])
-    if nuisance in ("distractor", "walk_in", "short"):
+    if nuisance in ("distractor", "walk_in", "short", "handheld"):
         m = one_dof_motion(system, "none", seed, fps, duration_s)
     elif nuisance == "sticks":
         m = sticks_motion(system, seed, fps, duration_s, int(spec["half_swings"]), float(spec["stop_s"]))
@@ -140,7 +150,7 @@ def nuisance_motion(spec: dict[str, Any], fps: float = 30.0, duration_s: float =
         m = long_string_motion(seed, fps, duration_s, LONG_STRING["rod"], float(spec["amplitude_deg"]))
         m.truth["bob_vertical_hz"] = None  # filled below: twice the observed swing frequency
     else:
-        raise ValueError(f"unknown nuisance {nuisance!r}; known: distractor, walk_in, sticks, short, long_string")
+        raise ValueError(f"unknown nuisance {nuisance!r}; known: distractor, walk_in, sticks, short, long_string, handheld")
     obs = nuisance_truth(m)
     m.truth.update(obs)
     m.extras = {k: np.float64(v) for k, v in obs.items()}
@@ -159,3 +169,40 @@ def nuisance_scene(spec: dict[str, Any]) -> dict[str, Any]:
         feet = _WALK_IN_FEET_M[1] if spec["nuisance"] == "walk_in" else _FIGURE_FEET_M
         return {"extra_xml": FIGURE_XML.replace("{x0}", f"{int(spec['side']) * feet:g}"), "extra_assets": _FIGURE_ASSETS}
     return {}
+
+
+def handheld_sway(seed: int, t: np.ndarray, width: int, height: int) -> np.ndarray:
+    """The hand-held camera's picture motion ``[T, 3]`` at times ``t`` (s): shift x, shift y (px) and tilt (rad).
+
+    Each is ``a1 sin(2 pi f t + p1) + a2 sin(2 pi f sqrt(2) t + p2)`` with ``f`` 0.15 to 0.25 Hz; the
+    shifts' amplitudes 1 to 2 % of the frame's width / height each (up to about 4 % in all), the tilt's
+    0.5 to 1 degree each. Seeded by ``seed``.
+    """
+    rng = np.random.default_rng([int(seed), 53, 7])
+    out = []
+    for scale in (float(width), float(height), math.radians(1.0)):
+        f, ph = rng.uniform(0.15, 0.25), rng.uniform(0, 2 * math.pi, 2)
+        a = rng.uniform(0.5, 1.0, 2) * (scale * 0.02 if scale > 1 else scale)
+        out.append(a[0] * np.sin(2 * math.pi * f * t + ph[0]) + a[1] * np.sin(2 * math.pi * f * math.sqrt(2) * t + ph[1]))
+    return np.stack(out, 1)
+
+
+def handheld_frames(spec: dict[str, Any], width: int, height: int, fps: float, duration_s: float, render) -> np.ndarray:
+    """A ``handheld`` entry's frames ``[T, height, width, 3]`` uint8: the motion rendered at
+    :data:`HANDHELD_SUBFRAMES` times the frame rate by ``render(q)`` (uint8 frames of ``q [T', d]``),
+    each frame the mean of the renders over its interval, then shifted and tilted about the centre by
+    :func:`handheld_sway` (edges replicated, as a stabiliser would leave them)."""
+    import cv2
+
+    n = HANDHELD_SUBFRAMES
+    fine = nuisance_motion(spec, fps * n, duration_s)
+    sub = render(fine.q).astype(np.float32)
+    T = len(sub) // n
+    frames = sub[: T * n].reshape(T, n, height, width, 3).mean(1)
+    sway = handheld_sway(int(spec["seed"]), np.arange(T) / fps, width, height)
+    out = np.empty((T, height, width, 3), np.uint8)
+    for i, (dx, dy, tilt) in enumerate(sway):
+        A = cv2.getRotationMatrix2D(((width - 1) / 2, (height - 1) / 2), math.degrees(tilt), 1.0)
+        A[:, 2] += (dx, dy)
+        out[i] = np.clip(cv2.warpAffine(frames[i], A, (width, height), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE) + 0.5, 0, 255)
+    return out
