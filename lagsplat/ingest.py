@@ -202,11 +202,22 @@ def _int_list(src: str, key: str, value: Any, n: int) -> list[int]:
     return out
 
 
-def _make_transform(src: str, crop: list[int] | None, resize: list[int] | None) -> FrameTransform | None:
-    if crop is None and resize is None:
+def _make_transform(src: str, crop: list[int] | None, resize: list[int] | None, camera: list | None = None) -> FrameTransform | None:
+    """Per kept frame, in reading order: the camera's sway taken out (``camera[i]``, a ``2 x 3`` similarity of
+    native px, :mod:`lagsplat.prepare.stabilise`), then the crop, then the resize."""
+    if crop is None and resize is None and camera is None:
         return None
+    warps = None if camera is None else np.asarray(camera, np.float64)
+    kept = [0]
 
     def transform(frame: np.ndarray) -> np.ndarray:
+        if warps is not None:
+            i = kept[0]
+            if i >= len(warps):
+                raise ClipError(f"{src}: the clip has more frames than its camera motion was read for ({len(warps)}); read it again")
+            H, W = frame.shape[:2]
+            frame = cv2.warpAffine(frame, warps[i], (W, H), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            kept[0] = i + 1
         if crop is not None:
             H, W = frame.shape[:2]
             x0, y0, x1, y1 = crop
@@ -302,7 +313,7 @@ def ingest(system_cfg: Any, source_path: str | Path | None = None, preview: str 
         prepared = prepare_video(path, fps=fps, start=start, stop=stop, crop=crop, preview=preview, **timing_kw)
         crop = prepared.crop if "crop" in auto else crop
         resize = prepared.resize if "resize" in auto else resize
-    tf = _make_transform(src, crop, resize)
+    tf = _make_transform(src, crop, resize, None if prepared is None else prepared.camera)
     rng = {"start": start, "stop": stop, "transform": tf}
 
     if fmt == "video":

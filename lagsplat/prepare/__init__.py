@@ -35,6 +35,7 @@ import numpy as np
 
 from lagsplat.io.clip import ClipError
 from lagsplat.io.video import read_video
+from lagsplat.prepare.stabilise import stabilise, to_native
 from lagsplat.prepare.analysis import PreparationRefused, analyse_motion, image_winding
 
 __all__ = [
@@ -76,6 +77,9 @@ class Preparation:
         dropped: one sentence per moving part set aside (where, and why).
         note: a remark on the choice (e.g. no part oscillates clearly), or ``None``.
         user_crop: whether ``crop`` was the user's (the analysis read inside it).
+        camera: ``[T][2][3]`` (nested lists) similarity transforms (native px of the whole frame) that take each kept
+            frame into the first one's picture, where a hand-held camera's sway was taken out
+            (:mod:`lagsplat.prepare.stabilise`); ``None`` for a still camera.
     """
 
     crop: list[int] | None
@@ -92,6 +96,7 @@ class Preparation:
     dropped: list[str] = field(default_factory=list)
     note: str | None = None
     user_crop: bool = False
+    camera: list | None = None
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-serialisable form (``clip.meta["prepare"]``)."""
@@ -162,6 +167,7 @@ def prepare_video(
     if crop is not None and (crop[2] > native[0] or crop[3] > native[1]):
         raise ClipError(f"{src}: crop {crop} lies outside the {native[0]}x{native[1]} frame (set `crop` inside it)")
     dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0 / float(fps or 30.0)
+    small, camera, camera_note = stabilise(small)
     try:
         m = analyse_motion(small, src, dt)
     except PreparationRefused as e:
@@ -206,8 +212,9 @@ def prepare_video(
         periods=float(m["periods"]),
         moving_s=[float(t[a] - t[0]), float(t[b - 1] - t[0])],
         dropped=list(m["dropped"]),
-        note=m["note"],
+        note="; ".join(n for n in (camera_note, m["note"]) if n) or None,
         user_crop=user_crop,
+        camera=None if camera is None else to_native(camera, s, (float(base[0]), float(base[1]))).round(4).tolist(),
     )
     if preview is not None:
         m["crop_in_analysis"] = None if crop is None or user_crop else [(crop[0] - base[0]) / s, (crop[1] - base[1]) / s, (crop[2] - base[0]) / s, (crop[3] - base[1]) / s]
