@@ -57,10 +57,9 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 
-from lagsplat.io.common import FrameTransform, jsonable, validate_range
+from lagsplat.io.common import frame_transform, jsonable, validate_range
 from lagsplat.io.clip import HELD_OUT, TRAIN, Clip, ClipError, save_clip
 from lagsplat.io.download import sha256_file
 from lagsplat.io.images import list_image_files, read_image_folder
@@ -202,37 +201,6 @@ def _int_list(src: str, key: str, value: Any, n: int) -> list[int]:
     return out
 
 
-def _make_transform(src: str, crop: list[int] | None, resize: list[int] | None, camera: list | None = None) -> FrameTransform | None:
-    """Per kept frame, in reading order: the camera's sway taken out (``camera[i]``, a ``2 x 3`` similarity of
-    native px, :mod:`lagsplat.prepare.stabilise`), then the crop, then the resize."""
-    if crop is None and resize is None and camera is None:
-        return None
-    warps = None if camera is None else np.asarray(camera, np.float64)
-    kept = [0]
-
-    def transform(frame: np.ndarray) -> np.ndarray:
-        if warps is not None:
-            i = kept[0]
-            if i >= len(warps):
-                raise ClipError(f"{src}: the clip has more frames than its camera motion was read for ({len(warps)}); read it again")
-            H, W = frame.shape[:2]
-            frame = cv2.warpAffine(frame, warps[i], (W, H), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-            kept[0] = i + 1
-        if crop is not None:
-            H, W = frame.shape[:2]
-            x0, y0, x1, y1 = crop
-            if not (0 <= x0 < x1 <= W and 0 <= y0 < y1 <= H):
-                raise ClipError(
-                    f"{src}: crop {crop} (x0 y0 x1 y1) lies outside the {W}x{H} frame or is empty"
-                )
-            frame = frame[y0:y1, x0:x1]
-        if resize is not None:
-            frame = cv2.resize(frame, (resize[0], resize[1]), interpolation=cv2.INTER_AREA)
-        return np.ascontiguousarray(frame)
-
-    return transform
-
-
 def ingest(system_cfg: Any, source_path: str | Path | None = None, preview: str | Path | None = None) -> Clip:
     """Read a system's source and return the validated clip.
 
@@ -313,7 +281,7 @@ def ingest(system_cfg: Any, source_path: str | Path | None = None, preview: str 
         prepared = prepare_video(path, fps=fps, start=start, stop=stop, crop=crop, preview=preview, **timing_kw)
         crop = prepared.crop if "crop" in auto else crop
         resize = prepared.resize if "resize" in auto else resize
-    tf = _make_transform(src, crop, resize, None if prepared is None else prepared.camera)
+    tf = frame_transform(src, crop, resize, None if prepared is None else prepared.camera)
     rng = {"start": start, "stop": stop, "transform": tf}
 
     if fmt == "video":

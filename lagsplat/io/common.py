@@ -174,3 +174,40 @@ def jsonable(obj: Any) -> Any:
     if isinstance(obj, Path):
         return str(obj)
     return obj
+
+
+def frame_transform(src: str, crop: list[int] | None, resize: list[int] | None, camera: list | None = None) -> FrameTransform | None:
+    """The reader's per-frame transform, ``None`` when there is nothing to do. Per kept frame, in reading
+    order: the camera's sway taken out (``camera[i]``, a ``2 x 3`` similarity of native px, from
+    :mod:`lagsplat.prepare.stabilise`; ``cv2.warpAffine``, edges replicated), then the crop ``[x0, y0, x1, y1]``
+    (native px), then the resize ``[width, height]`` (``cv2.INTER_AREA``).
+
+    Raises (when called):
+        ClipError: naming ``src``: a crop outside the frame, or more frames than ``camera`` holds.
+    """
+    if crop is None and resize is None and camera is None:
+        return None
+    warps = None if camera is None else np.asarray(camera, np.float64)
+    kept = [0]
+
+    def transform(frame: np.ndarray) -> np.ndarray:
+        if warps is not None:
+            i = kept[0]
+            if i >= len(warps):
+                raise ClipError(f"{src}: the clip has more frames than its camera motion was read for ({len(warps)}); read it again")
+            H, W = frame.shape[:2]
+            frame = cv2.warpAffine(frame, warps[i], (W, H), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            kept[0] = i + 1
+        if crop is not None:
+            H, W = frame.shape[:2]
+            x0, y0, x1, y1 = crop
+            if not (0 <= x0 < x1 <= W and 0 <= y0 < y1 <= H):
+                raise ClipError(
+                    f"{src}: crop {crop} (x0 y0 x1 y1) lies outside the {W}x{H} frame or is empty"
+                )
+            frame = frame[y0:y1, x0:x1]
+        if resize is not None:
+            frame = cv2.resize(frame, (resize[0], resize[1]), interpolation=cv2.INTER_AREA)
+        return np.ascontiguousarray(frame)
+
+    return transform
