@@ -144,6 +144,9 @@ class SystemConfig:
         resize: ``[width, height]`` of the clip, pixels; ``auto`` (video sources): the working
             resolution at which the moving object spans enough pixels; ``None``: native size.
         split: :class:`SplitConfig`.
+        stabilise: ``auto`` (video sources with an automatic crop or size): a hand-held camera's sway is
+            read and taken out where it stills the picture (:mod:`lagsplat.prepare.stabilise`); ``False``:
+            the frames are read as they are (a camera on a tripod).
         views: :class:`ViewsConfig` of a 3-D system (``stage1.decoder: conditioned3d``), ``None`` for a 2-D one.
     """
 
@@ -161,6 +164,7 @@ class SystemConfig:
     crop: Optional[Union[Literal["auto"], tuple[int, int, int, int]]] = "auto"
     resize: Optional[Union[Literal["auto"], tuple[int, int]]] = "auto"
     split: SplitConfig = field(default_factory=SplitConfig)
+    stabilise: Union[Literal["auto"], bool] = "auto"
     views: Optional[ViewsConfig] = None
 
 

@@ -278,7 +278,10 @@ def ingest(system_cfg: Any, source_path: str | Path | None = None, preview: str 
     timing_kw = {k: float(source[k]) for k in ("max_fps", "jitter_tol") if source.get(k) is not None}
     prepared = None
     if auto and fmt == "video":  # from the motion itself (lagsplat.prepare); an explicit value is kept
-        prepared = prepare_video(path, fps=fps, start=start, stop=stop, crop=crop, preview=preview, **timing_kw)
+        stabilise = cfg.get("stabilise", "auto")
+        if stabilise not in ("auto", False):
+            raise ClipError(f"{src}: stabilise must be auto or false, got {stabilise!r}")
+        prepared = prepare_video(path, fps=fps, start=start, stop=stop, crop=crop, preview=preview, stabilise=stabilise == "auto", **timing_kw)
         crop = prepared.crop if "crop" in auto else crop
         resize = prepared.resize if "resize" in auto else resize
     tf = frame_transform(src, crop, resize, None if prepared is None else prepared.camera)

@@ -35,7 +35,7 @@ import numpy as np
 
 from lagsplat.io.clip import ClipError
 from lagsplat.io.video import read_video
-from lagsplat.prepare.stabilise import stabilise, to_native
+from lagsplat.prepare.stabilise import stabilise as take_out_sway, to_native
 from lagsplat.prepare.analysis import PreparationRefused, analyse_motion, image_winding
 
 __all__ = [
@@ -139,6 +139,7 @@ def prepare_video(
     stop: int | None = None,
     crop: list[int] | None = None,
     preview: str | Path | None = None,
+    stabilise: bool = True,
     **timing: float,
 ) -> Preparation:
     """Choose the object, the region of interest and the working resolution of a video from its motion (module docstring).
@@ -151,6 +152,8 @@ def prepare_video(
             reads inside it, and the resolution is chosen for it.
         preview: where to draw what was chosen (PNG, :func:`lagsplat.prepare.preview.draw_preview`), also
             when the clip is refused; ``None``: no drawing.
+        stabilise: read a hand-held camera's sway and take it out where that stills the picture
+            (:func:`lagsplat.prepare.stabilise.stabilise`); ``False``: read the frames as they are.
 
     Returns:
         The :class:`Preparation`.
@@ -167,7 +170,7 @@ def prepare_video(
     if crop is not None and (crop[2] > native[0] or crop[3] > native[1]):
         raise ClipError(f"{src}: crop {crop} lies outside the {native[0]}x{native[1]} frame (set `crop` inside it)")
     dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0 / float(fps or 30.0)
-    small, camera, camera_note = stabilise(small)
+    small, camera, camera_note = take_out_sway(small) if stabilise else (small, None, None)
     try:
         m = analyse_motion(small, src, dt)
     except PreparationRefused as e:
