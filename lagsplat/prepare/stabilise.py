@@ -20,8 +20,10 @@ import numpy as np
 __all__ = ["camera_motion", "sway_px", "warp_frames", "to_native", "moving_share", "stabilise", "MIN_SWAY_PX", "MAX_SHARE_KEPT",
            "MIN_MOTION_KEPT"]
 
-MIN_SWAY_PX = 1.0
-"""Largest displacement of the frame's corners (analysis px) below which the camera is taken as still."""
+MIN_SWAY_PX = 2.0
+"""Largest displacement of the frame's corners (analysis px, 160 on the long side) up to which the camera is
+taken as still. A smaller sway costs less than the warp's resampling: a rendered pendulum swayed by 1.4 px
+read its frequency 1.3 % off as it was and 2.5 % off stabilised (``eps_q`` 0.089 against 0.143)."""
 
 MAX_SHARE_KEPT = 0.9
 """The warp is kept only where it leaves at most this share of the pixels that moved before it: a camera
