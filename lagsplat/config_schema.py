@@ -144,8 +144,8 @@ class SystemConfig:
         resize: ``[width, height]`` of the clip, pixels; ``auto`` (video sources): the working
             resolution at which the moving object spans enough pixels; ``None``: native size.
         split: :class:`SplitConfig`.
-        stabilise: ``auto`` (video sources with an automatic crop or size): a hand-held camera's sway is
-            read and taken out where it stills the picture (:mod:`lagsplat.prepare.stabilise`); ``False``:
+        stabilise: ``auto`` or ``True`` (video sources with an automatic crop or size): a hand-held camera's
+            sway is read and taken out where it stills the picture (:mod:`lagsplat.prepare.stabilise`); ``False``:
             the frames are read as they are (a camera on a tripod).
         views: :class:`ViewsConfig` of a 3-D system (``stage1.decoder: conditioned3d``), ``None`` for a 2-D one.
     """

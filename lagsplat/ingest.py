@@ -279,9 +279,9 @@ def ingest(system_cfg: Any, source_path: str | Path | None = None, preview: str 
     prepared = None
     if auto and fmt == "video":  # from the motion itself (lagsplat.prepare); an explicit value is kept
         stabilise = cfg.get("stabilise", "auto")
-        if stabilise not in ("auto", False):
-            raise ClipError(f"{src}: stabilise must be auto or false, got {stabilise!r}")
-        prepared = prepare_video(path, fps=fps, start=start, stop=stop, crop=crop, preview=preview, stabilise=stabilise == "auto", **timing_kw)
+        if stabilise not in ("auto", True, False):
+            raise ClipError(f"{src}: stabilise must be auto, true or false, got {stabilise!r}")
+        prepared = prepare_video(path, fps=fps, start=start, stop=stop, crop=crop, preview=preview, stabilise=stabilise is not False, **timing_kw)
         crop = prepared.crop if "crop" in auto else crop
         resize = prepared.resize if "resize" in auto else resize
     tf = frame_transform(src, crop, resize, None if prepared is None else prepared.camera)

@@ -176,10 +176,17 @@ def jsonable(obj: Any) -> Any:
     return obj
 
 
+def warp_to_reference(frame: np.ndarray, A: np.ndarray) -> np.ndarray:
+    """``frame [H, W, 3]`` uint8 warped by the ``2 x 3`` affine ``A`` (its px to the reference frame's px):
+    bilinear, edges replicated (``cv2.warpAffine``). The one rule the stabiliser's analysis and the reader share."""
+    H, W = frame.shape[:2]
+    return cv2.warpAffine(frame, A, (W, H), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+
 def frame_transform(src: str, crop: list[int] | None, resize: list[int] | None, camera: list | None = None) -> FrameTransform | None:
     """The reader's per-frame transform, ``None`` when there is nothing to do. Per kept frame, in reading
     order: the camera's sway taken out (``camera[i]``, a ``2 x 3`` similarity of native px, from
-    :mod:`lagsplat.prepare.stabilise`; ``cv2.warpAffine``, edges replicated), then the crop ``[x0, y0, x1, y1]``
+    :mod:`lagsplat.prepare.stabilise`; :func:`warp_to_reference`), then the crop ``[x0, y0, x1, y1]``
     (native px), then the resize ``[width, height]`` (``cv2.INTER_AREA``).
 
     Raises (when called):
@@ -195,8 +202,7 @@ def frame_transform(src: str, crop: list[int] | None, resize: list[int] | None, 
             i = kept[0]
             if i >= len(warps):
                 raise ClipError(f"{src}: the clip has more frames than its camera motion was read for ({len(warps)}); read it again")
-            H, W = frame.shape[:2]
-            frame = cv2.warpAffine(frame, warps[i], (W, H), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            frame = warp_to_reference(frame, warps[i])
             kept[0] = i + 1
         if crop is not None:
             H, W = frame.shape[:2]

@@ -129,6 +129,12 @@ def _dropped_text(dropped: list, w: int, h: int) -> list[str]:
     return [f"a part {p.where(w, h)} (x {p.box[0]}-{p.box[2]}, y {p.box[1]}-{p.box[3]} of {w}x{h}): {p.verdict}" for p in dropped]
 
 
+def noise_floor(x: np.ndarray) -> float:
+    """The sensor-noise level of grey frames ``x [T,h,w]`` in [0, 1]: the median frame-to-frame change of a
+    pixel, read where the scene is still (the 25th percentile over pixels, over sqrt 2), at least half a grey level."""
+    return max(float(np.percentile(np.abs(np.diff(x, axis=0)).mean(0), 25)) / np.sqrt(2.0), 0.5 / 255.0)
+
+
 def analyse_motion(frames: np.ndarray, src: str = "<clip>", dt: float = 1.0 / 30.0) -> dict[str, Any]:
     """Motion statistics of uint8 ``[T,h,w,3]`` frames at the analysis resolution (module docstring).
 
@@ -156,9 +162,7 @@ def analyse_motion(frames: np.ndarray, src: str = "<clip>", dt: float = 1.0 / 30
     x = frames.astype(np.float32).mean(-1) / 255.0  # [T,h,w] grey
     T, h, w = x.shape
     std = gaussian_filter(x.std(0), 1.0)
-    # the sensor-noise level: the median frame-to-frame change of a pixel, read where the scene is still
-    noise = float(np.percentile(np.abs(np.diff(x, axis=0)).mean(0), 25)) / np.sqrt(2.0)
-    floor = max(noise, 0.5 / 255.0)
+    floor = noise_floor(x)
     top = float(std.max())
     snr = top / floor
     out["snr"] = snr

@@ -17,7 +17,10 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-__all__ = ["camera_motion", "sway_px", "warp_frames", "to_native", "moving_share", "stabilise", "MIN_SWAY_PX", "MAX_SHARE_KEPT",
+from lagsplat.io.common import warp_to_reference
+from lagsplat.prepare.analysis import noise_floor
+
+__all__ = ["camera_motion", "sway_px", "warp_frames", "to_native", "motion_stats", "stabilise", "MIN_SWAY_PX", "MAX_SHARE_KEPT",
            "MIN_MOTION_KEPT"]
 
 MIN_SWAY_PX = 2.0
@@ -75,9 +78,9 @@ def sway_px(A: np.ndarray, width: int, height: int) -> float:
 
 
 def warp_frames(frames: np.ndarray, A: np.ndarray) -> np.ndarray:
-    """``frames [T, h, w, 3]`` uint8 warped by ``A [T, 2, 3]`` into frame 0's picture (edges replicated)."""
-    h, w = frames.shape[1:3]
-    return np.stack([cv2.warpAffine(f, a, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE) for f, a in zip(frames, A)])
+    """``frames [T, h, w, 3]`` uint8 warped by ``A [T, 2, 3]`` into frame 0's picture
+    (:func:`lagsplat.io.common.warp_to_reference`, as the ingest warps the full-resolution frames)."""
+    return np.stack([warp_to_reference(f, a) for f, a in zip(frames, A)])
 
 
 def to_native(A: np.ndarray, scale: float, base: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
@@ -93,18 +96,13 @@ def to_native(A: np.ndarray, scale: float, base: tuple[float, float] = (0.0, 0.0
     return out
 
 
-def moving_share(frames: np.ndarray) -> float:
-    """Share of the pixels of ``frames [T, h, w, 3]`` (uint8) whose temporal standard deviation exceeds three
-    times the sensor noise (the median frame-to-frame change where the scene is still, as
-    :func:`lagsplat.prepare.analysis.analyse_motion` reads it)."""
+def motion_stats(frames: np.ndarray) -> tuple[float, float]:
+    """``(moving share, strongest motion)`` of ``frames [T, h, w, 3]`` (uint8): the share of pixels whose grey
+    level's temporal standard deviation exceeds three times the sensor noise
+    (:func:`lagsplat.prepare.analysis.noise_floor`), and the 99.5th percentile of that deviation over pixels."""
     x = frames.astype(np.float32).mean(3) / 255.0
-    noise = float(np.percentile(np.abs(np.diff(x, axis=0)).mean(0), 25)) / np.sqrt(2.0)
-    return float((x.std(0) > 3.0 * max(noise, 0.5 / 255.0)).mean())
-
-
-def _top_std(frames: np.ndarray) -> float:
-    """The 99.5th percentile over pixels of the grey level's temporal standard deviation, ``frames [T,h,w,3]``."""
-    return float(np.percentile(frames.astype(np.float32).mean(3).std(0), 99.5))
+    std = x.std(0)
+    return float((std > 3.0 * noise_floor(x)).mean()), 255.0 * float(np.percentile(std, 99.5))
 
 
 def stabilise(frames: np.ndarray) -> tuple[np.ndarray, np.ndarray | None, str | None]:
@@ -128,7 +126,7 @@ def stabilise(frames: np.ndarray) -> tuple[np.ndarray, np.ndarray | None, str | 
     if sway <= MIN_SWAY_PX:
         return frames, None, None
     warped = warp_frames(frames, A)
-    before, after = moving_share(frames), moving_share(warped)
-    if after > MAX_SHARE_KEPT * before or _top_std(warped) < MIN_MOTION_KEPT * _top_std(frames):
+    (before, top_before), (after, top_after) = motion_stats(frames), motion_stats(warped)
+    if after > MAX_SHARE_KEPT * before or top_after < MIN_MOTION_KEPT * top_before:
         return frames, None, None
     return warped, A, f"the camera sways up to {sway:.1f} px of {max(h, w)}: taken out (the moving share of the picture {before:.0%} -> {after:.0%})"

@@ -152,7 +152,7 @@ def training_windows(chart: Chart, cfg: Stage2Config, seed: int = 0, what: str =
     longest = q_smooth[i_long]
     f_train = timeseries.spectral_peak_frequency(metrics.project(longest, metrics.top_direction(chart.G_bar)), dt)
     K = cfg.effective_rollout_steps(chart.d)
-    substeps = cfg.substeps(f_train, dt) if np.isfinite(f_train) else 1
+    substeps = cfg.substeps(f_train, dt)
     k_v = 1 if substeps > 1 else cfg.stride
     multi = [multi_step_windows(qs, dt, cfg.stride, K, us, k_v) for qs, us in zip(q_smooth, u_segs)]
     shooting = tuple(torch.as_tensor(np.concatenate([w[i] for w in multi]), dtype=torch.float32) for i in range(5))

@@ -147,8 +147,8 @@ class Stage2Config:
 
     def substeps(self, f_hz: float, dt: float) -> int:
         """Verlet steps per training step of ``stride`` frames at an observed frequency ``f_hz`` (Hz) and frame
-        interval ``dt`` (s): ``stride`` where ``2 pi f_hz stride dt > max_step_phase``, else 1 (see
-        ``max_step_phase``)."""
+        interval ``dt`` (s): ``stride`` where ``2 pi f_hz stride dt > max_step_phase``, else 1 (also for a
+        frequency that could not be read, NaN; see ``max_step_phase``)."""
         return int(self.stride) if 2 * math.pi * f_hz * self.stride * dt > self.max_step_phase else 1
 
     def effective_rollout_steps(self, d: int) -> int:

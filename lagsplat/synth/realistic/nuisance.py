@@ -180,9 +180,9 @@ def handheld_sway(seed: int, t: np.ndarray, width: int, height: int) -> np.ndarr
     """
     rng = np.random.default_rng([int(seed), 53, 7])
     out = []
-    for scale in (float(width), float(height), math.radians(1.0)):
+    for unit in (0.02 * width, 0.02 * height, math.radians(1.0)):  # px, px, rad
         f, ph = rng.uniform(0.15, 0.25), rng.uniform(0, 2 * math.pi, 2)
-        a = rng.uniform(0.5, 1.0, 2) * (scale * 0.02 if scale > 1 else scale)
+        a = rng.uniform(0.5, 1.0, 2) * unit
         out.append(a[0] * np.sin(2 * math.pi * f * t + ph[0]) + a[1] * np.sin(2 * math.pi * f * math.sqrt(2) * t + ph[1]))
     return np.stack(out, 1)
 
