@@ -19,8 +19,9 @@ For each it prints
 * s/step and frames/s of :func:`lagsplat.train.stage1.train_stage1`, as the
   slope between a run of ``--steps / 3`` and one of ``--steps`` steps (set-up
   and encoding the clip cancel out), each run in a fresh process after a
-  3-step run that compiles numba's kernels into their cache. The cost of a step changes as the decoder trains (its primitives'
-  sizes and opacities set the rasteriser's work), so too short a run
+  3-step run that compiles numba's kernels into their cache. The cost of a
+  step changes as the decoder trains (its primitives' sizes and opacities
+  set the rasteriser's work), so too short a run
   misjudges it: the default 100 -> 300 steps is within 10 % of a whole
   1500-step toy run on this checkout;
 * the shares of a step's wall time by phase over ``--profile-steps`` steps:
