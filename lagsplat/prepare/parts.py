@@ -281,11 +281,26 @@ def _moves_with(obj: Part, other: Part) -> float:
     return best
 
 
+def _apart(whole: Part, by_label: dict[int, Part]) -> bool:
+    """Whether ``whole`` joins two oscillating sides that move independently (a pendulum and the hand beside
+    it that let it go): each side oscillates on its own (:attr:`Part.oscillates`) and neither's path follows
+    the other's (:func:`_moves_with` below :data:`MOVES_WITH` both ways), so the whole is two things, not one
+    seen two ways, and it is no candidate for the object. The ends of one decaying swing, split off because
+    they are visited briefly, follow the swing's path; a side with no oscillation of its own (the object's
+    fringe, the place where it rests) leaves the whole a candidate."""
+    sides = [by_label.get(k) for k in whole.members]
+    if len(sides) != 2 or any(s is None or not s.oscillates for s in sides):
+        return False
+    a, b = sides
+    return max(_moves_with(a, b), _moves_with(b, a)) < MOVES_WITH
+
+
 def choose_object(parts: list[Part]) -> tuple[list[Part], list[Part], str | None]:
     """Split the parts into the object (first, with the parts that move with it) and the dropped ones.
 
     The object is the oscillating part (:attr:`Part.oscillates`) with the clearest peak; parts within
-    5 points of its peak share are ranked by mass. When no part oscillates, the strongest part is the
+    5 points of its peak share are ranked by mass. A part split by time whose two sides move independently
+    (:func:`_apart`) is no candidate as a whole; its sides are. When no part oscillates, the strongest part is the
     object, and the third value says so. Every part gets its :attr:`Part.verdict`.
 
     Returns:
@@ -298,7 +313,8 @@ def choose_object(parts: list[Part]) -> tuple[list[Part], list[Part], str | None
         raise ValueError("no moving parts to choose from")
     note = None
     T = len(parts[0].xy)
-    osc = [p for p in parts if p.oscillates]
+    by_label = {p.label: p for p in parts}
+    osc = [p for p in parts if p.oscillates and not _apart(p, by_label)]
     if osc:
         best = max(p.score(T) for p in osc)
         obj = max((p for p in osc if p.score(T) >= best - 0.05), key=lambda p: p.mass)
