@@ -102,3 +102,41 @@ def test_a_one_frame_clip_is_left_alone() -> None:
     frames, _ = _scene(sway=True)
     out, A, note = stabilise(frames[:1])
     assert A is None and out.shape[0] == 1
+
+
+def test_a_fitted_sway_that_leaves_no_oscillation_is_not_taken(tmp_path, monkeypatch) -> None:
+    """Where the "sway" was fitted to the object itself (branches that fill the frame), its warp leaves no
+    oscillation: here a warp that shuffles the frames in time stands for it. The frames are then read as they
+    are, the disc's 0.8 Hz is found and no camera motion is recorded."""
+    import lagsplat.prepare as prepare_module
+    from lagsplat.prepare import prepare_video
+
+    path = write_mp4(_scene(sway=False)[0], tmp_path / "swing.mp4", FPS)
+    taken = []
+
+    def fitted_to_the_object(small):
+        taken.append(len(small))
+        A = np.tile(np.eye(2, 3), (len(small), 1, 1))
+        A[:, 0, 2] = np.linspace(0, 5, len(small))
+        return small[np.random.default_rng(0).permutation(len(small))], A, "the camera sways up to 5.0 px of 160: taken out"
+
+    monkeypatch.setattr(prepare_module, "take_out_sway", fitted_to_the_object)
+    p = prepare_video(path, fps=FPS)
+    assert taken == [T] and p.camera is None and (p.note is None or "sways" not in p.note)
+    assert abs(p.frequency_hz - 0.8) < 0.02
+
+
+def test_the_warp_is_kept_where_it_stills_the_typical_pixel_though_every_edge_still_flickers(monkeypatch) -> None:
+    """A shaking hand blurs every edge of a cluttered room by a varying amount: after the warp nearly every pixel
+    still changes (the moving share barely falls) but the typical pixel's motion falls several-fold, and the
+    warp is kept; where it leaves the typical pixel as it was (a fit to a moving part), it is not."""
+    import lagsplat.prepare.stabilise as stab
+
+    frames, _ = _scene(sway=True)
+    for after, kept in (((0.96, 4.0, 50.0), True), ((0.96, 12.0, 50.0), False), ((0.96, 4.0, 20.0), False)):
+        stats = iter([(0.98, 10.0, 52.0), after])  # (moving share, typical, strongest) before, then after the warp
+        monkeypatch.setattr(stab, "motion_stats", lambda f, s=stats: next(s))
+        _, A, note = stab.stabilise(frames)
+        assert (A is not None) == kept, after
+        if kept:
+            assert "the typical pixel's motion 10.0 -> 4.0 grey levels" in note

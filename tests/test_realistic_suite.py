@@ -124,7 +124,7 @@ def test_the_nuisance_clips_are_listed_apart_from_the_suite() -> None:
     names = [e["name"] for e in entries]
     suite = {e["name"] for e in realistic_suite() + outside_class_clips()}
     assert len(names) == len(set(names)) and not suite & set(names)
-    assert {e["nuisance"] for e in entries} == {"distractor", "walk_in", "sticks", "short", "long_string", "handheld"}
+    assert {e["nuisance"] for e in entries} == {"distractor", "walk_in", "sticks", "short", "long_string", "handheld", "shaky"}
     assert all(clip_spec(n)["nuisance"] for n in names)
     assert {e["system"] for e in _nuisance("distractor")} == {"pendulum", "spring_cart"}
 
@@ -221,3 +221,30 @@ def test_a_handheld_frame_is_the_mean_of_its_subframes_moved_by_the_sway() -> No
     assert seen == [2 * 30 * HANDHELD_SUBFRAMES] and frames.shape == (60, 32, 48, 3)
     lit = (frames[:, 16, :, 0] > 0).sum(1)
     assert lit.max() > 1  # a fast frame smears the column over several pixels
+
+
+def test_a_shaky_hand_blurs_the_still_scene_by_a_varying_amount() -> None:
+    """A still scene (a thin bright column that never moves) filmed hand-held stays sharp in every frame; filmed
+    by a shaking hand it smears, more in some frames than in others, and its tremor is fast (2 to 6 Hz)."""
+    from lagsplat.synth.realistic.nuisance import handheld_frames, handheld_tremor
+
+    W, H = 384, 256
+
+    def still(q):
+        out = np.zeros((len(q), H, W, 3), np.uint8)
+        out[:, :, W // 2] = 255
+        return out
+
+    def spread(frames):  # the column's width, px: the middle row's light over its peak
+        row = frames[:, H // 2, :, 0].astype(float)
+        return row.sum(1) / row.max(1)
+
+    calm = spread(handheld_frames(_nuisance("handheld")[0], W, H, 30.0, 2.0, still))
+    shaky = spread(handheld_frames(_nuisance("shaky")[0], W, H, 30.0, 2.0, still))
+    assert calm.max() < 2.2  # one pixel, or two after a sub-pixel shift
+    assert shaky.max() > 1.5 * calm.max() and shaky.std() > 1.8 * calm.std()
+    t = np.arange(600) / 300.0
+    tremor = handheld_tremor(0, t, 96, 64)
+    spectrum = np.abs(np.fft.rfft(tremor[:, 0] - tremor[:, 0].mean()))
+    peak_hz = np.fft.rfftfreq(len(t), 1 / 300.0)[int(np.argmax(spectrum))]
+    assert 1.5 <= peak_hz <= 6.5 and np.abs(tremor[:, 0]).max() < 0.013 * 96

@@ -170,9 +170,8 @@ def prepare_video(
     if crop is not None and (crop[2] > native[0] or crop[3] > native[1]):
         raise ClipError(f"{src}: crop {crop} lies outside the {native[0]}x{native[1]} frame (set `crop` inside it)")
     dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0 / float(fps or 30.0)
-    small, camera, camera_note = take_out_sway(small) if stabilise else (small, None, None)
     try:
-        m = analyse_motion(small, src, dt)
+        small, m, camera, camera_note = _analyse(small, src, dt, stabilise)
     except PreparationRefused as e:
         if preview is not None:
             _draw(preview, e.analysis, dt, str(e))
@@ -223,6 +222,46 @@ def prepare_video(
         m["crop_in_analysis"] = None if crop is None or user_crop else [(crop[0] - base[0]) / s, (crop[1] - base[1]) / s, (crop[2] - base[0]) / s, (crop[3] - base[1]) / s]
         _draw(preview, m, dt, prep.summary())
     return prep
+
+
+def _oscillates(m: dict[str, Any]) -> bool:
+    """Whether an analysis found an oscillating object (:attr:`lagsplat.prepare.parts.Part.oscillates`)."""
+    return bool(m.get("kept")) and m["kept"][0].oscillates
+
+
+def _analyse(small: np.ndarray, src: str, dt: float, stabilise: bool) -> tuple[np.ndarray, dict[str, Any], np.ndarray | None, str | None]:
+    """:func:`lagsplat.prepare.analysis.analyse_motion` of the frames with the camera's sway taken out
+    (:func:`lagsplat.prepare.stabilise.stabilise`), or as they are: a "sway" fitted to an object that fills
+    the frame (branches against the sky) is the object's own motion, and warping it out leaves no oscillation;
+    where the stabilised frames show no oscillating object (or are refused) and the frames as they are show
+    one, those are read.
+
+    Returns:
+        ``(frames, analysis, transforms or None, note or None)``.
+
+    Raises:
+        PreparationRefused: as :func:`~lagsplat.prepare.analysis.analyse_motion`, for the frames read.
+    """
+    warped, camera, note = take_out_sway(small) if stabilise else (small, None, None)
+    if camera is None:
+        return small, analyse_motion(small, src, dt), None, None
+    try:
+        m = analyse_motion(warped, src, dt)
+    except PreparationRefused as e:
+        m, refused = e.analysis, e
+    else:
+        refused = None
+    if refused is None and _oscillates(m):
+        return warped, m, camera, note
+    try:
+        m_raw = analyse_motion(small, src, dt)
+    except PreparationRefused:
+        m_raw = None
+    if m_raw is not None and _oscillates(m_raw):
+        return small, m_raw, None, None
+    if refused is not None:
+        raise refused
+    return warped, m, camera, note
 
 
 def _draw(path: str | Path, analysis: dict[str, Any], dt: float, title: str) -> None:

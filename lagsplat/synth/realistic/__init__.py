@@ -141,8 +141,9 @@ def make_clip(
     duration_s = float(spec.get("duration_s", 12.0)) if duration_s is None else duration_s
     m = motion_of(spec, fps, duration_s)
     W, H = size or SIZES[spec["size"]]
-    if spec.get("nuisance") == "handheld":
-        clean = handheld_frames(spec, W, H, fps, duration_s, lambda q: render_frames(spec["system"], q, W, H))
+    if spec.get("nuisance") in ("handheld", "shaky"):
+        xml = backdrop_scene(spec, half_w=0.8 * W / H) if "backdrop" in spec else None
+        clean = handheld_frames(spec, W, H, fps, duration_s, lambda q: render_frames(spec["system"], q, W, H, xml=xml))
     elif "nuisance" in spec:
         scene = scene_xml(spec["system"], distance_m=2.2, **nuisance_scene(spec))
         clean = render_frames(spec["system"], m.q, W, H, xml=scene, extra_qpos=m.extras.get("distractor"))

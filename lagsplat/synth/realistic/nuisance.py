@@ -16,6 +16,10 @@ automatic preparation (``lagsplat.prepare``: crop, resolution, split, refusals) 
   :data:`HANDHELD_SUBFRAMES` renders spread over its interval) and a slow sway of the whole picture
   (:func:`handheld_sway`: a shift of 2 to 4 % of the frame and a tilt of 1 to 2 degrees, two
   incommensurate sines at 0.15 to 0.35 Hz), so that every pixel moves a little.
+* ``shaky``: the same, by a hand that shakes, in a cluttered room (the backdrop renders' clutter wall and
+  props): :func:`handheld_tremor` (about 1 % of the frame at 2 to 6 Hz) adds to the sway, and both move
+  every sub-frame, so the whole picture blurs by a varying amount from frame to frame (a warp cannot take
+  that out: every edge of the scene flickers).
 * ``long_string``: a small bob (2.5 cm) on a 1.38-m string hanging from the top of the frame; the bob's
   height moves at twice the swing frequency (0.42 Hz). 128 x 128 and a tall 96 x 160; 20 s long (8.4 periods:
   a 12-s take of 5 periods would be refused as too short before its frequency is used).
@@ -37,7 +41,7 @@ from lagsplat.synth.realistic.motion import Motion, one_dof_motion
 from lagsplat.synth.realistic.nuisance_motion import long_string_motion, nuisance_truth, short_duration_s, sticks_motion
 
 __all__ = ["nuisance_clips", "nuisance_motion", "nuisance_scene", "distractor_track", "handheld_sway", "handheld_frames", "FIGURE_XML",
-           "LONG_STRING", "HANDHELD_SUBFRAMES"]  # fmt: skip
+           "LONG_STRING", "HANDHELD_SUBFRAMES", "handheld_tremor"]  # fmt: skip
 
 HANDHELD_SUBFRAMES = 6
 """Renders averaged into one ``handheld`` frame (a shutter open for the whole frame interval)."""
@@ -74,6 +78,11 @@ _WALK_IN_FEET_M = (1.35, 0.62)
 """Start (out of view) and end of the walking figure's feet, m from the centre line."""
 
 
+_CLUTTERED = {"backdrop": "clutter", "scale": 1.0, "mover": None, "moving_light": False}
+"""The ``shaky`` entries' scene: the backdrop renders' cluttered wall and props
+(:func:`~lagsplat.synth.realistic.backdrops.backdrop_scene`), so that nearly every pixel has an edge to blur."""
+
+
 def _entry(system: str, nuisance: str, variant: str, seed: int, size: str = "128", effect: str = "none", **extra: Any) -> dict[str, Any]:
     return {"name": f"{system}-{nuisance}-{variant}-{size}", "system": system, "effect": effect, "variant": variant, "size": size,
             "seed": seed, "nuisance": nuisance, **extra}  # fmt: skip
@@ -100,6 +109,8 @@ def nuisance_clips() -> list[dict[str, Any]]:
         _entry("pendulum", "long_string", "s1", 1, size="96x160", amplitude_deg=16.0, duration_s=20.0),
         _entry("pendulum", "handheld", "s0", 0),
         _entry("spring_cart", "handheld", "s1", 1),
+        _entry("pendulum", "shaky", "s2", 2, **_CLUTTERED),
+        _entry("spring_cart", "shaky", "s0", 0, **_CLUTTERED),
     ]
 
 
@@ -142,7 +153,7 @@ def nuisance_motion(spec: dict[str, Any], fps: float = 30.0, duration_s: float =
         ValueError: on an unknown ``nuisance`` tag.
     """
     nuisance, system, seed = spec["nuisance"], spec["system"], int(spec["seed"])
-    if nuisance in ("distractor", "walk_in", "short", "handheld"):
+    if nuisance in ("distractor", "walk_in", "short", "handheld", "shaky"):
         m = one_dof_motion(system, "none", seed, fps, duration_s)
     elif nuisance == "sticks":
         m = sticks_motion(system, seed, fps, duration_s, int(spec["half_swings"]), float(spec["stop_s"]))
@@ -150,7 +161,7 @@ def nuisance_motion(spec: dict[str, Any], fps: float = 30.0, duration_s: float =
         m = long_string_motion(seed, fps, duration_s, LONG_STRING["rod"], float(spec["amplitude_deg"]))
         m.truth["bob_vertical_hz"] = None  # filled below: twice the observed swing frequency
     else:
-        raise ValueError(f"unknown nuisance {nuisance!r}; known: distractor, walk_in, sticks, short, long_string, handheld")
+        raise ValueError(f"unknown nuisance {nuisance!r}; known: distractor, walk_in, sticks, short, long_string, handheld, shaky")
     obs = nuisance_truth(m)
     m.truth.update(obs)
     m.extras = {k: np.float64(v) for k, v in obs.items()}
@@ -187,22 +198,45 @@ def handheld_sway(seed: int, t: np.ndarray, width: int, height: int) -> np.ndarr
     return np.stack(out, 1)
 
 
-def handheld_frames(spec: dict[str, Any], width: int, height: int, fps: float, duration_s: float, render) -> np.ndarray:
-    """A ``handheld`` entry's frames ``[T, height, width, 3]`` uint8: the motion rendered at
-    :data:`HANDHELD_SUBFRAMES` times the frame rate by ``render(q)`` (uint8 frames of ``q [T', d]``),
-    each frame the mean of the renders over its interval, then shifted and tilted about the centre by
-    :func:`handheld_sway` (edges replicated, as a stabiliser would leave them)."""
+def handheld_tremor(seed: int, t: np.ndarray, width: int, height: int) -> np.ndarray:
+    """A shaking hand's picture motion ``[T, 3]`` at times ``t`` (s), added to :func:`handheld_sway` for the
+    ``shaky`` entries: shift x, shift y (px) and tilt (rad), each two sines at 2 to 6 Hz with amplitudes
+    0.3 to 0.6 % of the frame's width / height (up to about 1.2 % in all) and 0.1 to 0.2 degree. Seeded by ``seed``."""
+    rng = np.random.default_rng([int(seed), 59, 11])
+    out = []
+    for unit in (0.006 * width, 0.006 * height, math.radians(0.2)):  # px, px, rad
+        f, ph = rng.uniform(2.0, 6.0, 2), rng.uniform(0, 2 * math.pi, 2)
+        a = rng.uniform(0.5, 1.0, 2) * unit
+        out.append(a[0] * np.sin(2 * math.pi * f[0] * t + ph[0]) + a[1] * np.sin(2 * math.pi * f[1] * t + ph[1]))
+    return np.stack(out, 1)
+
+
+def _move(frame: np.ndarray, dx: float, dy: float, tilt: float) -> np.ndarray:
+    """``frame [h, w, 3]`` (float) shifted by ``(dx, dy)`` px and tilted by ``tilt`` rad about its centre, edges replicated."""
     import cv2
 
+    h, w = frame.shape[:2]
+    A = cv2.getRotationMatrix2D(((w - 1) / 2, (h - 1) / 2), math.degrees(tilt), 1.0)
+    A[:, 2] += (dx, dy)
+    return cv2.warpAffine(frame, A, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+
+def handheld_frames(spec: dict[str, Any], width: int, height: int, fps: float, duration_s: float, render) -> np.ndarray:
+    """A ``handheld`` or ``shaky`` entry's frames ``[T, height, width, 3]`` uint8: the motion rendered at
+    :data:`HANDHELD_SUBFRAMES` times the frame rate by ``render(q)`` (uint8 frames of ``q [T', d]``),
+    each frame the mean of the renders over its interval. ``handheld``: the mean is then shifted and tilted
+    about the centre by :func:`handheld_sway` (edges replicated, as a stabiliser would leave them);
+    ``shaky``: every render is moved by the sway plus :func:`handheld_tremor` at its own time before the mean."""
     n = HANDHELD_SUBFRAMES
     fine = nuisance_motion(spec, fps * n, duration_s)
     sub = render(fine.q).astype(np.float32)
     T = len(sub) // n
+    seed = int(spec["seed"])
+    if spec["nuisance"] == "shaky":
+        tf = np.arange(T * n) / (fps * n)
+        moves = handheld_sway(seed, tf, width, height) + handheld_tremor(seed, tf, width, height)
+        sub = np.stack([_move(f, *mv) for f, mv in zip(sub[: T * n], moves)])
+        return np.clip(sub.reshape(T, n, height, width, 3).mean(1) + 0.5, 0, 255).astype(np.uint8)
     frames = sub[: T * n].reshape(T, n, height, width, 3).mean(1)
-    sway = handheld_sway(int(spec["seed"]), np.arange(T) / fps, width, height)
-    out = np.empty((T, height, width, 3), np.uint8)
-    for i, (dx, dy, tilt) in enumerate(sway):
-        A = cv2.getRotationMatrix2D(((width - 1) / 2, (height - 1) / 2), math.degrees(tilt), 1.0)
-        A[:, 2] += (dx, dy)
-        out[i] = np.clip(cv2.warpAffine(frames[i], A, (width, height), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE) + 0.5, 0, 255)
-    return out
+    sway = handheld_sway(seed, np.arange(T) / fps, width, height)
+    return np.stack([np.clip(_move(f, *mv) + 0.5, 0, 255).astype(np.uint8) for f, mv in zip(frames, sway)])
