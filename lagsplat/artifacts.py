@@ -28,13 +28,13 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any, Mapping
 
-from lagsplat.chart import Chart, load_chart
-from lagsplat.io.clip import Clip, load_clip
-from lagsplat.models.autoencoder import AutoEncoder, load_stage1
-from lagsplat.train.stage2 import load_stage2
-from lagsplat.views import ViewSet, load_views
+if TYPE_CHECKING:  # the loaders import torch; the paths alone (the Snakefile's DAG) need none of it
+    from lagsplat.chart import Chart
+    from lagsplat.io.clip import Clip
+    from lagsplat.models.autoencoder import AutoEncoder
+    from lagsplat.views import ViewSet
 
 __all__ = [
     "Artifacts",
@@ -218,22 +218,32 @@ class Artifacts:
     # ----------------------------------------------------------------- loading
     def load_clip(self) -> Clip:
         """``clip.npz`` (:func:`lagsplat.io.clip.load_clip`; raises ``ClipError``/``FileNotFoundError`` naming the file)."""
+        from lagsplat.io.clip import load_clip
+
         return load_clip(self.clip)
 
     def load_views(self) -> ViewSet:
         """``views/`` (:func:`lagsplat.views.load_views`; raises ``FileNotFoundError`` naming the folder if never computed)."""
+        from lagsplat.views import load_views
+
         return load_views(self.views)
 
     def load_stage1(self) -> AutoEncoder:
         """``stage1.pt`` (:func:`lagsplat.models.autoencoder.load_stage1`)."""
+        from lagsplat.models.autoencoder import load_stage1
+
         return load_stage1(self.stage1)
 
     def load_chart(self) -> Chart:
         """``chart.npz`` (:func:`lagsplat.chart.load_chart`)."""
+        from lagsplat.chart import load_chart
+
         return load_chart(self.chart)
 
     def load_stage2(self) -> tuple[Any, dict]:
         """``stage2.pt``: ``(Lagrangian in eval mode, checkpoint dict)`` (:func:`lagsplat.train.stage2.load_stage2`)."""
+        from lagsplat.train.stage2 import load_stage2
+
         return load_stage2(self.stage2)
 
     def load_metrics(self) -> dict | None:

@@ -188,9 +188,9 @@ def frames_psnr(pred: np.ndarray, real: np.ndarray) -> np.ndarray:
 
 def ae_floor_psnr(ae: Any, chart: Chart, frames: np.ndarray, idx: np.ndarray, batch: int, empty: float = math.inf) -> float:
     """Mean PSNR (dB) of the LaGSplat autoencoder on the clip's frames ``idx``: the floor the rendering rows are read against."""
-    from lagsplat.evaluate.common import decoded_psnr_ssim
+    from lagsplat.evaluate.common import decoded_image_errors
 
-    floor, _ = decoded_psnr_ssim(ae, chart, chart.q[idx], frames[idx], batch)
+    _, floor, _ = decoded_image_errors(ae, chart, chart.q[idx], frames[idx], batch)
     return finite_mean(floor, empty)
 
 
@@ -228,9 +228,9 @@ def extrapolation_metrics(
     out = _dynamics_rows(w, chart, pred, p_win, p_long, long_s)
     out["trace"] = model_trace(p_long[: w.n_near], p_long[-w.m_period :], w, long_s)
     if ae is not None and frames is not None:
-        from lagsplat.evaluate.common import decoded_psnr_ssim
+        from lagsplat.evaluate.common import decoded_image_errors
 
-        psnr, _ = decoded_psnr_ssim(ae, chart, pred, frames[w.ho], batch)
+        _, psnr, _ = decoded_image_errors(ae, chart, pred, frames[w.ho], batch)
         out.update(psnr_mean=finite_mean(psnr, math.nan), psnr_first=float(psnr[0]), psnr_last=float(psnr[-1]),
                    psnr_ae_floor_mean=ae_floor_psnr(ae, chart, frames, w.ho, batch))  # fmt: skip
     return out

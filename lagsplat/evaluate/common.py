@@ -11,7 +11,7 @@ from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 from lagsplat.chart import Chart
 from lagsplat.models.autoencoder import AutoEncoder, frames_to_tensor
 
-__all__ = ["metric_entry", "decode_mse", "decoded_psnr_ssim"]
+__all__ = ["metric_entry", "decode_mse", "decoded_image_errors"]
 
 
 def metric_entry(value: Any, definition: str, horizon: str = "", units: str = "") -> dict:
@@ -33,23 +33,24 @@ def decode_mse(ae: AutoEncoder, chart: Chart, q_pred: np.ndarray, frames: np.nda
 
 
 @torch.no_grad()
-def decoded_psnr_ssim(ae: AutoEncoder, chart: Chart, q_pred: np.ndarray, frames: np.ndarray, batch: int) -> tuple[np.ndarray, np.ndarray]:
-    """Per-state PSNR (dB) and SSIM of decoded ``q_pred [M,d]`` against uint8 ``frames [M,H,W,3]``.
+def decoded_image_errors(ae: AutoEncoder, chart: Chart, q_pred: np.ndarray, frames: np.ndarray, batch: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-state MSE, PSNR (dB) and SSIM of decoded ``q_pred [M,d]`` against uint8 ``frames [M,H,W,3]``, each
+    state decoded once.
 
-    scikit-image's ``peak_signal_noise_ratio`` and ``structural_similarity``
-    (Gaussian-free 7 x 7 window, colour channels averaged, ``data_range`` 1)
-    on pixels in [0, 1] at the training resolution: the image-quality numbers
-    the field reports next to the MSE (paper §4.1 reports the MSE ratio).
-    A frame decoded exactly gives ``inf`` dB; SSIM is NaN on images under 3 px
-    a side (no window fits).
+    The MSE as :func:`decode_mse` (paper §4.1, ``eps_I``); scikit-image's ``peak_signal_noise_ratio`` and
+    ``structural_similarity`` (Gaussian-free 7 x 7 window, colour channels averaged, ``data_range`` 1)
+    on pixels in [0, 1] at the training resolution: the image-quality numbers the field reports next to
+    the MSE. A frame decoded exactly gives ``inf`` dB; SSIM is NaN on images under 3 px a side (no window fits).
 
     Returns:
-        ``(psnr [M], ssim [M])``, float64.
+        ``(mse [M], psnr [M], ssim [M])``, float64.
     """
-    psnr, ssim = np.empty(len(q_pred)), np.empty(len(q_pred))
+    mse, psnr, ssim = np.empty(len(q_pred)), np.empty(len(q_pred)), np.empty(len(q_pred))
     for i in range(0, len(q_pred), batch):
         z = chart.to_raw(torch.as_tensor(q_pred[i : i + batch], dtype=torch.float32))
-        rec = ae.decode(z).permute(0, 2, 3, 1).double().numpy()
+        rec_t = ae.decode(z)
+        mse[i : i + batch] = ((rec_t - frames_to_tensor(frames[i : i + batch])) ** 2).mean(dim=(1, 2, 3)).numpy()
+        rec = rec_t.permute(0, 2, 3, 1).double().numpy()
         x = frames[i : i + batch].astype(np.float64) / 255.0
         for j in range(len(rec)):
             with np.errstate(divide="ignore"):  # an exact decode: inf dB, left out of the mean by the caller
@@ -57,4 +58,4 @@ def decoded_psnr_ssim(ae: AutoEncoder, chart: Chart, q_pred: np.ndarray, frames:
             side = min(x.shape[1:3])
             win = min(7, side if side % 2 else side - 1)  # odd, at most the image side
             ssim[i + j] = structural_similarity(x[j], rec[j], data_range=1.0, channel_axis=-1, win_size=win) if win >= 3 else np.nan
-    return psnr, ssim
+    return mse, psnr, ssim

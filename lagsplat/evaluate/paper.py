@@ -39,7 +39,7 @@ from lagsplat.dynamics.integrators import actuation_schedule, initial_state, rol
 from lagsplat.io.clip import HELD_OUT, Clip, ClipError
 from lagsplat.models.lagrangian import Lagrangian
 from lagsplat.models.autoencoder import AutoEncoder
-from lagsplat.evaluate.common import decode_mse, decoded_psnr_ssim, metric_entry
+from lagsplat.evaluate.common import decoded_image_errors, metric_entry
 from lagsplat.evaluate.rest import held_out_rest, rest_metrics
 
 __all__ = ["EvalConfig", "evaluate", "frequency_windows", "modal_metrics"]
@@ -126,7 +126,7 @@ def evaluate(clip: Clip, ae: AutoEncoder, chart: Chart, model: Lagrangian, cfg: 
     finite = np.isfinite(pred).all(axis=(1, 2))
     eps_q = metrics.latent_nrmse(pred[finite], true[finite], G, q_std) if finite.any() else float("inf")
     frames = np.concatenate([clip.images[ho[s : s + H]] for s in starts[finite]])
-    mse = decode_mse(ae, chart, pred[finite].reshape(-1, chart.d), frames, cfg.render_batch)
+    mse, psnr, ssim = decoded_image_errors(ae, chart, pred[finite].reshape(-1, chart.d), frames, cfg.render_batch)
     eps_I = float(mse.mean())
     eps_AE = float(chart.ae_mse[ho].mean())
 
@@ -156,7 +156,6 @@ def evaluate(clip: Clip, ae: AutoEncoder, chart: Chart, model: Lagrangian, cfg: 
         out["f_truth_hz"] = metric_entry(f_true, "generator's true frequency on the held-out segment (lagsplat.synth)", "", "Hz")
         out["eps_freq_truth"] = metric_entry(abs(np.nanmean(f_sim_w) - f_true) / f_true, "|f_sim - f_truth| / f_truth", "", "fraction")
     # the image-quality numbers the field reports beside the MSE ratio, on the same rollout windows (scikit-image)
-    psnr, ssim = decoded_psnr_ssim(ae, chart, pred[finite].reshape(-1, chart.d), frames, cfg.render_batch)
     fin = np.isfinite(psnr)
     out["psnr_db"] = metric_entry(
         float(psnr[fin].mean()) if fin.any() else float("nan"),
