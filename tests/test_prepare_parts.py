@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lagsplat.prepare.frequency import path_frequency, turning_points
+from lagsplat.prepare.frequency import path_frequency, periods_held
 from lagsplat.prepare.parts import Part, choose_object
 
 DT, T = 1.0 / 30.0, 120  # 4 s
@@ -14,7 +14,7 @@ def _part(label: int, path: np.ndarray, mass: float, members: tuple[int, ...] = 
     """A part whose centroid runs along ``path`` (px, horizontally) over the whole clip, its frequency read as
     preparation reads it."""
     f, share = path_frequency(path, DT)
-    periods = min(f * T * DT, (turning_points(path) + 1) / 2.0)
+    periods = periods_held(path, f, DT)
     xy = np.stack([x0 + path, np.full(T, 50.0)], 1)
     region = np.zeros((120, 160), bool)
     region[40:60, x0 : x0 + 40] = True

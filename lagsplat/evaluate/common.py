@@ -20,15 +20,23 @@ def metric_entry(value: Any, definition: str, horizon: str = "", units: str = ""
     return {"value": v, "definition": definition, "horizon": horizon, "units": units}
 
 
+def _decoded(ae: AutoEncoder, chart: Chart, q_pred: np.ndarray, batch: int):
+    """``(i, decode(q_pred[i : i + batch]))`` per batch: the states' images ``[b, 3, H, W]`` in [0, 1]."""
+    for i in range(0, len(q_pred), batch):
+        yield i, ae.decode(chart.to_raw(torch.as_tensor(q_pred[i : i + batch], dtype=torch.float32)))
+
+
+def _mse(rec: torch.Tensor, frames: np.ndarray) -> np.ndarray:
+    """Per-image MSE of ``rec [b, 3, H, W]`` against uint8 ``frames [b, H, W, 3]``."""
+    return ((rec - frames_to_tensor(frames)) ** 2).mean(dim=(1, 2, 3)).numpy()
+
+
 @torch.no_grad()
 def decode_mse(ae: AutoEncoder, chart: Chart, q_pred: np.ndarray, frames: np.ndarray, batch: int) -> np.ndarray:
     """Per-state image MSE of decoded ``q_pred [M,d]`` against uint8 ``frames [M,H,W,3]``."""
     out = np.empty(len(q_pred))
-    for i in range(0, len(q_pred), batch):
-        z = chart.to_raw(torch.as_tensor(q_pred[i : i + batch], dtype=torch.float32))
-        rec = ae.decode(z)
-        x = frames_to_tensor(frames[i : i + batch])
-        out[i : i + batch] = ((rec - x) ** 2).mean(dim=(1, 2, 3)).numpy()
+    for i, rec in _decoded(ae, chart, q_pred, batch):
+        out[i : i + batch] = _mse(rec, frames[i : i + batch])
     return out
 
 
@@ -46,10 +54,8 @@ def decoded_image_errors(ae: AutoEncoder, chart: Chart, q_pred: np.ndarray, fram
         ``(mse [M], psnr [M], ssim [M])``, float64.
     """
     mse, psnr, ssim = np.empty(len(q_pred)), np.empty(len(q_pred)), np.empty(len(q_pred))
-    for i in range(0, len(q_pred), batch):
-        z = chart.to_raw(torch.as_tensor(q_pred[i : i + batch], dtype=torch.float32))
-        rec_t = ae.decode(z)
-        mse[i : i + batch] = ((rec_t - frames_to_tensor(frames[i : i + batch])) ** 2).mean(dim=(1, 2, 3)).numpy()
+    for i, rec_t in _decoded(ae, chart, q_pred, batch):
+        mse[i : i + batch] = _mse(rec_t, frames[i : i + batch])
         rec = rec_t.permute(0, 2, 3, 1).double().numpy()
         x = frames[i : i + batch].astype(np.float64) / 255.0
         for j in range(len(rec)):

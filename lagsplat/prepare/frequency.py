@@ -20,7 +20,7 @@ from scipy.ndimage import gaussian_filter1d, maximum_filter1d, median_filter, un
 
 from lagsplat.timeseries import spectral_peak_frequency
 
-__all__ = ["principal_path", "moving_span", "path_frequency", "turning_points", "harmonic_share", "PAD", "MOVING_LEVEL"]
+__all__ = ["principal_path", "moving_span", "path_frequency", "turning_points", "periods_held", "harmonic_share", "PAD", "MOVING_LEVEL"]
 
 #: Zero-padding factor of the periodogram (a finer grid for the peak; the resolution stays ``1 / duration``).
 PAD = 8
@@ -167,6 +167,15 @@ def turning_points(p: np.ndarray, share: float = 0.25) -> int:
             elif v > lo + h:
                 turns, direction, hi = turns + 1, 1, v
     return int(turns)
+
+
+def periods_held(p: np.ndarray, frequency_hz: float, dt: float) -> float:
+    """Periods a path ``p [n]`` (frames ``dt`` s apart) holds at ``frequency_hz``: the spectrum's ``f n dt``, but
+    no more than its turning points allow (:func:`turning_points`: a clip too short to resolve its frequency
+    shows it in its reversals, ``k`` periods turn about ``2 k`` times); 0 for an unread (non-finite) frequency."""
+    if not np.isfinite(frequency_hz):
+        return 0.0
+    return float(min(frequency_hz * len(p) * dt, (turning_points(p) + 1) / 2.0))
 
 
 def path_frequency(p: np.ndarray, dt: float) -> tuple[float, float]:

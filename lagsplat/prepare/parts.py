@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.ndimage import binary_dilation, binary_opening, distance_transform_edt, label, maximum_filter1d
 
-from lagsplat.prepare.frequency import moving_span, path_frequency, principal_path, turning_points
+from lagsplat.prepare.frequency import moving_span, path_frequency, periods_held, principal_path
 
 __all__ = ["Part", "find_parts", "choose_object", "MIN_PEAK_SHARE", "MIN_CHOICE_PERIODS", "MOVES_WITH", "PART_FRACTION"]
 
@@ -69,7 +69,7 @@ class Part:
         direction: ``[2]`` that unit direction ``(x, y)``.
         frequency_hz, peak_share, periods: :func:`lagsplat.prepare.frequency.path_frequency` on ``path``,
             and the periods it holds (at most half its turning points plus a half,
-            :func:`lagsplat.prepare.frequency.turning_points`).
+            :func:`lagsplat.prepare.frequency.periods_held`).
         touches_border: whether its pixels reach the frame's border.
         members: for a part that was split by time (:func:`_split_by_time`), the whole is a candidate too:
             the labels of its two sides; ``()`` otherwise.
@@ -262,9 +262,7 @@ def find_parts(x: np.ndarray, std: np.ndarray, floor: float, dt: float) -> list[
         xy = _centroids(x, core, (a, b))
         p, d = principal_path(xy[a:b])
         f, share = path_frequency(p, dt)
-        # periods: the spectrum's, but no more than its turning points allow (a clip too short to resolve its
-        # frequency shows it in its reversals: k periods turn about 2 k times)
-        periods = min(f * (b - a) * dt, (turning_points(p) + 1) / 2.0) if np.isfinite(f) else 0.0
+        periods = periods_held(p, f, dt)
         touches = bool(xs.min() <= 1 or ys.min() <= 1 or xs.max() >= w - 2 or ys.max() >= h - 2)
         box = (int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1)
         parts.append(Part(i + 1, region, box, float(mass[i]), xy, (a, b), p, d, f, share, periods, touches, tuple(m + 1 for m in members[i])))

@@ -40,7 +40,7 @@ from lagsplat.synth.effect_truth import EFFECTS
 from lagsplat.synth.realistic.backdrops import backdrop_clips, backdrop_motion, backdrop_scene
 from lagsplat.synth.realistic.camera import add_camera_nuisances, render_frames, write_mp4
 from lagsplat.synth.realistic.motion import Motion, double_pendulum_motion, one_dof_motion, slide_out_motion, spin_down_motion
-from lagsplat.synth.realistic.nuisance import handheld_frames, nuisance_clips, nuisance_motion, nuisance_scene
+from lagsplat.synth.realistic.nuisance import HANDHELD, handheld_frames, nuisance_clips, nuisance_motion, nuisance_scene
 from lagsplat.synth.realistic.scene import scene_xml
 
 __all__ = ["realistic_suite", "outside_class_clips", "nuisance_clips", "backdrop_clips", "clip_spec", "make_clip", "motion_of", "SIZES"]
@@ -141,7 +141,7 @@ def make_clip(
     duration_s = float(spec.get("duration_s", 12.0)) if duration_s is None else duration_s
     m = motion_of(spec, fps, duration_s)
     W, H = size or SIZES[spec["size"]]
-    if spec.get("nuisance") in ("handheld", "shaky"):
+    if spec.get("nuisance") in HANDHELD:
         xml = backdrop_scene(spec, half_w=0.8 * W / H) if "backdrop" in spec else None
         clean = handheld_frames(spec, W, H, fps, duration_s, lambda q: render_frames(spec["system"], q, W, H, xml=xml))
     elif "nuisance" in spec:

@@ -37,14 +37,18 @@ from typing import Any
 
 import numpy as np
 
+from lagsplat.io.common import warp_to_reference
 from lagsplat.synth.realistic.motion import Motion, one_dof_motion
 from lagsplat.synth.realistic.nuisance_motion import long_string_motion, nuisance_truth, short_duration_s, sticks_motion
 
 __all__ = ["nuisance_clips", "nuisance_motion", "nuisance_scene", "distractor_track", "handheld_sway", "handheld_frames", "FIGURE_XML",
-           "LONG_STRING", "HANDHELD_SUBFRAMES", "handheld_tremor"]  # fmt: skip
+           "LONG_STRING", "HANDHELD", "HANDHELD_SUBFRAMES", "handheld_tremor"]  # fmt: skip
 
 HANDHELD_SUBFRAMES = 6
 """Renders averaged into one ``handheld`` frame (a shutter open for the whole frame interval)."""
+
+HANDHELD = ("handheld", "shaky")
+"""The nuisances filmed hand-held (:func:`handheld_frames`)."""
 
 LONG_STRING = {"pivot_z": 1.58, "rod": 1.38, "string": 0.003, "bob": 0.025}
 """The long-string pendulum's geometry, m (:func:`~lagsplat.synth.realistic.scene.scene_xml`)."""
@@ -153,7 +157,7 @@ def nuisance_motion(spec: dict[str, Any], fps: float = 30.0, duration_s: float =
         ValueError: on an unknown ``nuisance`` tag.
     """
     nuisance, system, seed = spec["nuisance"], spec["system"], int(spec["seed"])
-    if nuisance in ("distractor", "walk_in", "short", "handheld", "shaky"):
+    if nuisance in ("distractor", "walk_in", "short") + HANDHELD:
         m = one_dof_motion(system, "none", seed, fps, duration_s)
     elif nuisance == "sticks":
         m = sticks_motion(system, seed, fps, duration_s, int(spec["half_swings"]), float(spec["stop_s"]))
@@ -182,6 +186,23 @@ def nuisance_scene(spec: dict[str, Any]) -> dict[str, Any]:
     return {}
 
 
+def _sines(key: tuple[int, ...], t: np.ndarray, width: int, height: int, scale: tuple[float, float], tilt_deg: float,
+           f_range: tuple[float, float], incommensurate: bool) -> np.ndarray:
+    """``[T, 3]`` picture motion (shift x, shift y in px, tilt in rad): per component two sines with
+    amplitudes 0.5 to 1 times its unit (``scale`` times the width / height, ``tilt_deg``), random phases and
+    frequencies in ``f_range`` (Hz): one frequency ``f`` and ``f sqrt 2`` where ``incommensurate``, else two
+    drawn apart. Seeded by ``key``."""
+    rng = np.random.default_rng(list(key))
+    out = []
+    for unit in (scale[0] * width, scale[1] * height, math.radians(tilt_deg)):  # px, px, rad
+        f = np.full(2, rng.uniform(*f_range)) if incommensurate else rng.uniform(*f_range, 2)
+        ratio = (1.0, math.sqrt(2)) if incommensurate else (1.0, 1.0)
+        ph = rng.uniform(0, 2 * math.pi, 2)
+        a = rng.uniform(0.5, 1.0, 2) * unit
+        out.append(sum(a[k] * np.sin(2 * math.pi * f[k] * ratio[k] * t + ph[k]) for k in range(2)))
+    return np.stack(out, 1)
+
+
 def handheld_sway(seed: int, t: np.ndarray, width: int, height: int) -> np.ndarray:
     """The hand-held camera's picture motion ``[T, 3]`` at times ``t`` (s): shift x, shift y (px) and tilt (rad).
 
@@ -189,36 +210,25 @@ def handheld_sway(seed: int, t: np.ndarray, width: int, height: int) -> np.ndarr
     shifts' amplitudes 1 to 2 % of the frame's width / height each (up to about 4 % in all), the tilt's
     0.5 to 1 degree each. Seeded by ``seed``.
     """
-    rng = np.random.default_rng([int(seed), 53, 7])
-    out = []
-    for unit in (0.02 * width, 0.02 * height, math.radians(1.0)):  # px, px, rad
-        f, ph = rng.uniform(0.15, 0.25), rng.uniform(0, 2 * math.pi, 2)
-        a = rng.uniform(0.5, 1.0, 2) * unit
-        out.append(a[0] * np.sin(2 * math.pi * f * t + ph[0]) + a[1] * np.sin(2 * math.pi * f * math.sqrt(2) * t + ph[1]))
-    return np.stack(out, 1)
+    return _sines((int(seed), 53, 7), t, width, height, (0.02, 0.02), 1.0, (0.15, 0.25), incommensurate=True)
 
 
 def handheld_tremor(seed: int, t: np.ndarray, width: int, height: int) -> np.ndarray:
     """A shaking hand's picture motion ``[T, 3]`` at times ``t`` (s), added to :func:`handheld_sway` for the
     ``shaky`` entries: shift x, shift y (px) and tilt (rad), each two sines at 2 to 6 Hz with amplitudes
     0.3 to 0.6 % of the frame's width / height (up to about 1.2 % in all) and 0.1 to 0.2 degree. Seeded by ``seed``."""
-    rng = np.random.default_rng([int(seed), 59, 11])
-    out = []
-    for unit in (0.006 * width, 0.006 * height, math.radians(0.2)):  # px, px, rad
-        f, ph = rng.uniform(2.0, 6.0, 2), rng.uniform(0, 2 * math.pi, 2)
-        a = rng.uniform(0.5, 1.0, 2) * unit
-        out.append(a[0] * np.sin(2 * math.pi * f[0] * t + ph[0]) + a[1] * np.sin(2 * math.pi * f[1] * t + ph[1]))
-    return np.stack(out, 1)
+    return _sines((int(seed), 59, 11), t, width, height, (0.006, 0.006), 0.2, (2.0, 6.0), incommensurate=False)
 
 
 def _move(frame: np.ndarray, dx: float, dy: float, tilt: float) -> np.ndarray:
-    """``frame [h, w, 3]`` (float) shifted by ``(dx, dy)`` px and tilted by ``tilt`` rad about its centre, edges replicated."""
+    """``frame [h, w, 3]`` shifted by ``(dx, dy)`` px and tilted by ``tilt`` rad about its centre
+    (:func:`lagsplat.io.common.warp_to_reference`: bilinear, edges replicated)."""
     import cv2
 
     h, w = frame.shape[:2]
     A = cv2.getRotationMatrix2D(((w - 1) / 2, (h - 1) / 2), math.degrees(tilt), 1.0)
     A[:, 2] += (dx, dy)
-    return cv2.warpAffine(frame, A, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return warp_to_reference(frame, A)
 
 
 def handheld_frames(spec: dict[str, Any], width: int, height: int, fps: float, duration_s: float, render) -> np.ndarray:
