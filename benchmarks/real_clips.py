@@ -64,8 +64,9 @@ def clip_path(entry: dict) -> Path:
     return SET_DIR / entry["file"]
 
 
-def read_gray(path: str | Path, start: int = 0, stop: int | None = None) -> np.ndarray:
-    """Frames ``[start, stop)`` of a video as float32 grey images ``[T, H, W]`` (0-255), decoded by OpenCV.
+def read_gray(path: str | Path, start: int = 0, stop: int | None = None, colour: bool = False) -> np.ndarray:
+    """Frames ``[start, stop)`` of a video as float32 grey images ``[T, H, W]`` (0-255), decoded by OpenCV;
+    with ``colour``, the BGR frames ``[T, H, W, 3]`` (for an object told apart by its colour alone).
 
     Raises:
         ValueError: the file cannot be opened or holds no frame in the range.
@@ -81,7 +82,7 @@ def read_gray(path: str | Path, start: int = 0, stop: int | None = None) -> np.n
         if not ok or (stop is not None and i >= stop):
             break
         if i >= start:
-            frames.append(cv2.cvtColor(f, cv2.COLOR_BGR2GRAY).astype(np.float32))
+            frames.append((f if colour else cv2.cvtColor(f, cv2.COLOR_BGR2GRAY)).astype(np.float32))
         i += 1
     cap.release()
     if not frames:
@@ -93,7 +94,7 @@ def track_template(frames: np.ndarray, box: list[int], search_px: int = 40, upda
     """Follow the patch ``box`` of ``frames[0]`` through ``frames`` by normalised cross-correlation.
 
     Args:
-        frames: grey frames ``[T, H, W]``.
+        frames: grey frames ``[T, H, W]`` (or colour ``[T, H, W, 3]``: the match sums over the channels).
         box: ``[x0, y0, x1, y1]`` (px) of the object in the first frame.
         search_px: how far (px) the object may move between two frames; the match is sought within
             this margin around its last position.
@@ -108,8 +109,8 @@ def track_template(frames: np.ndarray, box: list[int], search_px: int = 40, upda
 
     x0, y0, x1, y1 = (int(v) for v in box)
     tpl = frames[0, y0:y1, x0:x1].copy()
-    th, tw = tpl.shape
-    H, W = frames.shape[1:]
+    th, tw = tpl.shape[:2]
+    H, W = frames.shape[1:3]
     x, y = float(x0), float(y0)
     out = np.zeros((len(frames), 2))
     for i, f in enumerate(frames):
@@ -289,7 +290,7 @@ def measure_reference(entry: dict, plot: str | Path | None = None) -> dict:
     if not rt:
         raise ValueError(f"{entry['name']}: neither turning_frames, reference_kymograph nor reference_track in the manifest")
     start, stop = entry["frames"]
-    frames = read_gray(clip_path(entry), start, stop)
+    frames = read_gray(clip_path(entry), start, stop, colour=bool(rt.get("colour", False)))
     xy = track_template(frames, rt["box"], rt.get("search_px", 40), rt.get("update", 0.0))
     a, b = rt.get("measure", [0, None])
     xy = xy[a:b]
