@@ -6,18 +6,20 @@
 #   snakemake -c2 realistic_suite --config realistic_dir=/scratch/clips
 #   snakemake -c2 realistic_nuisance                                # the nuisance clips (distractor, sticks, short, long string)
 #   snakemake -c2 realistic_backdrops                               # the backdrop clips (other walls, distractors, object sizes)
+#   snakemake -c2 realistic_impacts                                 # the impact clips (bouncing off rigid stops, restitution < 1)
 #
 # Config keys: realistic_dir (default data/cache/realistic; not committed); realistic_args (extra flags of
 # every scoring job, e.g. "--diagnose --true-law": the diagnosis too, scored against the clip's effect, and the
 # clip's ground-truth law in its chart, benchmarks/_oracle.py). One job per clip, each logged.
 #   snakemake -c2 realistic_short_scores   # the diagnosis with the training part cut to three periods (after realistic_scores)
-from lagsplat.synth.realistic import backdrop_clips, nuisance_clips, outside_class_clips, realistic_suite
+from lagsplat.synth.realistic import backdrop_clips, impact_clips, nuisance_clips, outside_class_clips, realistic_suite
 
 REALISTIC_DIR = str(config.get("realistic_dir", "data/cache/realistic"))
 REALISTIC_CLIPS = [e["name"] for e in realistic_suite()]
 OUTSIDE_CLASS_CLIPS = [e["name"] for e in outside_class_clips()]  # rendered with the suite; the pipeline must stop on them
 NUISANCE_CLIPS = [e["name"] for e in nuisance_clips()]  # what the clip preparation is measured on; not scored
 BACKDROP_CLIPS = [e["name"] for e in backdrop_clips()]  # held out for Stage 1: other backdrops, distractors, object sizes
+IMPACT_CLIPS = [e["name"] for e in impact_clips()]  # impact oscillators (rigid stops, restitution < 1); test half frozen
 
 
 rule realistic_clip:
@@ -28,7 +30,7 @@ rule realistic_clip:
     log:
         f"{RESULTS}/logs/realistic/{{clip}}.log",
     wildcard_constraints:
-        clip="|".join(re.escape(c) for c in REALISTIC_CLIPS + OUTSIDE_CLASS_CLIPS + NUISANCE_CLIPS + BACKDROP_CLIPS),
+        clip="|".join(re.escape(c) for c in REALISTIC_CLIPS + OUTSIDE_CLASS_CLIPS + NUISANCE_CLIPS + BACKDROP_CLIPS + IMPACT_CLIPS),
     threads: 1
     shell:
         f"python -m lagsplat.synth.realistic --clip {{wildcards.clip}} --out {REALISTIC_DIR} > {{log}} 2>&1"
@@ -53,6 +55,14 @@ rule realistic_backdrops:
     half to twice the suite's size; each with the suite's truth keys in <clip>.truth.npz."""
     input:
         [f"{REALISTIC_DIR}/{c}.mp4" for c in BACKDROP_CLIPS],
+
+
+rule realistic_impacts:
+    """The impact clips (lagsplat.synth.realistic.impacts): a pendulum, spring cart or torsion disk bouncing off one or
+    two rigid stops drawn in the scene, restitution 0.3 to 0.9; each with its impacts and observed frequency in
+    <clip>.truth.npz (truth_json)."""
+    input:
+        [f"{REALISTIC_DIR}/{c}.mp4" for c in IMPACT_CLIPS],
 
 
 REALISTIC_ROWS = f"{RESULTS}/benchmarks/realistic"

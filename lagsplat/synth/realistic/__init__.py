@@ -24,7 +24,9 @@ moving distractor, a motion that stops, a clip too short, a long string;
 :mod:`lagsplat.synth.realistic.nuisance`), built by the same :func:`make_clip`
 and the Snakemake target ``realistic_nuisance``. :func:`backdrop_clips` lists the suite's oscillators in front of
 other backdrops, with other distractors and at other sizes (:mod:`lagsplat.synth.realistic.backdrops`; the
-Snakemake target ``realistic_backdrops``).
+Snakemake target ``realistic_backdrops``). :func:`impact_clips` lists impact oscillators: the 1-DOF systems
+bouncing off rigid stops with a coefficient of restitution below 1 (:mod:`lagsplat.synth.realistic.impacts`; the
+Snakemake target ``realistic_impacts``).
 """
 
 from __future__ import annotations
@@ -39,11 +41,12 @@ import numpy as np
 from lagsplat.synth.effect_truth import EFFECTS
 from lagsplat.synth.realistic.backdrops import backdrop_clips, backdrop_motion, backdrop_scene
 from lagsplat.synth.realistic.camera import add_camera_nuisances, render_frames, write_mp4
+from lagsplat.synth.realistic.impacts import impact_clips, impact_motion, impact_scene
 from lagsplat.synth.realistic.motion import Motion, double_pendulum_motion, one_dof_motion, slide_out_motion, spin_down_motion
 from lagsplat.synth.realistic.nuisance import HANDHELD, handheld_frames, nuisance_clips, nuisance_motion, nuisance_scene
 from lagsplat.synth.realistic.scene import scene_xml
 
-__all__ = ["realistic_suite", "outside_class_clips", "nuisance_clips", "backdrop_clips", "clip_spec", "make_clip", "motion_of", "SIZES"]
+__all__ = ["realistic_suite", "outside_class_clips", "nuisance_clips", "backdrop_clips", "impact_clips", "clip_spec", "make_clip", "motion_of", "SIZES"]
 
 SIZES = {"128": (128, 128), "640x480": (640, 480), "96x160": (96, 160), "160x96": (160, 96)}
 """Resolutions, name -> (width, height)."""
@@ -94,25 +97,29 @@ def outside_class_clips() -> list[dict[str, Any]]:
 
 
 def clip_spec(name: str) -> dict[str, Any]:
-    """The entry called ``name`` (:func:`realistic_suite`, :func:`outside_class_clips`, :func:`nuisance_clips` or :func:`backdrop_clips`).
+    """The entry called ``name`` (:func:`realistic_suite`, :func:`outside_class_clips`, :func:`nuisance_clips`, :func:`backdrop_clips`
+    or :func:`impact_clips`).
 
     Raises:
         KeyError: naming the unknown clip and how to list the known ones.
     """
-    for e in realistic_suite() + outside_class_clips() + nuisance_clips() + backdrop_clips():
+    for e in realistic_suite() + outside_class_clips() + nuisance_clips() + backdrop_clips() + impact_clips():
         if e["name"] == name:
             return e
-    raise KeyError(f"unknown realistic clip {name!r} (python -m lagsplat.synth.realistic --list, --list-nuisance, --list-backdrops)")
+    raise KeyError(f"unknown realistic clip {name!r} (python -m lagsplat.synth.realistic --list, --list-nuisance, --list-backdrops, --list-impacts)")
 
 
 def motion_of(spec: dict[str, Any], fps: float = 30.0, duration_s: float = 12.0) -> Motion:
     """The ground-truth motion of one entry (:mod:`lagsplat.synth.realistic.motion`; a nuisance clip's:
-    :func:`lagsplat.synth.realistic.nuisance.nuisance_motion`; a backdrop clip's: :func:`~lagsplat.synth.realistic.backdrops.backdrop_motion`)."""
+    :func:`lagsplat.synth.realistic.nuisance.nuisance_motion`; a backdrop clip's: :func:`~lagsplat.synth.realistic.backdrops.backdrop_motion`;
+    an impact clip's: :func:`~lagsplat.synth.realistic.impacts.impact_motion`)."""
     system, variant = spec["system"], spec["variant"]
     if "nuisance" in spec:
         return nuisance_motion(spec, fps, duration_s)
     if "backdrop" in spec:
         return backdrop_motion(spec, fps, duration_s)
+    if spec.get("kind") == "impact":
+        return impact_motion(spec, fps, duration_s)
     if spec["effect"] == "spin_down":
         return spin_down_motion(spec["seed"], fps, duration_s)
     if spec["effect"] == "slide_out":
@@ -150,6 +157,8 @@ def make_clip(
     elif "backdrop" in spec:
         scene = backdrop_scene(spec, half_w=0.8 * W / H)
         clean = render_frames(spec["system"], m.q, W, H, xml=scene, extra_qpos=m.extras.get("backdrop_qpos"))
+    elif spec.get("kind") == "impact":
+        clean = render_frames(spec["system"], m.q, W, H, xml=impact_scene(spec))
     else:
         clean = render_frames(spec["system"], m.q, W, H)
     frames = add_camera_nuisances(clean, noise_std, seed=int(spec["seed"]) + 17)

@@ -1,8 +1,9 @@
-"""``python -m lagsplat.synth.realistic --list | --list-nuisance | --list-backdrops | --clip NAME --out DIR``: build one clip of the realistic suite.
+"""``python -m lagsplat.synth.realistic --list | --list-nuisance | --list-backdrops | --list-impacts | --clip NAME --out DIR``: build one clip of the realistic suite.
 
 ``--list`` prints the suite's clips and the clips outside the model class; ``--list-nuisance`` the nuisance clips
 (:func:`lagsplat.synth.realistic.nuisance_clips`); ``--list-backdrops`` the backdrop clips
-(:func:`lagsplat.synth.realistic.backdrop_clips`); ``--clip`` builds any of them.
+(:func:`lagsplat.synth.realistic.backdrop_clips`); ``--list-impacts`` the impact clips
+(:func:`lagsplat.synth.realistic.impact_clips`); ``--clip`` builds any of them.
 """
 
 from __future__ import annotations
@@ -10,7 +11,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from lagsplat.synth.realistic import backdrop_clips, make_clip, nuisance_clips, outside_class_clips, realistic_suite
+from lagsplat.synth.realistic import backdrop_clips, impact_clips, make_clip, nuisance_clips, outside_class_clips, realistic_suite
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -19,6 +20,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--list", action="store_true", help="print the clip names and exit")
     p.add_argument("--list-nuisance", action="store_true", help="print the nuisance clips' names and exit")
     p.add_argument("--list-backdrops", action="store_true", help="print the backdrop clips' names and exit")
+    p.add_argument("--list-impacts", action="store_true", help="print the impact clips' names and exit")
     p.add_argument("--clip", help="clip name (see --list)")
     p.add_argument("--out", help="output folder: <clip>.mp4 and <clip>.truth.npz")
     args = p.parse_args(argv)
@@ -31,9 +33,12 @@ def main(argv: list[str] | None = None) -> int:
     if args.list_backdrops:
         print("\n".join(e["name"] for e in backdrop_clips()))
         return 0
+    if args.list_impacts:
+        print("\n".join(e["name"] for e in impact_clips()))
+        return 0
     if not args.clip or not args.out:
         p.print_usage(sys.stderr)
-        print(f"{p.prog}: error: give --clip and --out (or --list, --list-nuisance, --list-backdrops)", file=sys.stderr)
+        print(f"{p.prog}: error: give --clip and --out (or --list, --list-nuisance, --list-backdrops, --list-impacts)", file=sys.stderr)
         return 2
     try:
         print(make_clip(args.clip, args.out))
