@@ -45,7 +45,7 @@ import numpy as np
 
 from lagsplat.synth.realistic.impact_motion import impact_trajectory, observed_frequency
 from lagsplat.synth.realistic.motion import Motion
-from lagsplat.synth.realistic.scene import _PENDULUM, scene_xml
+from lagsplat.synth.realistic.scene import PENDULUM_GEOMETRY, scene_xml
 
 __all__ = ["impact_clips", "impact_motion", "impact_scene", "stops_of", "release_of", "RELEASE", "DISK_PIN"]
 
@@ -152,7 +152,7 @@ def _box(x: float, z: float, half: tuple[float, float, float], rgba: str, angle:
 
 def _pendulum_stop(x_s: float, side: float) -> str:
     """A post from the floor with a pad whose face the bob touches when the angle is ``x_s`` (rad)."""
-    rod, bob, pz = _PENDULUM["rod"], _PENDULUM["bob"], _PENDULUM["pivot_z"]
+    rod, bob, pz = PENDULUM_GEOMETRY["rod"], PENDULUM_GEOMETRY["bob"], PENDULUM_GEOMETRY["pivot_z"]
     bx, bz = rod * math.sin(x_s), pz - rod * math.cos(x_s)
     face, top = bx + side * bob, bz + 0.03
     return (_box(face + side * 0.006, bz, (0.006, 0.035, 0.03), _PAD)

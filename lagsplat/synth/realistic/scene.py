@@ -85,8 +85,8 @@ _BODIES = {
 }
 
 
-_PENDULUM = {"pivot_z": 1.45, "rod": ROD_M, "string": 0.012, "bob": 0.06}
-"""The pendulum's default geometry, m (:func:`scene_xml`)."""
+PENDULUM_GEOMETRY = {"pivot_z": 1.45, "rod": ROD_M, "string": 0.012, "bob": 0.06}
+"""The pendulum's default geometry, m (:func:`scene_xml`): pivot height, rod length, string and bob radii."""
 
 
 def scene_xml(
@@ -108,7 +108,7 @@ def scene_xml(
     if system not in _BODIES:
         raise ValueError(f"unknown system {system!r}; known: {sorted(_BODIES)}")
     fovy = float(np.degrees(2 * np.arctan(0.5 * VIEW_WIDTH_M / distance_m)))
-    geom = {**_PENDULUM, **(pendulum or {})}
+    geom = {**PENDULUM_GEOMETRY, **(pendulum or {})}
     body = _BODIES[system]
     for key, value in geom.items():
         body = body.replace("{" + key + "}", f"{value:g}")
