@@ -33,7 +33,8 @@ def overrides(entry: dict, results: Path) -> list[str]:
     start, stop = entry["frames"]
     return ["system=realistic", f"system.name=real_{entry['name']}", f"system.title={entry['name']}", f"system.source.path={clip_path(entry)}",
             f"system.source.fps={entry['fps']}", f"+system.frames=[{start or 0},{'null' if stop is None else stop}]",
-            f"results_dir={results}", "progress=false"]  # fmt: skip
+            f"results_dir={results}", "progress=false", "system.data=real",
+            f"system.provenance='{entry['source_repo']} {entry['source_path']} @ {entry['source_commit'][:10]}, {entry['licence'].split(' (')[0]}'"]  # fmt: skip
 
 
 def run(entry: dict, results: Path, threads: int) -> None:
