@@ -8,6 +8,7 @@ against the model's linearisation and must reach a physical size, are in
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -140,6 +141,11 @@ class EndStopEffect(Effect):
     takes ``1 / (1 + sqrt(ratio))`` of the time at zero gap: under a quarter from about 9x; true
     stops on the suites' clips and the real bouncing cart: 1-18 % of the samples). A kink touched on
     more of the samples lies inside the range: a spring that is stiffer on one side (34 % at 3.7x).
+    A rigid stop struck on every swing (the motion arrives at speed and reverses at a fixed position on
+    the fitted side, losing energy: the signatures' ``impacts``, :mod:`lagsplat.diagnose.impacts`) spends no time past
+    the stop at all; the penalty's kink then sits wherever the smoothed chart rounds the reversal off, and
+    the share of samples past it says nothing: the contact-share rule gives way to the impacts, and the
+    reading names the stop's position and the restitution.
     """
 
     def grid(self, res, e, r0):
@@ -165,8 +171,13 @@ class EndStopEffect(Effect):
     def fitted_support(self, fit, res, thresholds):
         """The motion turning around far more sharply on the stop's side than on the other (the signatures' ``turning``,
         :func:`~lagsplat.diagnose.signatures.signatures`): at least ``min_one_sided_turning`` times, with very strong
-        evidence (``>= min_delta_bic``), where the residual's own fit prefers the stop to none (``delta_bic > 0``).
+        evidence (``>= min_delta_bic``), where the residual's own fit prefers the stop to none (``delta_bic > 0``);
+        or, where the motion strikes a stop on the fitted side (:func:`_struck`), the impacts' own evidence.
         The same observation sets a cubic stiffness aside (:class:`CubicStiffnessEffect`)."""
+        struck = _struck(res, fit.direction, fit.params["side"])
+        if struck and fit.delta_bic > 0:
+            return struck["evidence"], (f"the motion strikes it on {struck['n_impacts']} of {struck['n_while_met']} swings and leaves at "
+                                        f"{struck['restitution']:.2f} of its speed (evidence {struck['evidence']:.0f})")  # fmt: skip
         turn = (res.meta.get("signatures") or {}).get("turning") or {}
         if not turn or not fit.delta_bic > 0:
             return 0.0, ""
@@ -178,29 +189,58 @@ class EndStopEffect(Effect):
 
     def practical(self, interpretation, thresholds):
         """A stop only when it is at least ``min_stop_stiffness_ratio`` times as stiff as the spring and touched on at
-        most ``max_stop_contact_fraction`` of the samples (class docstring)."""
+        most ``max_stop_contact_fraction`` of the samples, or struck on the fitted side (class docstring)."""
         ratio = interpretation.get("stiffness_ratio", float("nan"))
         lo = thresholds.get("min_stop_stiffness_ratio", 2.0)
         if not (ratio >= lo):
             return False, f"stop stiffness {ratio:.2g}x the spring's, below {lo:g}x: a gentle asymmetry of the spring, not a stop"
         frac = interpretation.get("fraction_in_contact", float("nan"))
         hi = thresholds.get("max_stop_contact_fraction", 0.25)
+        if interpretation.get("impacts"):  # the motion strikes the stop: no time spent past a kink to count
+            return True, ""
         if not (frac <= hi):
             return False, (f"{100 * frac:.0f} % of the samples past the kink, more than {100 * hi:g} %: the kink lies inside the range of "
                            f"motion, a spring {ratio:.2g}x stiffer on one side, not a stop at the end of the range")  # fmt: skip
         return True, ""
 
     def interpret(self, coef, se, params, res, e, scale):
-        """Stop position and side, stiffness relative to the model's, share of samples in contact."""
+        """Stop position and side, stiffness relative to the model's, share of samples in contact; where the motion
+        strikes a stop on the fitted side (:func:`_struck`), the impacts: the stop's position and the restitution."""
         k = float(coef[0])
         s = res.q_raw @ e
         frac = float(np.mean(params["side"] * (s - params["s_stop"]) > 0))
+        text = (f"one-sided stop at s = {params['s_stop']:.3g} ({'upper' if params['side'] > 0 else 'lower'} side, "
+                f"{100 * frac:.0f} % of samples in contact), stiffness {k:.3g} +- {se[0]:.2g} = {ratio(k, scale['k']):.2g}x the model's")  # fmt: skip
+        impacts = _struck(res, e, params["side"])
+        if impacts:
+            lo, hi = impacts["restitution_90"]
+            text = (f"a stop struck on {impacts['n_impacts']} of {impacts['n_while_met']} swings at s = {impacts['s_stop']:.3g} "
+                    f"({impacts['side']} side), restitution {impacts['restitution']:.2f} (90 % interval {lo:.2f}-{hi:.2f}); " + text)  # fmt: skip
         return {
             "k_stop": k, "k_stop_se": float(se[0]), "s_stop": params["s_stop"], "side": params["side"],
-            "stiffness_ratio": ratio(k, scale["k"]), "fraction_in_contact": frac,
-            "text": f"one-sided stop at s = {params['s_stop']:.3g} ({'upper' if params['side'] > 0 else 'lower'} side, "
-            f"{100 * frac:.0f} % of samples in contact), stiffness {k:.3g} +- {se[0]:.2g} = {ratio(k, scale['k']):.2g}x the model's",
+            "stiffness_ratio": ratio(k, scale["k"]), "fraction_in_contact": frac, "impacts": impacts, "text": text,
         }  # fmt: skip
+
+
+def _struck(res: Any, e: np.ndarray, side: float) -> dict[str, Any] | None:
+    """The impacts of the signatures (:func:`~lagsplat.diagnose.impacts.impact_signature`) on the fitted stop's side,
+    read along ``e``: ``{side, s_stop, n_impacts, n_while_met, restitution, restitution_90}``; ``None`` where the
+    motion does not strike a stop there, or where the reversals lose no energy (the restitution's 90 % interval
+    reaches 1): a spring ten times stiffer past a kink inside the range turns the motion around within a few frames
+    too, elastically (restitution 0.96-0.99 read on such charts), and the contact share tells it from a stop."""
+    sig = (res.meta.get("signatures") or {}).get("impacts") or {}
+    if not sig.get("stop_side"):
+        return None
+    sgn = math.copysign(1.0, float(np.dot(e, sig["direction"])))  # the signature's direction against the fit's
+    struck = (1.0 if sig["stop_side"] == "upper" else -1.0) * sgn
+    if struck != side:
+        return None
+    d = sig[sig["stop_side"]]
+    if not d["restitution_90"][1] < 1.0:  # no energy lost at the reversal: a stiff spring turns it as fast (elastic)
+        return None
+    return {"side": "upper" if side > 0 else "lower", "s_stop": sgn * d["s_stop"], "n_impacts": d["n_impacts"],
+            "n_while_met": d["n_while_met"], "restitution": d["restitution"], "restitution_90": d["restitution_90"],
+            "evidence": d["evidence"]}  # fmt: skip
 
 
 class CubicStiffnessEffect(Effect):

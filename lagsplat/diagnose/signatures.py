@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from lagsplat.diagnose.decay_law import decay_law
+from lagsplat.diagnose.impacts import impact_signature
 from lagsplat.diagnose.residual_data import Residual
 from lagsplat.diagnose.spectrum import frequency_allowed, reference_frequencies, residual_peaks
 
@@ -350,6 +351,8 @@ def signatures(res: Residual, model_freqs_hz: Sequence[float] | None = None, dir
       oscillation (dry friction sticks off-centre).
     * ``turning``: how sharply the motion turns around on either side (:func:`_turning`;
       a stop reverses it within a few frames on its side, an odd force alike on both).
+    * ``impacts``: the turning points where the motion arrives at speed and reverses at a fixed
+      position, their side and the restitution (:func:`~lagsplat.diagnose.impacts.impact_signature`).
     * ``decay_law``: the whole training trajectory's evidence for a dry-friction or a quadratic-drag
       decay over a viscous one (:func:`~lagsplat.diagnose.decay_law.decay_law`; unactuated ``d = 1``
       charts with a segment of at least two periods, else empty).
@@ -381,5 +384,15 @@ def signatures(res: Residual, model_freqs_hz: Sequence[float] | None = None, dir
     out["asymmetry"] = {"upper": hi, "lower": lo, "ratio": float(max(hi, lo) / max(min(hi, lo), 1e-300))}
     out["rest"] = _rest(res, p)
     out["turning"] = _turning(res, e_top)
+    out["impacts"] = _impacts(res, e_top)
     out["decay_law"] = decay_law(res, e_top)
     return out
+
+
+def _impacts(res: Residual, e: np.ndarray) -> dict[str, Any]:
+    """:func:`~lagsplat.diagnose.impacts.impact_signature` on the chart's own positions along ``e`` (``d = 1`` charts:
+    on a larger chart the modes beat along any one direction), with the direction; empty otherwise."""
+    if res.d != 1:
+        return {}
+    sig = impact_signature(res.q_raw @ np.asarray(e, np.float64), res.segment_slices(), res.dt, res.f_dominant_hz)
+    return {**sig, "direction": [float(v) for v in e]}
