@@ -64,7 +64,7 @@ def clip_path(entry: dict) -> Path:
     return SET_DIR / entry["file"]
 
 
-def read_gray(path: str | Path, start: int = 0, stop: int | None = None, colour: bool = False) -> np.ndarray:
+def read_frames(path: str | Path, start: int = 0, stop: int | None = None, colour: bool = False) -> np.ndarray:
     """Frames ``[start, stop)`` of a video as float32 grey images ``[T, H, W]`` (0-255), decoded by OpenCV;
     with ``colour``, the BGR frames ``[T, H, W, 3]`` (for an object told apart by its colour alone).
 
@@ -282,7 +282,7 @@ def measure_reference(entry: dict, plot: str | Path | None = None) -> dict:
     if entry.get("reference_kymograph"):
         rk = entry["reference_kymograph"]
         start, stop = entry["frames"]
-        frames = read_gray(clip_path(entry), start, stop)
+        frames = read_frames(clip_path(entry), start, stop)
         hz, periods, y = kymograph_frequency(frames, rk["columns"], rk["rows"], rk["threshold"], rk["prominence"], rk["min_gap"], fps)
         spec = spectral_peak_frequency(np.nan_to_num(y - np.nanmedian(y)), 1.0 / fps)
         return {"hz": hz, "periods": periods, "spectral_hz": spec, "method": "kymograph of a vertical strip, lowest point's maxima", "frames_tracked": len(y)}
@@ -290,7 +290,7 @@ def measure_reference(entry: dict, plot: str | Path | None = None) -> dict:
     if not rt:
         raise ValueError(f"{entry['name']}: neither turning_frames, reference_kymograph nor reference_track in the manifest")
     start, stop = entry["frames"]
-    frames = read_gray(clip_path(entry), start, stop, colour=bool(rt.get("colour", False)))
+    frames = read_frames(clip_path(entry), start, stop, colour=bool(rt.get("colour", False)))
     xy = track_template(frames, rt["box"], rt.get("search_px", 40), rt.get("update", 0.0))
     a, b = rt.get("measure", [0, None])
     xy = xy[a:b]

@@ -25,6 +25,20 @@ def one_torch_thread():
     torch.set_num_threads(n)
 
 
+@pytest.fixture(scope="module")
+def gl_ok():
+    """Skip a test that renders with MuJoCo where MuJoCo or an offscreen GL context (EGL) is missing."""
+    pytest.importorskip("mujoco")
+    import numpy as np
+
+    from lagsplat.synth.realistic.camera import render_frames
+
+    try:
+        render_frames("pendulum", np.zeros((1, 1)), 32, 32)
+    except RuntimeError as exc:
+        pytest.skip(f"no offscreen GL: {exc}")
+
+
 def _tree(root):
     """``{relative path: (size, mtime_ns)}`` of every file under ``root``."""
     from pathlib import Path

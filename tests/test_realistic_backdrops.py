@@ -15,15 +15,6 @@ from lagsplat.synth.realistic.backdrops import PHOTOS, backdrop_scene, wood_text
 SUITE_KEYS = {"t", "q", "qdot", "hidden", "f0_hz", "truth_json"}
 
 
-@pytest.fixture(scope="module")
-def gl_ok():
-    pytest.importorskip("mujoco")
-    from lagsplat.synth.realistic.camera import render_frames
-
-    try:
-        render_frames("pendulum", np.zeros((1, 1)), 32, 32)
-    except RuntimeError as exc:
-        pytest.skip(f"no offscreen GL: {exc}")
 
 
 def test_the_list_is_well_formed_and_apart_from_the_suite_and_the_nuisance_clips() -> None:

@@ -183,15 +183,6 @@ def test_each_clips_motion_bounces_off_its_stops_faster_than_its_free_frequency(
     assert tr["f_observed_hz"] > m.f0_hz and tr["f_impacting_hz"] >= tr["f_observed_hz"]
 
 
-@pytest.fixture(scope="module")
-def gl_ok():
-    pytest.importorskip("mujoco")
-    from lagsplat.synth.realistic.camera import render_frames
-
-    try:
-        render_frames("pendulum", np.zeros((1, 1)), 32, 32)
-    except RuntimeError as exc:
-        pytest.skip(f"no offscreen GL: {exc}")
 
 
 @pytest.mark.parametrize("name", ["spring_cart-impact2-e0.6-s0-128", "torsion_disk-impact-e0.8-s1-128", "pendulum-impact-e0.9-s0-128"])

@@ -20,14 +20,6 @@ from lagsplat.synth.realistic.camera import render_frames  # noqa: E402
 from lagsplat.timeseries import spectral_peak_frequency  # noqa: E402
 
 
-@pytest.fixture(scope="module")
-def gl_ok():
-    try:
-        render_frames("pendulum", np.zeros((1, 1)), 32, 32)
-    except RuntimeError as exc:
-        pytest.skip(f"no offscreen GL: {exc}")
-
-
 def _decode(path) -> np.ndarray:
     cap = cv2.VideoCapture(str(path))
     frames = []

@@ -174,7 +174,7 @@ class EndStopEffect(Effect):
         evidence (``>= min_delta_bic``), where the residual's own fit prefers the stop to none (``delta_bic > 0``);
         or, where the motion strikes a stop on the fitted side (:func:`_struck`), the impacts' own evidence.
         The same observation sets a cubic stiffness aside (:class:`CubicStiffnessEffect`)."""
-        struck = _struck(res, fit.direction, fit.params["side"])
+        struck = fit.interpretation.get("impacts")  # :meth:`interpret`'s reading of the impacts on the fitted side
         if struck and fit.delta_bic > 0:
             return struck["evidence"], (f"the motion strikes it on {struck['n_impacts']} of {struck['n_while_met']} swings and leaves at "
                                         f"{struck['restitution']:.2f} of its speed (evidence {struck['evidence']:.0f})")  # fmt: skip

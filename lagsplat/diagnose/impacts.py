@@ -5,7 +5,7 @@ the velocity within a frame: the object arrives at speed ``v-`` and leaves at ``
 the coefficient of restitution (Newton's law of restitution; Stronge, *Impact Mechanics*,
 2000, ch. 1). A smooth turning point (a spring, a cubic stiffness) brings the speed to zero
 first. :func:`impact_signature` reads, at every turning point of the chart's own positions
-along a direction, two one-sided parabolas that meet at a sub-frame apex
+along a direction, two arcs of one harmonic motion that meet at a sub-frame apex
 (:func:`reversal_fit`): their slopes at the apex are the speeds before and after the
 reversal. A turning point is an *impact* when the object arrives there at a sizeable share
 of its peak speed (:data:`MIN_ARRIVAL_SHARE`); a side of the motion *has a stop* when most of
@@ -49,6 +49,15 @@ OMEGA_SHARE = 0.8
 N_BOOT = 2000
 
 
+def _arc(u: np.ndarray, omega: float) -> tuple[np.ndarray, np.ndarray]:
+    """The two shapes of an arc at offsets ``u`` (frames) from its apex: ``(slope, curve)``, the terms a speed and an
+    acceleration there multiply; harmonic (``sin(omega u) / omega``, ``cos(omega u) - 1``) for ``omega > 0``,
+    else the parabola's (``u``, ``u^2``)."""
+    if omega > 0:  # the linear oscillator's own motion: c + a (cos(w u) - 1) + (v / w) sin(w u)
+        return np.sin(omega * u) / omega, np.cos(omega * u) - 1.0
+    return u, u * u
+
+
 def reversal_fit(p: np.ndarray, half: int, omega: float = 0.0) -> tuple[float, float, float, float, float]:
     """Two parabolas meeting at an apex near the middle of ``p``, one on each side of it, with one curvature.
 
@@ -81,11 +90,8 @@ def reversal_fit(p: np.ndarray, half: int, omega: float = 0.0) -> tuple[float, f
     for tau in np.linspace(-1.0, 1.0, 41):
         u = t - tau
         before = u < 0
-        if omega > 0:  # the linear oscillator's own motion: c + a cos(w u) + (v / w) sin(w u), v jumping at the apex
-            sw = np.sin(omega * u) / omega
-            A = np.stack([np.ones_like(u), sw * before, sw * ~before, np.cos(omega * u) - 1.0], 1)
-        else:
-            A = np.stack([np.ones_like(u), u * before, u * ~before, u * u], 1)
+        slope, curve = _arc(u, omega)
+        A = np.stack([np.ones_like(u), slope * before, slope * ~before, curve], 1)
         coef, *_ = np.linalg.lstsq(A, p, rcond=None)
         ssr = float(np.sum((A @ coef - p) ** 2))
         if best is None or ssr < best[0]:
@@ -97,10 +103,7 @@ def reversal_fit(p: np.ndarray, half: int, omega: float = 0.0) -> tuple[float, f
 def _smooth_ssr(p: np.ndarray, half: int, omega: float) -> float:
     """Sum of squared residuals of one smooth arc through ``p`` (:func:`reversal_fit` without the slope's jump)."""
     u = np.arange(-half, half + 1, dtype=np.float64)
-    if omega > 0:
-        A = np.stack([np.ones_like(u), np.sin(omega * u) / omega, np.cos(omega * u) - 1.0], 1)
-    else:
-        A = np.stack([np.ones_like(u), u, u * u], 1)
+    A = np.stack([np.ones_like(u), *_arc(u, omega)], 1)
     coef, *_ = np.linalg.lstsq(A, p, rcond=None)
     return float(np.sum((A @ coef - p) ** 2))
 
@@ -129,12 +132,12 @@ def impact_signature(s: np.ndarray, segments: Sequence[np.ndarray], dt: float, f
         segments: index arrays of the contiguous recordings in ``s``.
         dt: frame interval, s.
         f_hz: the motion's dominant frequency, Hz (turning points at least 0.35 periods apart; the fit
-            window is an eighth of a period on either side, at least 3 frames).
+            window is ``1 / HALF_DIV`` of a period on either side, at least 3 frames).
         seed: the bootstrap's seed.
 
     Returns:
         ``{"upper": side, "lower": side, "stop_side": "upper" | "lower" | None}``, each ``side``
-        ``{"n_turning_points", "n_impacts", "s_stop", "s_stop_spread", "arrival_share" (median arrival speed over
+        ``{"n_turning_points", "n_while_met", "n_impacts", "s_stop", "s_stop_spread", "arrival_share" (median arrival speed over
         the peak speed), "restitution", "restitution_90" ([lo, hi]), "impact_frames", "evidence"}`` (``restitution`` ``nan``
         without impacts); ``stop_side`` the side whose turning points are impacts (:data:`MIN_IMPACT_SHARE`,
         :data:`MIN_IMPACTS`), the one with more impacts when both are.

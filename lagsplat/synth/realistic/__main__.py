@@ -14,31 +14,30 @@ import sys
 from lagsplat.synth.realistic import backdrop_clips, impact_clips, make_clip, nuisance_clips, outside_class_clips, realistic_suite
 
 
+#: ``--list...`` flag -> (what it lists, the clips it prints)
+LISTS = {
+    "list": ("the clip names", lambda: realistic_suite() + outside_class_clips()),
+    "list-nuisance": ("the nuisance clips' names", nuisance_clips),
+    "list-backdrops": ("the backdrop clips' names", backdrop_clips),
+    "list-impacts": ("the impact clips' names", impact_clips),
+}
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the exit code (0 ok, 2 bad arguments)."""
     p = argparse.ArgumentParser(prog="python -m lagsplat.synth.realistic", description="Render one clip of the realistic (MuJoCo) suite.")
-    p.add_argument("--list", action="store_true", help="print the clip names and exit")
-    p.add_argument("--list-nuisance", action="store_true", help="print the nuisance clips' names and exit")
-    p.add_argument("--list-backdrops", action="store_true", help="print the backdrop clips' names and exit")
-    p.add_argument("--list-impacts", action="store_true", help="print the impact clips' names and exit")
+    for flag, (what, _) in LISTS.items():
+        p.add_argument(f"--{flag}", action="store_true", help=f"print {what} and exit")
     p.add_argument("--clip", help="clip name (see --list)")
     p.add_argument("--out", help="output folder: <clip>.mp4 and <clip>.truth.npz")
     args = p.parse_args(argv)
-    if args.list:
-        print("\n".join(e["name"] for e in realistic_suite() + outside_class_clips()))
-        return 0
-    if args.list_nuisance:
-        print("\n".join(e["name"] for e in nuisance_clips()))
-        return 0
-    if args.list_backdrops:
-        print("\n".join(e["name"] for e in backdrop_clips()))
-        return 0
-    if args.list_impacts:
-        print("\n".join(e["name"] for e in impact_clips()))
-        return 0
+    for flag, (_, clips) in LISTS.items():
+        if getattr(args, flag.replace("-", "_")):
+            print("\n".join(e["name"] for e in clips()))
+            return 0
     if not args.clip or not args.out:
         p.print_usage(sys.stderr)
-        print(f"{p.prog}: error: give --clip and --out (or --list, --list-nuisance, --list-backdrops, --list-impacts)", file=sys.stderr)
+        print(f"{p.prog}: error: give --clip and --out (or {', '.join('--' + f for f in LISTS)})", file=sys.stderr)
         return 2
     try:
         print(make_clip(args.clip, args.out))
