@@ -211,6 +211,26 @@ def test_refit_with_the_diagnosed_friction_shrinks_the_held_out_gap(tmp_path) ->
     assert ck["effects"] == ["coulomb"]
 
 
+def test_a_refit_whose_held_out_gap_cannot_be_read_leaves_a_report_not_a_crash(tmp_path, monkeypatch) -> None:
+    """The refit's chart can read the held-out part at a longer period than the identified model's (an impact
+    oscillator slows as it loses energy): its gap raises ClipError; the diagnosis stands and says why."""
+    import lagsplat.diagnose.report as report_mod
+    from lagsplat.io.clip import ClipError
+
+    chart, model, cfg = _friction_case()
+
+    def too_short(*args, **kwargs):
+        raise ClipError("held-out segment has 72 frames but two natural periods need 75")
+
+    monkeypatch.setattr(report_mod, "_score_refit", too_short)
+    dcfg = DiagnoseConfig(refit=RefitConfig(epochs=2, control=False, choose=False))
+    rep = diagnose_artifacts(None, None, chart, model, cfg, tmp_path / "diagnosis", dcfg, system="test")
+    on_disk = json.loads((tmp_path / "diagnosis" / "report.json").read_text())
+    assert on_disk["verdict"] == rep["verdict"] == "coulomb"
+    assert not on_disk["refit"]["done"] and "held-out gap cannot be scored" in on_disk["refit"]["reason"]
+    assert "two natural periods need 75" in on_disk["refit"]["reason"] and on_disk["refit"]["spec"]["effects"] == ["coulomb"]
+
+
 def test_noise_floor_is_what_a_model_without_a_gap_scores_on_a_noisy_chart() -> None:
     """A chart that is exactly the model's own motion plus white noise: the model has no gap,
     so its held-out eps_q is the chart-noise floor, which grows with the noise; a model

@@ -229,7 +229,10 @@ def _refit_step(run: _Run, diag: Any, gap: dict[str, Any], runs: dict[str, tuple
         sp = refit_spec(diag, run.model, run.cfg.refit.init)
         refit_rec.update(reason="no Stage-2 remedy for the effect(s) found", spec=sp.to_dict())
     else:
-        _score_refit(run, r, gap, runs, refit_rec)
+        try:
+            _score_refit(run, r, gap, runs, refit_rec)
+        except ClipError as e:  # the refit's chart reads the held-out part differently (a shorter period): no gap to score it on
+            refit_rec.update(reason=f"the refit was made but its held-out gap cannot be scored ({e})", spec=r.spec.to_dict())
     return diag, refit_rec
 
 
