@@ -44,6 +44,20 @@ def test_impacts_give_the_stop_side_position_and_restitution(e, stop):
     assert other["n_impacts"] == 0  # the free side turns smoothly
 
 
+def test_stops_on_both_sides_count_together():
+    """With a stop on each side the energy goes twice a cycle: two impacts a side, read together."""
+    w0 = 2 * math.pi * 0.8
+    r = impact_trajectory(w0, 0.002, False, (-0.5, 0.5), 0.7, 0.0, w0, T)
+    s = r.x + 0.005 * np.random.default_rng(0).normal(size=len(T))
+    sig = impact_signature(s, [np.arange(len(s))], 1 / FPS, observed_frequency(r))
+    assert sig["upper"]["n_impacts"] == sig["lower"]["n_impacts"] == 2  # neither side alone reaches MIN_IMPACTS
+    both = sig["both_sides"]
+    assert both is not None and both["n_impacts"] == 4 and sig["stop_side"] in ("upper", "lower")
+    assert both["restitution"] == pytest.approx(0.7, abs=0.05) and both["restitution_90"][0] <= both["restitution"] <= both["restitution_90"][1]
+    assert both["evidence"] == pytest.approx(sig["upper"]["evidence"] + sig["lower"]["evidence"])
+    assert sig["lower"]["s_stop"] == pytest.approx(-0.5, abs=0.03) and sig["upper"]["s_stop"] == pytest.approx(0.5, abs=0.03)
+
+
 def test_noisy_impacts_still_name_the_side_and_bracket_the_restitution():
     s, f = _impacts(0.8, -0.4, noise=0.01)
     sig = impact_signature(s, [np.arange(len(s))], 1 / FPS, f)
@@ -62,8 +76,8 @@ def test_smooth_oscillators_have_no_stop(law):
     x = solve_ivp(rhs, (0, T[-1]), [1.0, 0.0], t_eval=T, rtol=1e-9, atol=1e-12).y[0]
     x = x + 0.01 * np.random.default_rng(1).normal(size=len(x))
     sig = impact_signature(x, [np.arange(len(x))], 1 / FPS, 0.8)
-    assert sig["stop_side"] is None
-    assert sig["lower"]["n_impacts"] < 3 and sig["upper"]["n_impacts"] < 3
+    assert sig["stop_side"] is None and sig["both_sides"] is None
+    assert sig["lower"]["n_impacts"] < 2 and sig["upper"]["n_impacts"] < 2
 
 
 def _impact_chart(e: float, stop: float):
@@ -89,3 +103,33 @@ def test_a_stop_struck_on_every_swing_is_an_end_stop_with_its_restitution():
     imp = diag.effects[0].interpretation["impacts"]
     assert imp["restitution"] == pytest.approx(0.6, abs=0.1) and imp["s_stop"] == pytest.approx(s_stop, abs=0.05)
     assert "restitution" in diag.effects[0].interpretation["text"]
+
+
+def test_stops_on_both_sides_with_few_impacts_are_an_end_stop():
+    """Two stops, restitution 0.7: two impacts a side, together the evidence of a stop, read as one."""
+    from lagsplat.chart import Chart
+    from lagsplat.diagnose import diagnose_chart
+    from lagsplat.diagnose.oscillator import fit_linear_oscillator
+    from lagsplat.io.clip import TRAIN
+
+    w0 = 2 * math.pi * 0.8
+    r = impact_trajectory(w0, 0.002, False, (-0.5, 0.5), 0.7, 0.0, w0, T)
+    q = (r.x - r.x.mean()) / r.x.std() + 0.005 * np.random.default_rng(0).standard_normal(len(T))
+    n, eye = len(q), np.eye(1)
+    chart = Chart(mean=np.zeros(1), W=eye, W_inv=eye, q=q[:, None], t=T, split=np.full(n, TRAIN, np.int8), G_bar=eye,
+                  A=eye, ae_mse=np.zeros(n), ae_floor_train=0.0, ae_floor_held_out=0.0, height=64, width=64)  # fmt: skip
+    diag, _ = diagnose_chart(fit_linear_oscillator([chart.q], 1 / FPS), chart)
+    assert diag.winner == "end_stop"
+    imp = diag.effects[0].interpretation["impacts"]
+    assert imp["both_sides"] and imp["restitution"] == pytest.approx(0.7, abs=0.1)
+    assert "stops on both sides" in diag.effects[0].interpretation["text"]
+
+
+def test_a_struck_stop_is_not_held_to_the_r2_rule_but_to_the_others():
+    from lagsplat.diagnose.diagnosis import failed_rules
+
+    rule = (10.0, 0.1, 0.02)  # min_delta_bic, min_r2, min_cv_gain
+    assert failed_rules(True, True, 54.0, 0.013, 0.007, 65.0, *rule, cv_gain_own=0.002) == ["r2"]
+    assert failed_rules(True, True, 54.0, 0.013, 0.007, 65.0, *rule, cv_gain_own=0.002, struck=True) == []
+    assert failed_rules(True, True, 5.0, 0.013, 0.007, 65.0, *rule, cv_gain_own=0.002, struck=True) == ["evidence"]
+    assert failed_rules(True, True, 54.0, 0.013, 0.007, 65.0, *rule, cv_gain_own=-0.1, struck=True) == ["cv_gain"]

@@ -18,7 +18,7 @@ __all__ = ["CandidateFit", "Diagnosis", "failed_rules"]
 
 
 def failed_rules(physical: bool, practical: bool, evidence: float, r2: float, cv_gain: float, signature_support: float,
-                 min_delta_bic: float, min_r2: float, min_cv_gain: float, cv_gain_own: float = math.nan) -> list[str]:  # fmt: skip
+                 min_delta_bic: float, min_r2: float, min_cv_gain: float, cv_gain_own: float = math.nan, struck: bool = False) -> list[str]:  # fmt: skip
     """The significance rules a candidate fails, in order (empty: significant).
 
     ``"physical"`` (sign), ``"practical"`` (its effect's physical check), ``"evidence"`` (``Delta BIC`` plus
@@ -26,12 +26,15 @@ def failed_rules(physical: bool, practical: bool, evidence: float, r2: float, cv
     ``min_cv_gain``, unless the signatures alone reach ``min_delta_bic`` and the candidate's own cross-validation
     does not lose: ``cv_gain_own >= 0``, the gain with the in-class corrections held at their fit on the whole take,
     :meth:`~lagsplat.diagnose.regression.Regression.cv_sse_own`; ``cv_gain`` where that is not computed; undefined
-    passes). One rule for the selection (:func:`~lagsplat.diagnose.select.decide`) and for the report's reading of a
+    passes). ``struck``: an end stop whose reversals are read as impacts on its side
+    (:func:`~lagsplat.diagnose.impacts.impact_signature`): the ``"r2"`` rule does not apply to it, because a smooth
+    penalty explains little of a bounce, while the impacts are their own evidence (the other rules still hold).
+    One rule for the selection (:func:`~lagsplat.diagnose.select.decide`) and for the report's reading of a
     ``report.json`` record.
     """
     own = cv_gain_own if math.isfinite(cv_gain_own) else cv_gain
     cv_ok = cv_gain >= min_cv_gain or (signature_support >= min_delta_bic and not own < 0)
-    checks = (("physical", physical), ("practical", practical), ("evidence", evidence >= min_delta_bic), ("r2", r2 >= min_r2), ("cv_gain", cv_ok))
+    checks = (("physical", physical), ("practical", practical), ("evidence", evidence >= min_delta_bic), ("r2", r2 >= min_r2 or struck), ("cv_gain", cv_ok))
     return [name for name, ok in checks if not ok]
 
 

@@ -144,8 +144,11 @@ class EndStopEffect(Effect):
     A rigid stop struck on every swing (the motion arrives at speed and reverses at a fixed position on
     the fitted side, losing energy: the signatures' ``impacts``, :mod:`lagsplat.diagnose.impacts`) spends no time past
     the stop at all; the penalty's kink then sits wherever the smoothed chart rounds the reversal off, and
-    the share of samples past it says nothing: the contact-share rule gives way to the impacts, and the
-    reading names the stop's position and the restitution.
+    the share of samples past it says nothing: the stiffness and contact-share rules give way to the impacts,
+    their evidence is the stop's whatever the regression's own ``Delta BIC`` (a smooth penalty fits a bounce
+    poorly), and the reading names the stop's position and the restitution. With stops on both sides the
+    energy goes twice a cycle and each side may see two impacts only: both sides' impacts count together
+    (the signatures' ``both_sides``).
     """
 
     def grid(self, res, e, r0):
@@ -172,10 +175,11 @@ class EndStopEffect(Effect):
         """The motion turning around far more sharply on the stop's side than on the other (the signatures' ``turning``,
         :func:`~lagsplat.diagnose.signatures.signatures`): at least ``min_one_sided_turning`` times, with very strong
         evidence (``>= min_delta_bic``), where the residual's own fit prefers the stop to none (``delta_bic > 0``);
-        or, where the motion strikes a stop on the fitted side (:func:`_struck`), the impacts' own evidence.
+        or, where the motion strikes a stop on the fitted side (:func:`_struck`), the impacts' own evidence, whatever the
+        regression's ``delta_bic`` (a smooth stiff term fits a bounce at the stop poorly, the reversals themselves do not).
         The same observation sets a cubic stiffness aside (:class:`CubicStiffnessEffect`)."""
         struck = fit.interpretation.get("impacts")  # :meth:`interpret`'s reading of the impacts on the fitted side
-        if struck and fit.delta_bic > 0:
+        if struck:  # the impacts are their own evidence: the smooth stop term of the regression may fit them poorly
             return struck["evidence"], (f"the motion strikes it on {struck['n_impacts']} of {struck['n_while_met']} swings and leaves at "
                                         f"{struck['restitution']:.2f} of its speed (evidence {struck['evidence']:.0f})")  # fmt: skip
         turn = (res.meta.get("signatures") or {}).get("turning") or {}
@@ -188,16 +192,16 @@ class EndStopEffect(Effect):
         return sup, f"the motion turns around {turn['ratio']:.1f}x as sharply on the stop's side as on the other (evidence {sup:.0f})"
 
     def practical(self, interpretation, thresholds):
-        """A stop only when it is at least ``min_stop_stiffness_ratio`` times as stiff as the spring and touched on at
-        most ``max_stop_contact_fraction`` of the samples, or struck on the fitted side (class docstring)."""
+        """A stop when struck on the fitted side; else only when it is at least ``min_stop_stiffness_ratio`` times as
+        stiff as the spring and touched on at most ``max_stop_contact_fraction`` of the samples (class docstring)."""
+        if interpretation.get("impacts"):  # the motion strikes the stop: its reversals, not a smooth stiff term, tell it
+            return True, ""
         ratio = interpretation.get("stiffness_ratio", float("nan"))
         lo = thresholds.get("min_stop_stiffness_ratio", 2.0)
         if not (ratio >= lo):
             return False, f"stop stiffness {ratio:.2g}x the spring's, below {lo:g}x: a gentle asymmetry of the spring, not a stop"
         frac = interpretation.get("fraction_in_contact", float("nan"))
         hi = thresholds.get("max_stop_contact_fraction", 0.25)
-        if interpretation.get("impacts"):  # the motion strikes the stop: no time spent past a kink to count
-            return True, ""
         if not (frac <= hi):
             return False, (f"{100 * frac:.0f} % of the samples past the kink, more than {100 * hi:g} %: the kink lies inside the range of "
                            f"motion, a spring {ratio:.2g}x stiffer on one side, not a stop at the end of the range")  # fmt: skip
@@ -214,8 +218,10 @@ class EndStopEffect(Effect):
         impacts = _struck(res, e, params["side"])
         if impacts:
             lo, hi = impacts["restitution_90"]
-            text = (f"a stop struck on {impacts['n_impacts']} of {impacts['n_while_met']} swings at s = {impacts['s_stop']:.3g} "
-                    f"({impacts['side']} side), restitution {impacts['restitution']:.2f} (90 % interval {lo:.2f}-{hi:.2f}); " + text)  # fmt: skip
+            where = "stops on both sides, this one" if impacts["both_sides"] else "a stop"
+            text = (f"{where} struck on {impacts['n_impacts']} of {impacts['n_while_met']} swings at s = {impacts['s_stop']:.3g} "
+                    f"({impacts['side']} side), restitution {impacts['restitution']:.2f} (90 % interval {lo:.2f}-{hi:.2f}"
+                    f"{', over the impacts of both' if impacts['both_sides'] else ''}); " + text)  # fmt: skip
         return {
             "k_stop": k, "k_stop_se": float(se[0]), "s_stop": params["s_stop"], "side": params["side"],
             "stiffness_ratio": ratio(k, scale["k"]), "fraction_in_contact": frac, "impacts": impacts, "text": text,
@@ -232,15 +238,17 @@ def _struck(res: Any, e: np.ndarray, side: float) -> dict[str, Any] | None:
     if not sig.get("stop_side"):
         return None
     sgn = math.copysign(1.0, float(np.dot(e, sig["direction"])))  # the signature's direction against the fit's
-    struck = (1.0 if sig["stop_side"] == "upper" else -1.0) * sgn
-    if struck != side:
+    both = sig.get("both_sides")
+    fitted = "upper" if side * sgn > 0 else "lower"  # the fitted side, named in the signature's direction
+    if not (fitted == sig["stop_side"] or both):
         return None
-    d = sig[sig["stop_side"]]
-    if not d["restitution_90"][1] < 1.0:  # no energy lost at the reversal: a stiff spring turns it as fast (elastic)
+    d = sig[fitted]
+    read = both or d  # stops on both sides: the restitution and the evidence of all the impacts
+    if not read["restitution_90"][1] < 1.0:  # no energy lost at the reversal: a stiff spring turns it as fast (elastic)
         return None
     return {"side": "upper" if side > 0 else "lower", "s_stop": sgn * d["s_stop"], "n_impacts": d["n_impacts"],
-            "n_while_met": d["n_while_met"], "restitution": d["restitution"], "restitution_90": d["restitution_90"],
-            "evidence": d["evidence"]}  # fmt: skip
+            "n_while_met": d["n_while_met"], "restitution": read["restitution"], "restitution_90": read["restitution_90"],
+            "evidence": read["evidence"], "both_sides": both is not None}  # fmt: skip
 
 
 class CubicStiffnessEffect(Effect):

@@ -139,11 +139,14 @@ def impact_signature(s: np.ndarray, segments: Sequence[np.ndarray], dt: float, f
         ``{"upper": side, "lower": side, "stop_side": "upper" | "lower" | None}``, each ``side``
         ``{"n_turning_points", "n_while_met", "n_impacts", "s_stop", "s_stop_spread", "arrival_share" (median arrival speed over
         the peak speed), "restitution", "restitution_90" ([lo, hi]), "impact_frames", "evidence"}`` (``restitution`` ``nan``
-        without impacts); ``stop_side`` the side whose turning points are impacts (:data:`MIN_IMPACT_SHARE`,
-        :data:`MIN_IMPACTS`), the one with more impacts when both are.
+        without impacts, ``ratios`` the speed ratio of each impact); ``stop_side`` the side whose turning points are
+        impacts (:data:`MIN_IMPACT_SHARE`, :data:`MIN_IMPACTS`), the one with more impacts when both are;
+        ``both_sides`` where both sides strike a stop (each at least two impacts and the share, together at least
+        :data:`MIN_IMPACTS`: with a stop on each side the energy goes twice a cycle, and few impacts follow):
+        ``{"restitution", "restitution_90", "n_impacts", "evidence"}`` over the impacts of both, else ``None``.
     """
     if not (math.isfinite(f_hz) and f_hz > 0 and dt > 0):
-        return {"upper": {}, "lower": {}, "stop_side": None}
+        return {"upper": {}, "lower": {}, "stop_side": None, "both_sides": None}
     period = 1.0 / (f_hz * dt)  # frames
     gap, half = max(1, int(0.35 * period)), max(3, int(round(period / HALF_DIV)))
     sides: dict[str, list[dict[str, float]]] = {"upper": [], "lower": []}
@@ -180,10 +183,21 @@ def impact_signature(s: np.ndarray, segments: Sequence[np.ndarray], dt: float, f
             "s_stop_spread": float(np.subtract(*np.percentile(pos, [75, 25]))) if len(pos) >= 2 else float("nan"),
             "arrival_share": float(np.median([r["arrival_share"] for r in rows])) if rows else float("nan"),
             "restitution": float(np.median(ratio)) if len(ratio) else float("nan"), "restitution_90": ci,
-            "impact_frames": [round(r["i"], 2) for r in imp],
+            "impact_frames": [round(r["i"], 2) for r in imp], "ratios": ratio.round(4).tolist(),
             "evidence": float(sum(r["evidence"] for r in imp)),
         }  # fmt: skip
-    has = [n for n in ("upper", "lower") if out[n]["n_impacts"] >= MIN_IMPACTS
-           and out[n]["n_impacts"] >= MIN_IMPACT_SHARE * out[n]["n_while_met"]]  # fmt: skip
-    out["stop_side"] = max(has, key=lambda n: out[n]["n_impacts"]) if has else None
+    share_ok = {n: out[n]["n_impacts"] >= MIN_IMPACT_SHARE * out[n]["n_while_met"] for n in ("upper", "lower")}
+    has = [n for n in ("upper", "lower") if out[n]["n_impacts"] >= MIN_IMPACTS and share_ok[n]]
+    # stops on both sides: the energy goes twice per cycle, so each side may see only two impacts; together they count
+    both = all(out[n]["n_impacts"] >= 2 and share_ok[n] for n in ("upper", "lower")) and \
+        out["upper"]["n_impacts"] + out["lower"]["n_impacts"] >= MIN_IMPACTS
+    if both:
+        pooled = np.array(out["upper"]["ratios"] + out["lower"]["ratios"])
+        boot = np.median(rng.choice(pooled, size=(N_BOOT, len(pooled))), axis=1)
+        out["both_sides"] = {"restitution": float(np.median(pooled)), "restitution_90": [float(np.percentile(boot, 5)), float(np.percentile(boot, 95))],
+                             "n_impacts": len(pooled), "evidence": out["upper"]["evidence"] + out["lower"]["evidence"]}  # fmt: skip
+        has = has or ["upper", "lower"]
+    else:
+        out["both_sides"] = None
+    out["stop_side"] = max(has, key=lambda n: (out[n]["n_impacts"], out[n]["evidence"])) if has else None
     return out

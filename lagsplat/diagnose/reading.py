@@ -189,7 +189,8 @@ def _why_not(c: Mapping[str, Any], st: Mapping[str, Any]) -> list[str]:
     min_r2, min_cv = float(st.get("min_r2", 0.1)), float(st.get("min_cv_gain", 0.02))
     failed = failed_rules(bool(c.get("physical", True)), c.get("practical") is not False, _num(c.get("evidence", c.get("delta_bic"))),
                           _num(c.get("r2")), _num(c.get("cv_gain")), _num(c.get("signature_support", 0.0)),
-                          float(st.get("min_delta_bic", 10.0)), min_r2, min_cv, _num(c.get("cv_gain_own")))  # fmt: skip
+                          float(st.get("min_delta_bic", 10.0)), min_r2, min_cv, _num(c.get("cv_gain_own")),
+                          bool((c.get("interpretation") or {}).get("impacts")))  # fmt: skip
     below = (c.get("interpretation") or {}).get("below_practical_size")
     words = {
         "physical": "its coefficients have an unphysical sign",

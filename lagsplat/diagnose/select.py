@@ -373,7 +373,8 @@ def decide(fits: Sequence[CandidateFit], min_delta_bic: float, min_r2: float, mi
     """
     for fit in fits:
         fit.significant = not failed_rules(fit.physical, fit.practical, fit.evidence, fit.r2, fit.cv_gain, fit.signature_support,
-                                           min_delta_bic, min_r2, min_cv_gain, fit.cv_gain_own)  # fmt: skip
+                                           min_delta_bic, min_r2, min_cv_gain, fit.cv_gain_own,
+                                           bool(fit.interpretation.get("impacts")))  # fmt: skip
     return next((f for f in fits if f.significant), None)
 
 

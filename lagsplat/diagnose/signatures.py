@@ -391,8 +391,13 @@ def signatures(res: Residual, model_freqs_hz: Sequence[float] | None = None, dir
 
 def _impacts(res: Residual, e: np.ndarray) -> dict[str, Any]:
     """:func:`~lagsplat.diagnose.impacts.impact_signature` on the chart's own positions along ``e`` (``d = 1`` charts:
-    on a larger chart the modes beat along any one direction), with the direction; empty otherwise."""
+    on a larger chart the modes beat along any one direction), with the direction; empty otherwise. It reads every
+    frame of each segment (:attr:`~lagsplat.diagnose.residual_data.SegmentState.whole`), the edges the residual trims
+    included: the first swings strike hardest, and a low restitution leaves only a few impacts to read."""
     if res.d != 1:
         return {}
-    sig = impact_signature(res.q_raw @ np.asarray(e, np.float64), res.segment_slices(), res.dt, res.f_dominant_hz)
+    whole = [st.q_raw[st.whole] for st in res.states]
+    ends = np.cumsum([0] + [len(w) for w in whole])
+    segments = [np.arange(a, b) for a, b in zip(ends[:-1], ends[1:])]
+    sig = impact_signature(np.concatenate(whole, 0) @ np.asarray(e, np.float64), segments, res.dt, res.f_dominant_hz)
     return {**sig, "direction": [float(v) for v in e]}
