@@ -21,8 +21,10 @@ names the source and what to keep of it::
 The format follows the path: ``.mp4 .webm .mov .avi .mkv .m4v`` video,
 ``.npz``, ``.mcap``, a folder of images. Order of operations: read (applying
 the timing rule to the whole source), keep the frame range, crop, resize
-(crop and resize happen frame by frame while reading), rebase time so that
-``t[0] = 0``, split. The split is contiguous: ``n_train =
+(crop and resize happen frame by frame while reading), drop repeated frames
+of a video or image folder converted to a higher frame rate (the captured
+frames are kept, evenly spaced: :func:`lagsplat.io.repeats.drop_repeats`,
+recorded in ``meta["repeats"]``), rebase time so that ``t[0] = 0``, split. The split is contiguous: ``n_train =
 int(train_fraction * T)`` training frames ``[0, n_train)`` and the rest
 held out. ``crop: auto`` / ``resize: auto`` (the defaults of a system
 configuration, :class:`lagsplat.config_schema.SystemConfig`; video sources
@@ -53,6 +55,7 @@ clips are stored back to back (``Clip.episode``)::
 from __future__ import annotations
 
 import hashlib
+import warnings
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -65,6 +68,8 @@ from lagsplat.io.download import sha256_file
 from lagsplat.io.images import list_image_files, read_image_folder
 from lagsplat.io.mcap_io import read_mcap
 from lagsplat.io.npz import read_npz
+from lagsplat.io.repeats import drop_repeats
+from lagsplat.io.timing import TimingWarning
 from lagsplat.io.video import VIDEO_EXTENSIONS, read_video
 from lagsplat.prepare import auto_split, prepare_video
 from lagsplat.synth import make_clip
@@ -305,6 +310,12 @@ def ingest(system_cfg: Any, source_path: str | Path | None = None, preview: str 
             raise ClipError(f"{src}: an .mcap source needs system.source.image_topic")
         images, t, u, u_names, info = read_mcap(path, str(topic), actuation, fps=fps, **timing_kw, **rng)
 
+    repeats = {"repeats": 0}
+    if fmt in ("video", "images"):  # a recording converted to a higher frame rate: the captured frames only
+        images, t, (u,), repeats = drop_repeats(images, np.asarray(t, np.float64), u)
+        if repeats["repeats"]:
+            warnings.warn(f"{src}: {repeats['repeats']} of {repeats['repeats'] + len(t)} frames repeat the one before (a frame-rate "
+                          f"conversion); the {len(t)} captured frames are kept, at {repeats['fps']:g} fps", TimingWarning, stacklevel=2)  # fmt: skip
     t = np.asarray(t, np.float64) - float(t[0])
     T = int(images.shape[0])
     no_held_out = None
@@ -325,6 +336,7 @@ def ingest(system_cfg: Any, source_path: str | Path | None = None, preview: str 
             "size_bytes": None if path.is_dir() else path.stat().st_size,
         },
         "timing": jsonable(info),
+        "repeats": repeats,
         "frames": list(info.get("frames", [start, stop])),
         "crop": crop,
         "resize": resize,
