@@ -85,6 +85,7 @@ CHECKS: dict[str, Bound] = {
     "stage1.threads": COUNT, "stage1.retries": COUNT, "stage1.w_motion_init": NON_NEGATIVE, "stage1.split_share": FRACTION,
     "stage1.w_temporal": NON_NEGATIVE, "stage1.plateau_patience": COUNT, "stage1.plateau_tol": NON_NEGATIVE, "stage1.max_minutes": POSITIVE,
     "stage1.deform_hidden[]": POSITIVE_INT, "stage1.deform_freqs": COUNT, "stage1.w_center": NON_NEGATIVE,
+    "stage1.anchor_steps": COUNT, "stage1.anchor_share": FRACTION,
     "render.n_cameras": POSITIVE_INT, "render.size[]": POSITIVE_INT, "render.frame": COUNT, "render.rollout_s": NON_NEGATIVE,
     "render.fps": POSITIVE,
     "stage1.w_views": NON_NEGATIVE, "stage1.w_depth": NON_NEGATIVE, "stage1.views_per_step": POSITIVE_INT, "stage1.depth_range[]": POSITIVE,

@@ -15,6 +15,7 @@ from lagsplat.models.autoencoder import AutoEncoder, frames_to_tensor
 from lagsplat.models.decoder import latent_gate
 from lagsplat.models.deformation import build_decoder
 from lagsplat.models.densify import placement_probability, split_overloaded
+from lagsplat.train.anchor import anchor_primitives, object_path, prefit_encoder
 from lagsplat.motion import motion_masks
 from lagsplat.render.rasterize import Backend
 from lagsplat.models.encoder import CpAEEncoder, nonlocal_filter_penalty
@@ -106,6 +107,8 @@ class Stage1Config:
     w_depth: float = 0.0
     static_layer: bool = False
     w_center: float = 0.1
+    anchor_steps: int = 0
+    anchor_share: float = 0.25
 
     @classmethod
     def from_mapping(cls, m: Mapping[str, Any]) -> "Stage1Config":
@@ -199,6 +202,9 @@ def train_stage1(
         """``[N,d]`` encodings of all training frames, in batches of 256 (call under ``no_grad``)."""
         return torch.cat([enc(X[i : i + 256]) for i in range(0, N, 256)])
 
+    anchored = cfg.anchor_steps > 0 and cfg.decoder == "conditioned"
+    if anchored:  # the encoder first follows the object's path (lagsplat.train.anchor)
+        prefit_encoder(enc, X, object_path(X), cfg.anchor_steps, cfg.lr_encoder, cfg.batch, rng)
     with torch.no_grad():
         z0 = encode_all()
     motion_std = X.std(0).mean(0) if cfg.w_motion_init > 0 else None  # [H,W] temporal std of the training frames
@@ -213,6 +219,8 @@ def train_stage1(
 
     dec.init_from_frame(X[0], z0, sxy, cfg.sigma_q_floor, generator=gen, prob=placement_probability(X[0], motion_std, cfg.w_motion_init, backdrop),
                         **({"depth": stereo_depth(0, 0)} if V is not None else {}))  # fmt: skip
+    if anchored:
+        anchor_primitives(dec, X, z0, cfg.anchor_share, sxy, gen)
     model = AutoEncoder(enc, dec, H, W).to(dev)
     X = X.to(dev)
     static = None if static is None else static.to(dev)
