@@ -8,7 +8,10 @@ zero every other step (paper §3.2's continuity check fails on it) and a velocit
 that the Lagrangian cannot follow. :func:`repeated_frames` finds the repeats by
 their pattern: a frame whose change from the one before is a small fraction of
 its neighbours' changes, on a good share of the clip (a motion that comes to rest
-changes little on a whole run of frames, not every other one); :func:`drop_repeats`
+changes little on a whole run of frames, not every other one), and where they
+alternate with captured frames, by the parity of the frame index, run by run
+(a turning point, where the object barely moves, hides the pattern from the
+change alone; a dropped frame in the source flips the parity); :func:`drop_repeats`
 keeps the captured frames and spaces them evenly over the time they span (the
 capture was even; the repeats are what made the displayed times uneven).
 """
@@ -51,7 +54,31 @@ def repeated_frames(images: np.ndarray) -> np.ndarray:
     nb = np.max([pad[k : k + len(d)] for k in (0, 1, 3, 4)], axis=0)  # the largest change within two frames (a frame shown 3 times)
     rep[1:] = d < REPEAT_RATIO * nb
     rep[1:] &= nb > 0
-    return rep if rep.mean() >= MIN_REPEAT_SHARE else np.zeros(T, bool)
+    if rep.mean() < MIN_REPEAT_SHARE:
+        return np.zeros(T, bool)
+    return _every_other(rep)
+
+
+def _every_other(rep: np.ndarray, half: int = 8) -> np.ndarray:
+    """Where the repeats found by their change alternate with captured frames (one parity of frame index holds at least
+    3 of them within ``half`` frames either side, the other at most 1), decide by that parity: near a turning point
+    the object barely moves and the change alone misses repeats or flags captured frames. A frame where no parity
+    leads takes the parity of the nearest frame where one does; a clip where parity leads on under half of the
+    frames (another pattern, e.g. 3:2 pulldown) keeps the change's reading."""
+    T = len(rep)
+    idx = np.arange(T)
+    even = np.convolve((rep & (idx % 2 == 0)).astype(int), np.ones(2 * half + 1, int), "same")
+    odd = np.convolve((rep & (idx % 2 == 1)).astype(int), np.ones(2 * half + 1, int), "same")
+    parity = np.where((even >= 3) & (odd <= 1), 0, np.where((odd >= 3) & (even <= 1), 1, -1))
+    lead = np.flatnonzero(parity >= 0)
+    if len(lead) < 0.5 * T:
+        return rep
+    nearest = lead[np.clip(np.searchsorted(lead, idx), 0, len(lead) - 1)]
+    before = lead[np.clip(np.searchsorted(lead, idx) - 1, 0, len(lead) - 1)]
+    nearest = np.where(np.abs(before - idx) < np.abs(nearest - idx), before, nearest)
+    out = idx % 2 == parity[nearest]
+    out[0] = False
+    return out
 
 
 def drop_repeats(images: np.ndarray, t: np.ndarray, *rest: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, ...], dict]:
