@@ -117,6 +117,9 @@ def test_stage1_retries_while_the_gate_fails_and_records_every_attempt():
     assert retry_config(cfg, 1).steps == 3 and retry_config(cfg, 1).n_gaussians == 48 and retry_config(cfg, 0) is cfg
     assert retry_config(cfg, 1).w_temporal == 0.0 and retry_config(cfg, 1, torn=True).w_temporal == 1.0  # a tear turns the prior on
     assert retry_config(dataclasses.replace(cfg, w_temporal=2.0), 1, torn=True).w_temporal == 2.0  # and never lowers it
+    # the second retry, where the object was left out: the first budget with the anchored start
+    assert retry_config(cfg, 2, undrawn=True) == dataclasses.replace(cfg, anchor_steps=300)
+    assert retry_config(cfg, 1, undrawn=True).anchor_steps == 0 and retry_config(cfg, 2).steps == round(2 * 2.25)
     model, hist, attempts = train_stage1_gated(clip, cfg, 1, seed=3, retries=1, chart_kwargs={"n_metric_samples": 8}, progress=False)
     assert [a["seed"] for a in attempts] == [3, 1003] and [a["steps"] for a in attempts] == [2, 3]
     assert all(not a["gate"]["passed"] for a in attempts) and sum(a["kept"] for a in attempts) == 1

@@ -50,7 +50,7 @@ def test_stops_on_both_sides_count_together():
     r = impact_trajectory(w0, 0.002, False, (-0.5, 0.5), 0.7, 0.0, w0, T)
     s = r.x + 0.005 * np.random.default_rng(0).normal(size=len(T))
     sig = impact_signature(s, [np.arange(len(s))], 1 / FPS, observed_frequency(r))
-    assert sig["upper"]["n_impacts"] == sig["lower"]["n_impacts"] == 2  # neither side alone reaches MIN_IMPACTS
+    assert sig["upper"]["n_impacts"] == sig["lower"]["n_impacts"] == 2
     both = sig["both_sides"]
     assert both is not None and both["n_impacts"] == 4 and sig["stop_side"] in ("upper", "lower")
     assert both["restitution"] == pytest.approx(0.7, abs=0.05) and both["restitution_90"][0] <= both["restitution"] <= both["restitution_90"][1]

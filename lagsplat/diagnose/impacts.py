@@ -36,8 +36,10 @@ __all__ = ["reversal_fit", "impact_signature", "MIN_ARRIVAL_SHARE", "MIN_IMPACT_
 MIN_ARRIVAL_SHARE = 0.25
 #: A side has a stop when at least this share of its turning points are impacts ...
 MIN_IMPACT_SHARE = 0.6
-#: ... and at least this many.
-MIN_IMPACTS = 3
+#: ... and at least this many (two: a restitution of 0.5 leaves a quarter of the energy after one impact, and the
+#: swings that follow may fall short of the stop; on the smooth oscillators of the tests and of the latent suites no
+#: side shows two).
+MIN_IMPACTS = 2
 #: A turning point stands out of the motion's 5-95 % range by at least this share of it (not a noise wiggle).
 PROMINENCE = 0.2
 #: The reversal fit reaches this fraction of a period to either side of a turning point (at least 3 frames).
@@ -141,9 +143,9 @@ def impact_signature(s: np.ndarray, segments: Sequence[np.ndarray], dt: float, f
         the peak speed), "restitution", "restitution_90" ([lo, hi]), "impact_frames", "evidence"}`` (``restitution`` ``nan``
         without impacts, ``ratios`` the speed ratio of each impact); ``stop_side`` the side whose turning points are
         impacts (:data:`MIN_IMPACT_SHARE`, :data:`MIN_IMPACTS`), the one with more impacts when both are;
-        ``both_sides`` where both sides strike a stop (each at least two impacts and the share, together at least
-        :data:`MIN_IMPACTS`: with a stop on each side the energy goes twice a cycle, and few impacts follow):
-        ``{"restitution", "restitution_90", "n_impacts", "evidence"}`` over the impacts of both, else ``None``.
+        ``both_sides`` where both sides strike a stop (with a stop on each side the energy goes twice a cycle, and
+        each side sees few impacts): ``{"restitution", "restitution_90", "n_impacts", "evidence"}`` over the impacts
+        of both, else ``None``.
     """
     if not (math.isfinite(f_hz) and f_hz > 0 and dt > 0):
         return {"upper": {}, "lower": {}, "stop_side": None, "both_sides": None}
@@ -188,15 +190,12 @@ def impact_signature(s: np.ndarray, segments: Sequence[np.ndarray], dt: float, f
         }  # fmt: skip
     share_ok = {n: out[n]["n_impacts"] >= MIN_IMPACT_SHARE * out[n]["n_while_met"] for n in ("upper", "lower")}
     has = [n for n in ("upper", "lower") if out[n]["n_impacts"] >= MIN_IMPACTS and share_ok[n]]
-    # stops on both sides: the energy goes twice per cycle, so each side may see only two impacts; together they count
-    both = all(out[n]["n_impacts"] >= 2 and share_ok[n] for n in ("upper", "lower")) and \
-        out["upper"]["n_impacts"] + out["lower"]["n_impacts"] >= MIN_IMPACTS
-    if both:
+    # stops on both sides: the energy goes twice per cycle, so each side sees few impacts; one restitution over all
+    if len(has) == 2:
         pooled = np.array(out["upper"]["ratios"] + out["lower"]["ratios"])
         boot = np.median(rng.choice(pooled, size=(N_BOOT, len(pooled))), axis=1)
         out["both_sides"] = {"restitution": float(np.median(pooled)), "restitution_90": [float(np.percentile(boot, 5)), float(np.percentile(boot, 95))],
                              "n_impacts": len(pooled), "evidence": out["upper"]["evidence"] + out["lower"]["evidence"]}  # fmt: skip
-        has = has or ["upper", "lower"]
     else:
         out["both_sides"] = None
     out["stop_side"] = max(has, key=lambda n: (out[n]["n_impacts"], out[n]["evidence"])) if has else None

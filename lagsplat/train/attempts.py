@@ -5,7 +5,9 @@ initialisation that leaves the moving object out of the decoder, or too few
 steps for a cluttered scene. :func:`train_stage1_gated` trains, builds the
 chart (paper §3.2) and runs the gate (:func:`lagsplat.chart_gate.chart_gate`);
 when the chart fails, it trains again with another seed, more steps and more
-Gaussians, up to ``retries`` times, and keeps the first attempt that passes
+Gaussians (from the second retry on, where the object was left out, the first
+budget with the anchored start of :mod:`lagsplat.train.anchor`), up to
+``retries`` times, and keeps the first attempt that passes
 (or, when none does, the one with the fewest failed checks). A retry after a
 torn chart (the continuity check failed) also turns on the temporal prior
 (``Stage1Config.w_temporal``, :data:`TEAR_W_TEMPORAL`): on a large rotation or
@@ -33,16 +35,24 @@ __all__ = ["retry_config", "train_stage1_gated"]
 STEP_GROWTH, GAUSSIAN_GROWTH = 1.5, 1.5
 #: Weight of the temporal prior on a retry after a torn chart (when the configured weight is lower).
 TEAR_W_TEMPORAL = 1.0
+#: Encoder steps on the object's path of an anchored retry (:func:`retry_config`).
+ANCHOR_STEPS = 300
 
 
-def retry_config(cfg: Stage1Config, attempt: int, torn: bool = False) -> Stage1Config:
+def retry_config(cfg: Stage1Config, attempt: int, torn: bool = False, undrawn: bool = False) -> Stage1Config:
     """The settings of retry ``attempt`` (0: ``cfg`` itself).
 
     Steps and Gaussians grow by 1.5x per retry; ``torn`` (an earlier attempt's chart failed the
-    continuity check) raises ``w_temporal`` to at least :data:`TEAR_W_TEMPORAL`.
+    continuity check) raises ``w_temporal`` to at least :data:`TEAR_W_TEMPORAL`. From the second retry on,
+    where the earlier attempts left the object out (``undrawn``: the decoder-motion or the coverage check
+    failed) and ``cfg`` does not anchor its start, the retry is the first attempt's budget with the anchored
+    start (:mod:`lagsplat.train.anchor`, :data:`ANCHOR_STEPS` steps): a small object that more steps and
+    Gaussians did not draw.
     """
     if attempt == 0:
         return cfg
+    if attempt >= 2 and undrawn and cfg.anchor_steps == 0 and cfg.decoder == "conditioned":
+        return dataclasses.replace(cfg, anchor_steps=ANCHOR_STEPS)
     w_temporal = max(cfg.w_temporal, TEAR_W_TEMPORAL) if torn else cfg.w_temporal
     return dataclasses.replace(
         cfg, steps=int(round(cfg.steps * STEP_GROWTH**attempt)), n_gaussians=int(round(cfg.n_gaussians * GAUSSIAN_GROWTH**attempt)),
@@ -84,20 +94,22 @@ def train_stage1_gated(
         raise ValueError(f"stage1.retries must be >= 0, got {retries}")
     kw = dict(chart_kwargs or {})
     attempts: list[dict[str, Any]] = []
-    best, torn = None, False
+    best, torn, undrawn = None, False, False
     for k in range(retries + 1):
-        c = retry_config(cfg, k, torn=torn)
+        c = retry_config(cfg, k, torn=torn, undrawn=undrawn)
         s = seed + 1000 * k
         t0 = time.perf_counter()
         model, hist = train_stage1(clip, c, d, seed=s, progress=progress, device=device, label=f"{label} attempt {k + 1}" if k else label, views=views)
         gate = gated_chart(model, clip, seed=seed, **kw)[1]  # the chart stage's own chart
         stopped = hist.get("stopped") or {}
         attempts.append({"seed": s, "steps": c.steps, "steps_run": stopped.get("step", c.steps), "stopped": stopped.get("reason"),
-                         "n_gaussians": c.n_gaussians, "w_temporal": c.w_temporal, "wall_s": round(time.perf_counter() - t0, 1), "gate": gate, "kept": False})  # fmt: skip
+                         "n_gaussians": c.n_gaussians, "w_temporal": c.w_temporal, "anchor_steps": c.anchor_steps,
+                         "wall_s": round(time.perf_counter() - t0, 1), "gate": gate, "kept": False})  # fmt: skip
         ran = f"{stopped['step']} of {c.steps} steps ({stopped['reason']})" if stopped else f"{c.steps} steps"
-        prior = f", temporal prior {c.w_temporal:g}" if c.w_temporal > 0 else ""
+        prior = (f", temporal prior {c.w_temporal:g}" if c.w_temporal > 0 else "") + (", anchored start" if c.anchor_steps > 0 else "")
         print(f"[lagsplat] {label}: attempt {k + 1} (seed {s}, {ran}, {c.n_gaussians} Gaussians{prior}): chart {gate_summary(gate)}", flush=True)
         torn = torn or not gate["checks"]["continuity"]["ok"]
+        undrawn = undrawn or not (gate["checks"]["decoder_motion"]["ok"] and gate["checks"]["coverage"]["ok"])
         score = len(gate["reasons"])
         if best is None or score < best[0]:
             best = (score, k, model, hist)

@@ -91,7 +91,7 @@ class Stage1Config:
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     backend: Backend = "auto"
     threads: int = 0
-    retries: int = 1
+    retries: int = 2
     w_motion_init: float = 1.0
     split_share: float = 0.5
     w_temporal: float = 0.0
