@@ -126,6 +126,14 @@ def _side(p: np.ndarray, peaks: np.ndarray, sgn: float, half: int, v_peak: float
     return out
 
 
+def _median_interval(x: np.ndarray, rng: np.random.Generator) -> list[float]:
+    """90 % bootstrap interval ``[lo, hi]`` of the median of ``x`` (:data:`N_BOOT` draws); ``nan`` for fewer than 2 values."""
+    if len(x) < 2:
+        return [float("nan")] * 2
+    boot = np.median(rng.choice(x, size=(N_BOOT, len(x))), axis=1)
+    return [float(np.percentile(boot, 5)), float(np.percentile(boot, 95))]
+
+
 def impact_signature(s: np.ndarray, segments: Sequence[np.ndarray], dt: float, f_hz: float, seed: int = 0) -> dict[str, Any]:
     """Impacts on either side of a 1-D motion (module docstring).
 
@@ -175,16 +183,12 @@ def impact_signature(s: np.ndarray, segments: Sequence[np.ndarray], dt: float, f
         met = [r for r in rows if r["i"] <= last]  # the turning points while the stop is met (a low restitution ends the impacts)
         ratio = np.array([r["leave"] / r["arrive"] for r in imp])
         pos = np.array([r["s"] for r in imp])
-        ci = [float("nan")] * 2
-        if len(ratio) >= 2:
-            boot = np.median(rng.choice(ratio, size=(N_BOOT, len(ratio))), axis=1)
-            ci = [float(np.percentile(boot, 5)), float(np.percentile(boot, 95))]
         out[name] = {
             "n_turning_points": len(rows), "n_while_met": len(met), "n_impacts": len(imp),
             "s_stop": float(np.median(pos)) if len(pos) else float("nan"),
             "s_stop_spread": float(np.subtract(*np.percentile(pos, [75, 25]))) if len(pos) >= 2 else float("nan"),
             "arrival_share": float(np.median([r["arrival_share"] for r in rows])) if rows else float("nan"),
-            "restitution": float(np.median(ratio)) if len(ratio) else float("nan"), "restitution_90": ci,
+            "restitution": float(np.median(ratio)) if len(ratio) else float("nan"), "restitution_90": _median_interval(ratio, rng),
             "impact_frames": [round(r["i"], 2) for r in imp], "ratios": ratio.round(4).tolist(),
             "evidence": float(sum(r["evidence"] for r in imp)),
         }  # fmt: skip
@@ -193,8 +197,7 @@ def impact_signature(s: np.ndarray, segments: Sequence[np.ndarray], dt: float, f
     # stops on both sides: the energy goes twice per cycle, so each side sees few impacts; one restitution over all
     if len(has) == 2:
         pooled = np.array(out["upper"]["ratios"] + out["lower"]["ratios"])
-        boot = np.median(rng.choice(pooled, size=(N_BOOT, len(pooled))), axis=1)
-        out["both_sides"] = {"restitution": float(np.median(pooled)), "restitution_90": [float(np.percentile(boot, 5)), float(np.percentile(boot, 95))],
+        out["both_sides"] = {"restitution": float(np.median(pooled)), "restitution_90": _median_interval(pooled, rng),
                              "n_impacts": len(pooled), "evidence": out["upper"]["evidence"] + out["lower"]["evidence"]}  # fmt: skip
     else:
         out["both_sides"] = None

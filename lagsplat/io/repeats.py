@@ -73,9 +73,9 @@ def _every_other(rep: np.ndarray, half: int = 8) -> np.ndarray:
     lead = np.flatnonzero(parity >= 0)
     if len(lead) < 0.5 * T:
         return rep
-    nearest = lead[np.clip(np.searchsorted(lead, idx), 0, len(lead) - 1)]
-    before = lead[np.clip(np.searchsorted(lead, idx) - 1, 0, len(lead) - 1)]
-    nearest = np.where(np.abs(before - idx) < np.abs(nearest - idx), before, nearest)
+    j = np.searchsorted(lead, idx)
+    after, before = lead[np.minimum(j, len(lead) - 1)], lead[np.maximum(j - 1, 0)]
+    nearest = np.where(np.abs(before - idx) < np.abs(after - idx), before, after)
     out = idx % 2 == parity[nearest]
     out[0] = False
     return out

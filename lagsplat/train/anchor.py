@@ -37,8 +37,9 @@ import torch
 from torch import Tensor, nn
 
 from lagsplat.models.decoder import ConditionedGaussians
+from lagsplat.prepare.frequency import principal_path
 
-__all__ = ["object_path", "prefit_encoder", "anchor_primitives", "DEPARTURE_FRACTION", "ANCHOR_SIGMA", "SCENE_SIGMA"]
+__all__ = ["departure", "object_path", "prefit_encoder", "anchor_primitives", "DEPARTURE_FRACTION", "ANCHOR_SIGMA", "SCENE_SIGMA"]
 
 #: Pixels whose departure from the median is below this fraction of the frame's largest are left out of its centroid.
 DEPARTURE_FRACTION = 0.25
@@ -58,33 +59,32 @@ def departure(X: Tensor) -> Tensor:
     return (X - X.median(0).values).abs().mean(1)
 
 
-def object_path(X: Tensor) -> Tensor:
+def object_path(X: Tensor, D: Tensor | None = None) -> Tensor:
     """``[N]`` a standardised coordinate of the moving object along its path (module docstring, step 1).
 
     Each frame's departure from the median (:func:`departure`), kept where it exceeds
     :data:`DEPARTURE_FRACTION` of that frame's largest, gives a centroid ``(x, y)`` (px); the
-    centroids are projected on their first principal direction, centred and scaled to unit
-    standard deviation. A frame without departure keeps the mean position.
+    centroids are projected on their principal direction (:func:`lagsplat.prepare.frequency.principal_path`)
+    and scaled to unit standard deviation. A frame without departure keeps the mean position.
 
     Args:
         X: ``[N,3,H,W]`` frames in [0, 1], N >= 2.
+        D: their :func:`departure`, if already computed.
 
     Raises:
         ValueError: for fewer than 2 frames.
     """
     if X.shape[0] < 2:
         raise ValueError(f"object_path needs at least 2 frames, got {X.shape[0]}")
-    D = departure(X)
+    D = departure(X) if D is None else D
     D = torch.where(D >= DEPARTURE_FRACTION * D.amax((1, 2), keepdim=True), D, torch.zeros(()))
     _, H, W = D.shape
     ys, xs = torch.meshgrid(torch.arange(H, dtype=D.dtype), torch.arange(W, dtype=D.dtype), indexing="ij")
     mass = D.sum((1, 2))
     ok = mass > 0
     c = torch.stack([(D * xs).sum((1, 2)), (D * ys).sum((1, 2))], 1) / mass.clamp_min(1e-12)[:, None]  # [N,2]
-    mean = c[ok].mean(0) if ok.any() else torch.zeros(2)
-    c = torch.where(ok[:, None], c, mean) - mean
-    _, _, V = torch.linalg.svd(c.double(), full_matrices=False)
-    s = (c.double() @ V[0]).float()
+    c = torch.where(ok[:, None], c, c[ok].mean(0) if ok.any() else torch.zeros(2))
+    s = torch.from_numpy(principal_path(c.double().numpy())[0]).float()
     sd = s.std()
     return s / sd if float(sd) > 0 else s
 
@@ -117,6 +117,7 @@ def prefit_encoder(enc: nn.Module, X: Tensor, target: Tensor, steps: int, lr: fl
 @torch.no_grad()
 def anchor_primitives(
     dec: ConditionedGaussians, X: Tensor, z: Tensor, share: float, sigma_xy: float, generator: torch.Generator, n_frames: int = 16,
+    D: Tensor | None = None,
 ) -> int:
     """Place ``share`` of the primitives on the moving object of ``n_frames`` frames spread over the clip (module docstring, step 3).
 
@@ -134,6 +135,7 @@ def anchor_primitives(
         sigma_xy: spatial extent in the decoder's units.
         generator: the RNG.
         n_frames: frames the primitives are spread over (at most N).
+        D: the frames' :func:`departure`, if already computed.
 
     Returns:
         The number of primitives placed.
@@ -143,7 +145,7 @@ def anchor_primitives(
         return 0
     N, _, H, W = X.shape
     frames = np.unique(np.linspace(0, N - 1, min(n_frames, N, n)).round().astype(int))
-    D = departure(X)
+    D = departure(X) if D is None else D
     per = np.array_split(np.arange(n), len(frames))  # the first rows: in front (the 2-D rasteriser composites in index order)
     zs = z.std(0).clamp_min(1e-3)
     rest = torch.arange(n, dec.K)  # the scene's primitives: open over the whole range of the encodings

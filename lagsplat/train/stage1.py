@@ -15,7 +15,7 @@ from lagsplat.models.autoencoder import AutoEncoder, frames_to_tensor
 from lagsplat.models.decoder import latent_gate
 from lagsplat.models.deformation import build_decoder
 from lagsplat.models.densify import placement_probability, split_overloaded
-from lagsplat.train.anchor import anchor_primitives, object_path, prefit_encoder
+from lagsplat.train.anchor import anchor_primitives, departure, object_path, prefit_encoder
 from lagsplat.motion import motion_masks
 from lagsplat.render.rasterize import Backend
 from lagsplat.models.encoder import CpAEEncoder, nonlocal_filter_penalty
@@ -203,8 +203,9 @@ def train_stage1(
         return torch.cat([enc(X[i : i + 256]) for i in range(0, N, 256)])
 
     anchored = cfg.anchor_steps > 0 and cfg.decoder == "conditioned"
+    D = departure(X) if anchored else None  # each frame's departure from the median, read once for the path and the placement
     if anchored:  # the encoder first follows the object's path (lagsplat.train.anchor)
-        prefit_encoder(enc, X, object_path(X), cfg.anchor_steps, cfg.lr_encoder, cfg.batch, rng)
+        prefit_encoder(enc, X, object_path(X, D), cfg.anchor_steps, cfg.lr_encoder, cfg.batch, rng)
     with torch.no_grad():
         z0 = encode_all()
     motion_std = X.std(0).mean(0) if cfg.w_motion_init > 0 else None  # [H,W] temporal std of the training frames
@@ -220,7 +221,7 @@ def train_stage1(
     dec.init_from_frame(X[0], z0, sxy, cfg.sigma_q_floor, generator=gen, prob=placement_probability(X[0], motion_std, cfg.w_motion_init, backdrop),
                         **({"depth": stereo_depth(0, 0)} if V is not None else {}))  # fmt: skip
     if anchored:
-        anchor_primitives(dec, X, z0, cfg.anchor_share, sxy, gen)
+        anchor_primitives(dec, X, z0, cfg.anchor_share, sxy, gen, D=D)
     model = AutoEncoder(enc, dec, H, W).to(dev)
     X = X.to(dev)
     static = None if static is None else static.to(dev)
