@@ -234,6 +234,20 @@ class Artifacts:
 
         return load_stage1(self.stage1)
 
+    def load_stage1_history(self) -> dict:
+        """The training history saved in ``stage1.pt`` (attempts, losses, the gated chart; an empty dict for a
+        checkpoint without one).
+
+        Raises:
+            FileNotFoundError: naming the file if it is missing.
+        """
+        import torch
+
+        if not self.stage1.exists():
+            raise FileNotFoundError(f"{self.stage1}: stage-1 checkpoint not found")
+        ck = torch.load(self.stage1, map_location="cpu", weights_only=False)
+        return ck.get("history") or {}
+
     def load_chart(self) -> Chart:
         """``chart.npz`` (:func:`lagsplat.chart.load_chart`)."""
         from lagsplat.chart import load_chart

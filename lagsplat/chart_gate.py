@@ -25,12 +25,18 @@ threshold fixed in :class:`GateThresholds`:
 
 :func:`gated_chart` builds the chart a run uses: with ``chart.refine_iters > 0``
 the refined chart where it passes the gate and is the less noisy one
-(:func:`relative_chart_noise`), else the encoder's.
+(:func:`relative_chart_noise`), else the encoder's. Stage 1 builds that chart to
+gate its attempts; :func:`chart_record` keeps it with the checkpoint under a
+:func:`chart_key` of everything it depends on besides the autoencoder, so the
+chart stage reads it back (:func:`chart_from_record`) instead of building it
+again when nothing changed.
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+import hashlib
+import json
+from dataclasses import asdict, dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -44,7 +50,7 @@ from lagsplat.motion import motion_masks
 from lagsplat.timeseries import chart_noise
 
 __all__ = ["GateThresholds", "speed_jump_ratio", "moving_pixel_r2", "encoder_saturation", "chart_gate", "gate_summary",
-           "relative_chart_noise", "gated_chart"]
+           "relative_chart_noise", "gated_chart", "chart_key", "chart_record", "chart_from_record"]
 
 
 @dataclass(frozen=True)
@@ -278,3 +284,35 @@ def gated_chart(
     chart.meta["refine_choice"] = {"refine_iters": int(refine_iters), "used": "refined" if chart is refined else "encoder",
                                    "relative_noise": noise, "reason": why}  # fmt: skip
     return chart, gate
+
+
+def chart_key(clip: Clip, n_metric_samples: int = 64, rho: float = 0.01, seed: int = 0, refine_iters: int = 0) -> str:
+    """A fingerprint (SHA-256, hex) of what :func:`gated_chart` reads besides the autoencoder.
+
+    The clip's frames, timestamps, split, recording indices and actuation, and the chart settings: two
+    calls with equal keys on the same autoencoder build the same chart.
+    """
+    h = hashlib.sha256()
+    for a in (clip.images, clip.t, clip.split, clip.episode, clip.u):
+        arr = np.ascontiguousarray(a)
+        h.update(f"{arr.dtype}{arr.shape}".encode())
+        h.update(arr.tobytes())
+    h.update(json.dumps([int(n_metric_samples), float(rho), int(seed), int(refine_iters)]).encode())
+    return h.hexdigest()
+
+
+def chart_record(chart: Chart, gate: dict[str, Any], key: str) -> dict[str, Any]:
+    """A gated chart as plain values (arrays, numbers, dicts) to keep with the Stage-1 checkpoint, under ``key``
+    (:func:`chart_key`)."""
+    return {"key": key, "chart": {f.name: getattr(chart, f.name) for f in fields(Chart)}, "gate": gate}
+
+
+def chart_from_record(record: dict[str, Any] | None, key: str) -> tuple[Chart, dict[str, Any]] | None:
+    """``(chart, gate)`` of a :func:`chart_record` made under ``key``; ``None`` when there is none or its key differs
+    (another clip or other chart settings: the chart must be built again)."""
+    if not isinstance(record, dict) or record.get("key") != key:
+        return None
+    values = record["chart"]
+    chart = Chart(**{f.name: values[f.name] for f in fields(Chart)})
+    chart.meta = json.loads(json.dumps(chart.meta))  # a copy: the caller adds to it
+    return chart, record["gate"]

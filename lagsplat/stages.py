@@ -115,14 +115,18 @@ def stage_stage1(cfg: DictConfig, a: "Artifacts | None" = None) -> None:
 
 
 def stage_chart(cfg: DictConfig, a: "Artifacts | None" = None) -> None:
-    """``stage1.pt`` -> ``chart.npz`` (paths: ``a``, default the run's :func:`~lagsplat.cli_common.artifacts_of`)."""
+    """``stage1.pt`` -> ``chart.npz`` (paths: ``a``, default the run's :func:`~lagsplat.cli_common.artifacts_of`): the gated
+    chart (:func:`lagsplat.chart_gate.gated_chart`), read from the checkpoint where Stage 1 built it for the same clip and
+    chart settings (:func:`lagsplat.chart_gate.chart_from_record`), built otherwise."""
     from lagsplat.chart import save_chart
 
-    from lagsplat.chart_gate import gate_summary, gated_chart
+    from lagsplat.chart_gate import chart_from_record, chart_key, gate_summary, gated_chart
 
     a = a or artifacts_of(cfg)
     model, clip = a.load_stage1(), a.load_clip()
-    chart, gate = gated_chart(model, clip, int(cfg.chart.n_metric_samples), float(cfg.chart.rho), int(cfg.seed), int(cfg.chart.refine_iters))
+    kw = {"n_metric_samples": int(cfg.chart.n_metric_samples), "rho": float(cfg.chart.rho), "seed": int(cfg.seed), "refine_iters": int(cfg.chart.refine_iters)}
+    kept = chart_from_record(a.load_stage1_history().get("gated_chart"), chart_key(clip, **kw))  # Stage 1 built it to gate its attempt
+    chart, gate = kept if kept is not None else gated_chart(model, clip, **kw)
     chart.meta["gate"] = gate
     if "refine_choice" in chart.meta:
         print(f"[lagsplat] {cfg.system.name}: chart {chart.meta['refine_choice']['reason']}", flush=True)

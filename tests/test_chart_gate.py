@@ -170,3 +170,33 @@ def test_relative_chart_noise_reads_the_white_noise_over_the_spread():
     for level in (0.005, 0.02):
         noisy = dataclasses.replace(chart, q=s + level * s[chart.split == 0].std() * rng.standard_normal(s.shape))
         assert abs(relative_chart_noise(noisy) / level - 1.0) < 0.2
+
+
+def test_the_chart_stage_reads_the_chart_stage1_gated_and_builds_it_again_when_a_setting_changed(tmp_path):
+    """Stage 1 keeps the gated chart of its kept attempt; for the same clip and settings it is the chart the chart
+    stage would build from the saved checkpoint, for another setting or another clip there is none to read."""
+    import dataclasses
+
+    from lagsplat.chart_gate import chart_from_record, chart_key, gated_chart
+    from lagsplat.models.autoencoder import load_stage1, save_stage1
+    from lagsplat.synth.pendulum import make_pendulum_clip
+    from lagsplat.train.attempts import train_stage1_gated
+    from lagsplat.train.stage1 import Stage1Config
+
+    clip = make_pendulum_clip(size=(24, 24), duration_s=6.0)
+    cfg = dataclasses.replace(Stage1Config(), n_gaussians=32, steps=30, recycle_warmup=10, recycle_every=10)
+    kw = {"n_metric_samples": 8, "rho": 0.01, "refine_iters": 0}
+    model, hist, _ = train_stage1_gated(clip, cfg, 1, seed=2, retries=0, chart_kwargs=kw, progress=False)
+    path = save_stage1(tmp_path / "stage1.pt", model, dataclasses.asdict(cfg), hist, 1)
+    record = torch.load(path, map_location="cpu", weights_only=False)["history"]["gated_chart"]
+    kept = chart_from_record(record, chart_key(clip, seed=2, **kw))
+    assert kept is not None
+    built, gate = gated_chart(load_stage1(path), clip, seed=2, **kw)
+    chart, kept_gate = kept
+    for name in ("q", "G_bar", "A", "W", "mean", "ae_mse"):
+        np.testing.assert_allclose(getattr(chart, name), getattr(built, name), rtol=1e-6, atol=1e-9, err_msg=name)
+    assert kept_gate["passed"] == gate["passed"] and kept_gate["reasons"] == gate["reasons"]
+    assert chart_from_record(record, chart_key(clip, seed=2, **{**kw, "n_metric_samples": 16})) is None  # another setting
+    other = dataclasses.replace(clip, images=clip.images[:, ::-1].copy())
+    assert chart_from_record(record, chart_key(other, seed=2, **kw)) is None  # another clip
+    assert chart_from_record(None, chart_key(clip, seed=2, **kw)) is None  # a checkpoint without one

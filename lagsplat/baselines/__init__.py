@@ -10,6 +10,17 @@
   part, predict the rest and 1000 s past it; frequency, dissipation, amplitude left, PSNR).
 """
 
-from lagsplat.baselines.neural_ode import LatentNeuralODE, ode_rollout, train_neural_ode
+from __future__ import annotations
+
+import importlib
+from typing import Any
 
 __all__ = ["LatentNeuralODE", "ode_rollout", "train_neural_ode"]
+
+
+def __getattr__(name: str) -> Any:
+    """The neural ODE's names, imported on first use: the configuration schema imports the baselines' settings from
+    their modules, and every stage pays for what this package imports (the ODE solvers' SciPy)."""
+    if name in __all__:
+        return getattr(importlib.import_module("lagsplat.baselines.neural_ode"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

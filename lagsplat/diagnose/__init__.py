@@ -19,23 +19,29 @@ Pipeline (each step usable alone):
 
 from __future__ import annotations
 
-from typing import Any
+import importlib
+from typing import TYPE_CHECKING, Any
 
-from lagsplat.diagnose.diagnosis import CandidateFit, Diagnosis
-from lagsplat.diagnose.effect_base import Effect
-from lagsplat.diagnose.effect_terms import EffectTerm, term_from_spec
-from lagsplat.diagnose.effects import EFFECTS, effect_names, get_effect
-from lagsplat.diagnose.oscillator import LinearOscillator, fit_linear_oscillator
-from lagsplat.diagnose.residual import residual_force, residual_from_chart
-from lagsplat.diagnose.residual_data import Residual
-from lagsplat.diagnose.select import select_effect
-from lagsplat.diagnose.signatures import signatures
-from lagsplat.diagnose.terms import (
-    AugmentedLagrangian,
-    build_term,
-    delay_actuation,
-    with_time_channel,
-)
+if TYPE_CHECKING:
+    from lagsplat.diagnose.diagnosis import Diagnosis
+    from lagsplat.diagnose.residual_data import Residual
+
+#: Where each public name lives; imported on first use (the configuration schema imports the diagnosis settings
+#: from their modules, and every stage would otherwise pay for the effects' SciPy).
+_WHERE = {
+    "CandidateFit": "diagnosis", "Diagnosis": "diagnosis", "Effect": "effect_base", "EffectTerm": "effect_terms",
+    "term_from_spec": "effect_terms", "EFFECTS": "effects", "effect_names": "effects", "get_effect": "effects",
+    "LinearOscillator": "oscillator", "fit_linear_oscillator": "oscillator", "residual_force": "residual",
+    "residual_from_chart": "residual", "Residual": "residual_data", "select_effect": "select", "signatures": "signatures",
+    "AugmentedLagrangian": "terms", "build_term": "terms", "delay_actuation": "terms", "with_time_channel": "terms",
+}  # fmt: skip
+
+
+def __getattr__(name: str) -> Any:
+    if name in _WHERE:
+        return getattr(importlib.import_module(f"lagsplat.diagnose.{_WHERE[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = [
     "EFFECTS",
@@ -61,7 +67,7 @@ __all__ = [
 ]
 
 
-def diagnose_chart(model: Any, chart: Any, which: int | None = 0, sigma: float | None = None, **select_kwargs: Any) -> tuple[Diagnosis, Residual]:
+def diagnose_chart(model: Any, chart: Any, which: int | None = 0, sigma: float | None = None, **select_kwargs: Any) -> tuple["Diagnosis", "Residual"]:
     """Residual of ``model`` on the chart's ``which`` frames (training by default), then :func:`select_effect`.
 
     Args:
@@ -77,6 +83,9 @@ def diagnose_chart(model: Any, chart: Any, which: int | None = 0, sigma: float |
     Returns:
         ``(diagnosis, residual)``.
     """
+    from lagsplat.diagnose.residual import residual_from_chart
+    from lagsplat.diagnose.select import select_effect
+
     res = residual_from_chart(model, chart, which, sigma)
     if "model_freqs_hz" not in select_kwargs and hasattr(model, "modal_analysis"):
         try:

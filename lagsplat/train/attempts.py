@@ -23,7 +23,7 @@ import dataclasses
 import time
 from typing import Any
 
-from lagsplat.chart_gate import gate_summary, gated_chart
+from lagsplat.chart_gate import chart_key, chart_record, gate_summary, gated_chart
 from lagsplat.io.clip import Clip
 from lagsplat.models.autoencoder import AutoEncoder
 from lagsplat.train.stage1 import Stage1Config, train_stage1
@@ -82,7 +82,8 @@ def train_stage1_gated(
             ``refine_iters``) of the chart the gate reads.
 
     Returns:
-        ``(model, history, attempts)``: the kept model and its training history; ``attempts``
+        ``(model, history, attempts)``: the kept model and its training history, with ``history["gated_chart"]``
+        its gated chart (:func:`lagsplat.chart_gate.chart_record`, what the chart stage would build); ``attempts``
         one entry per attempt: ``seed``, ``steps`` (at most), ``steps_run``, ``stopped`` (why it
         stopped early, or ``None``), ``n_gaussians``, ``w_temporal``, ``wall_s``, ``gate``
         (:func:`lagsplat.chart_gate.chart_gate`'s result) and ``kept``.
@@ -100,7 +101,7 @@ def train_stage1_gated(
         s = seed + 1000 * k
         t0 = time.perf_counter()
         model, hist = train_stage1(clip, c, d, seed=s, progress=progress, device=device, label=f"{label} attempt {k + 1}" if k else label, views=views)
-        gate = gated_chart(model, clip, seed=seed, **kw)[1]  # the chart stage's own chart
+        chart, gate = gated_chart(model, clip, seed=seed, **kw)  # the chart stage's own chart
         stopped = hist.get("stopped") or {}
         attempts.append({"seed": s, "steps": c.steps, "steps_run": stopped.get("step", c.steps), "stopped": stopped.get("reason"),
                          "n_gaussians": c.n_gaussians, "w_temporal": c.w_temporal, "anchor_steps": c.anchor_steps,
@@ -112,6 +113,7 @@ def train_stage1_gated(
         undrawn = undrawn or not (gate["checks"]["decoder_motion"]["ok"] and gate["checks"]["coverage"]["ok"])
         score = len(gate["reasons"])
         if best is None or score < best[0]:
+            hist["gated_chart"] = chart_record(chart, gate, chart_key(clip, seed=seed, **kw))
             best = (score, k, model, hist)
         if gate["passed"]:
             break
