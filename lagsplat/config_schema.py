@@ -30,11 +30,8 @@ from lagsplat.artifacts import Artifacts
 from lagsplat.baselines.deformation_compare import DeformationCompareConfig
 from lagsplat.baselines.extrapolation import ExtrapolationConfig
 from lagsplat.baselines.gp2d_field import GP2DConfig
-from lagsplat.diagnose.refit import RefitConfig
-from lagsplat.diagnose.report import DiagnoseConfig
-from lagsplat.diagnose.where import WhereConfig
-from lagsplat.evaluate.krauss import KraussEvalConfig
-from lagsplat.evaluate.paper import EvalConfig
+from lagsplat.diagnose.settings import DiagnoseConfig, RefitConfig, WhereConfig
+from lagsplat.evaluate.settings import EvalConfig, KraussEvalConfig
 from lagsplat.force_checks import ForceCheckConfig
 from lagsplat.train.stage1 import Stage1Config
 from lagsplat.train.stage2 import Stage2Config

@@ -80,9 +80,9 @@ from __future__ import annotations
 
 import copy
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any
 
 import torch
 from torch import nn
@@ -90,6 +90,7 @@ from torch import nn
 from lagsplat.diagnose.effect_terms import EffectTerm
 from lagsplat.diagnose.refit_terms import RefitModel, RefitSpec, model_chart, refit_spec
 from lagsplat.diagnose.terms import AugmentedLagrangian
+from lagsplat.diagnose.settings import RefitConfig
 
 __all__ = [
     "RefitConfig",
@@ -103,48 +104,7 @@ __all__ = [
 GAP_METRICS = ("eps_q", "eps_freq", "envelope_decay_error", "image_excess", "eps_q_over_floor", "eps_freq_over_floor")
 
 
-@dataclass
-class RefitConfig:
-    """Refit settings (``conf/config.yaml``, group ``diagnose.refit``).
 
-    Attributes:
-        enabled: refit when an effect is found.
-        init: ``"fitted"`` (fine-tune the fitted Lagrangian with the term) or ``"scratch"``.
-        epochs: Stage-2 epochs of the fine-tune (``init="fitted"``); ``None`` keeps
-            the Stage-2 setting (always the case for ``"scratch"``).
-        lr: learning rate of the fine-tune (``None``: the Stage-2 one).
-        control: also fine-tune without the term (same settings and seed).
-        seed: RNG seed of the refit.
-        floor_scale: energy-gauge factor ``g`` applied to the fitted model before the
-            fine-tune (``s_M, s_V += log g``, term coefficients ``x g``), so that the fixed
-            dissipation floor ``c0`` weighs ``g`` times less (paper App. C fixes it at a
-            damping ratio ``stage2.zeta_floor`` of the training frequency, which can exceed
-            the true damping once a dry friction or drag carries the decay). The damping
-            the floor gives up moves into the learned dissipation (:func:`_gauged`), so the
-            fine-tune starts from the fitted dynamics. ``1``: no change. Applied to the
-            control too.
-        choose: when several candidates with a Stage-2 remedy pass the significance
-            rule, confirm the Delta-BIC winner by its refit's *training*-rollout error
-            and fall back to the best rival whose refit beats the identified model
-            (:func:`~lagsplat.diagnose.refit_choice.choose_by_refit`, the model selection of paper §3.3);
-            ``False``: the Delta-BIC order decides alone.
-    """
-
-    enabled: bool = True
-    init: Literal["fitted", "scratch"] = "fitted"
-    epochs: int | None = 100
-    lr: float | None = None
-    control: bool = True
-    seed: int = 0
-    floor_scale: float = 4.0
-    choose: bool = True
-
-    @classmethod
-    def from_mapping(cls, m: Mapping[str, Any] | None) -> RefitConfig:
-        """Build from a (Hydra) mapping; unknown keys raise ``KeyError``."""
-        from lagsplat.train.config import dataclass_from_mapping
-
-        return dataclass_from_mapping(cls, dict(m or {}), "diagnose.refit")
 
 @dataclass
 class RefitResult:

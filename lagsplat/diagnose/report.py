@@ -40,9 +40,9 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 
@@ -60,7 +60,6 @@ from lagsplat.diagnose.pixels import add_pixel_sizes
 from lagsplat.diagnose.markdown import GAP_LABELS, render_markdown
 from lagsplat.diagnose.refit import (
     GAP_METRICS,
-    RefitConfig,
     RefitResult,
     add_control,
     refit,
@@ -69,11 +68,12 @@ from lagsplat.diagnose.refit_choice import choose_by_refit
 from lagsplat.diagnose.refit_io import save_refit
 from lagsplat.diagnose.refit_terms import refit_spec
 from lagsplat.diagnose.report_checks import held_out_check, reliability, stopped_run_report
-from lagsplat.diagnose.where import WhereConfig, split_code
+from lagsplat.diagnose.where import split_code
 from lagsplat.diagnose.where_plots import plot_where
 from lagsplat.io.atomic import atomic_write, write_json
 from lagsplat.io.clip import HELD_OUT, ClipError
 from lagsplat.io.common import jsonable
+from lagsplat.diagnose.settings import DiagnoseConfig
 
 #: ``report.json``'s verdict when the chart fails its checks (:func:`reliability`): no finding is read off it.
 CANNOT_DIAGNOSE = "cannot_diagnose"
@@ -81,46 +81,6 @@ CANNOT_DIAGNOSE = "cannot_diagnose"
 __all__ = ["CANNOT_DIAGNOSE", "DiagnoseConfig", "diagnose_system", "diagnose_artifacts", "render_markdown", "write_report", "plot_gap", "reliability", "held_out_check"]
 
 
-@dataclass
-class DiagnoseConfig:
-    """Settings of the ``diagnose`` stage (``conf/config.yaml``, group ``diagnose``).
-
-    Attributes:
-        split: frames the diagnosis and the localisation read (``"train"``; the
-            held-out frames are kept for the gap).
-        sigma: residual smoothing, frames (``None``: automatic).
-        select: keyword arguments of :func:`lagsplat.diagnose.select_effect`
-            (``min_delta_bic``, ``min_r2``, ``min_cv_gain``, ``max_effects``, ...).
-        where: :class:`~lagsplat.diagnose.where.WhereConfig`.
-        refit: :class:`~lagsplat.diagnose.refit.RefitConfig`.
-    """
-
-    split: Literal["train", "held_out", "all"] = "train"
-    sigma: float | None = None
-    select: dict[str, Any] = field(default_factory=dict)
-    where: WhereConfig = field(default_factory=WhereConfig)
-    refit: RefitConfig = field(default_factory=RefitConfig)
-
-    @classmethod
-    def from_mapping(cls, m: Mapping[str, Any] | None) -> DiagnoseConfig:
-        """Build from a (Hydra) mapping.
-
-        Raises:
-            KeyError: on an unknown key (in any sub-group).
-        """
-        m = dict(m or {})
-        unknown = set(m) - {"split", "sigma", "select", "where", "refit"}
-        if unknown:
-            raise KeyError(f"unknown diagnose settings: {sorted(unknown)}")
-        return cls(
-            split=str(m.get("split", "train")), sigma=None if m.get("sigma") is None else float(m["sigma"]),
-            select=dict(m.get("select") or {}), where=WhereConfig.from_mapping(m.get("where")),
-            refit=RefitConfig.from_mapping(m.get("refit")),
-        )  # fmt: skip
-
-    def to_dict(self) -> dict[str, Any]:
-        """Plain record (saved in ``report.json``)."""
-        return {"split": self.split, "sigma": self.sigma, "select": dict(self.select), "where": asdict(self.where), "refit": asdict(self.refit)}
 
 
 @dataclass

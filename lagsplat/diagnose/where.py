@@ -46,7 +46,6 @@ frames by default), so the held-out frames stay untouched for the gap.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -55,6 +54,7 @@ import numpy as np
 from lagsplat import metrics
 from lagsplat.diagnose.filters import kernel_norm
 from lagsplat.io.clip import HELD_OUT, TRAIN
+from lagsplat.diagnose.settings import WhereConfig
 
 __all__ = [
     "WhereConfig",
@@ -73,49 +73,6 @@ __all__ = [
 REGIONS = ("near_rest", "turning_points", "high_speed", "other")
 
 
-@dataclass
-class WhereConfig:
-    """Settings of the localisation (``conf/config.yaml``, group ``diagnose.where``).
-
-    Attributes:
-        horizon_periods: length of each free rollout, natural periods.
-        start_every_periods: spacing of the rollout starts, natural periods.
-        sigma: Gaussian smoothing of the encoded trajectory before the initial
-            state is read, frames (as :class:`lagsplat.evaluate.EvalConfig`).
-        floor_factor: a frame is flagged when the rollout error (resp. the
-            residual) exceeds this many times its floor.
-        min_window_periods: flagged runs shorter than this are dropped, and runs
-            closer than this are merged (natural periods).
-        rest_radius: phase-portrait radius (units of ``S``) below which a sample is "near rest".
-        turning_ratio: ``|y| / radius`` below which a sample is at a turning point.
-        high_speed_quantile: quantile of ``|pdot|`` above which a sample is at high speed.
-        n_image_frames: rollout frames rendered for the image maps (0: no image analysis).
-        pixel_chunk: pixels per call of the compositing weights (memory bound).
-        top_gaussians: Gaussians listed in the report.
-        moving_fraction: a Gaussian *moves* when ``|J_i|_F`` (pixels per unit whitened
-            ``q``) is at least this fraction of the 99th percentile over the Gaussians
-            (trained decoders give background primitives small, non-zero ``J_i``).
-    """
-
-    horizon_periods: float = 1.0
-    start_every_periods: float = 0.25
-    sigma: float = 1.0
-    floor_factor: float = 2.0
-    min_window_periods: float = 0.25
-    rest_radius: float = 0.2
-    turning_ratio: float = 0.38
-    high_speed_quantile: float = 0.75
-    n_image_frames: int = 48
-    pixel_chunk: int = 2048
-    top_gaussians: int = 10
-    moving_fraction: float = 0.1
-
-    @classmethod
-    def from_mapping(cls, m: Mapping[str, Any] | None) -> WhereConfig:
-        """Build from a (Hydra) mapping; unknown keys raise ``KeyError``."""
-        from lagsplat.train.config import dataclass_from_mapping
-
-        return dataclass_from_mapping(cls, dict(m or {}), "diagnose.where")
 
 
 def split_code(split: str | int | None) -> int | None:

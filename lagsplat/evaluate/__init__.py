@@ -27,16 +27,32 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from lagsplat.chart import Chart
-from lagsplat.evaluate.krauss import KraussEvalConfig, evaluate_krauss
-from lagsplat.evaluate.paper import EvalConfig, evaluate
-from lagsplat.io.clip import Clip
-from lagsplat.models.autoencoder import AutoEncoder
-from lagsplat.timeseries import spectral_peak_frequency
+from typing import TYPE_CHECKING
+
+from lagsplat.evaluate.settings import EvalConfig, KraussEvalConfig
+
+if TYPE_CHECKING:
+    from lagsplat.chart import Chart
+    from lagsplat.io.clip import Clip
+    from lagsplat.models.autoencoder import AutoEncoder
 
 __all__ = ["EvalConfig", "evaluate", "KraussEvalConfig", "evaluate_krauss", "PROTOCOLS", "protocol_for", "run_protocol"]
 
-Protocol = Callable[[Clip, AutoEncoder, Chart, Any, Mapping[str, Any], Mapping[str, Any], str], dict]
+Protocol = Callable[["Clip", "AutoEncoder", "Chart", Any, Mapping[str, Any], Mapping[str, Any], str], dict]
+
+
+def __getattr__(name: str) -> Any:
+    """The protocols' drivers, imported on first use (the configuration schema imports the settings above at every
+    stage's start-up; the drivers pull in the image metrics)."""
+    if name == "evaluate":
+        from lagsplat.evaluate.paper import evaluate
+
+        return evaluate
+    if name == "evaluate_krauss":
+        from lagsplat.evaluate.krauss import evaluate_krauss
+
+        return evaluate_krauss
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def observed_truth_frequency(clip: Clip, truth_path: str | Path) -> float:
@@ -49,6 +65,8 @@ def observed_truth_frequency(clip: Clip, truth_path: str | Path) -> float:
         FileNotFoundError: naming the file if it does not exist.
         ValueError: naming the file if it has no ``q`` or too few rows for the clip.
     """
+    from lagsplat.timeseries import spectral_peak_frequency
+
     path = Path(truth_path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: simulator truth (system.truth) not found")
@@ -70,6 +88,8 @@ def paper_protocol(clip: Clip, ae: AutoEncoder, chart: Chart, model: Any, settin
     if truth_path and str(truth_path).endswith(".npz"):
         truth = {**clip.meta.get("truth", {}), "f_observed_hz": observed_truth_frequency(clip, truth_path)}
         clip = dataclasses.replace(clip, meta={**clip.meta, "truth": truth})
+    from lagsplat.evaluate.paper import evaluate
+
     return evaluate(clip, ae, chart, model, EvalConfig(**dict(settings or {})), source=source)
 
 
@@ -83,6 +103,8 @@ def krauss_protocol(clip: Clip, ae: AutoEncoder, chart: Chart, model: Any, setti
     if truth_path and not Path(truth_path).exists():
         raise FileNotFoundError(f"{truth_path}: simulator truth sidecar (system.truth) not found")
     truth = json.loads(Path(truth_path).read_text()) if truth_path else None
+    from lagsplat.evaluate.krauss import evaluate_krauss
+
     return evaluate_krauss(clip, ae, chart, model, KraussEvalConfig.from_mapping(settings or None), source=source, truth=truth)
 
 

@@ -29,7 +29,6 @@ there either: it skips the recording's first 8 s (the reference code).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -41,21 +40,11 @@ from lagsplat.models.lagrangian import Lagrangian
 from lagsplat.models.autoencoder import AutoEncoder
 from lagsplat.evaluate.common import decoded_image_errors, metric_entry
 from lagsplat.evaluate.rest import held_out_rest, rest_metrics
+from lagsplat.evaluate.settings import EvalConfig
 
 __all__ = ["EvalConfig", "evaluate", "frequency_windows", "modal_metrics"]
 
 
-@dataclass
-class EvalConfig:
-    """Evaluation settings (``conf/config.yaml``, group ``evaluate``)."""
-
-    n_windows: int = 50
-    seed: int = 0
-    n_periods: float = 2.0
-    sigma: float = 1.0
-    freq_window_periods: float = 8.0
-    min_amplitude: float = 0.05
-    render_batch: int = 64
 
 
 def evaluate(clip: Clip, ae: AutoEncoder, chart: Chart, model: Lagrangian, cfg: EvalConfig, source: str = "<clip>") -> dict:
