@@ -23,11 +23,9 @@ from __future__ import annotations
 import dataclasses
 import json
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import TYPE_CHECKING, Any, Callable, Mapping
 
 import numpy as np
-
-from typing import TYPE_CHECKING
 
 from lagsplat.evaluate.settings import EvalConfig, KraussEvalConfig
 
