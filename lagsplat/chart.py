@@ -157,11 +157,13 @@ def visibility_metric(model: AutoEncoder, chart_mean: np.ndarray, W_inv: np.ndar
     """Visibility metric ``G_bar = mean_q J(q)^T J(q)`` (paper Eq. 6).
 
     ``J = d vec(image) / d q`` at the training resolution, computed exactly by
-    forward-mode AD (one Jacobian-vector product per latent direction) through
-    the pure-torch tile rasteriser, which implements the same compositing rule
-    as the training backend (the tests check they agree pixel for pixel). The
-    image is in [0, 1]; ``G_bar`` is divided by the number of image values so it
-    does not grow with resolution.
+    forward-mode differentiation (one Jacobian-vector product per latent
+    direction): for the 2-D conditioned decoder by the compiled rasteriser's
+    forward-mode pass over all states at once (:func:`lagsplat.models.decoder_jvp.render_jvp`),
+    otherwise by forward-mode AD through the pure-torch tile rasteriser, which
+    implements the same compositing rule as the training backend (the tests
+    check the two agree). The image is in [0, 1]; ``G_bar`` is divided by the
+    number of image values so it does not grow with resolution.
 
     Args:
         model: trained autoencoder.
@@ -183,6 +185,17 @@ def visibility_metric(model: AutoEncoder, chart_mean: np.ndarray, W_inv: np.ndar
     G = np.zeros((d, d))
     svals = []
     eye = torch.eye(d)
+    from lagsplat.models.decoder_jvp import render_jvp, supports_render_jvp
+
+    if supports_render_jvp(dec):
+        Q = torch.as_tensor(q, dtype=torch.float32)
+        for s in range(0, len(Q), 64):
+            qb = Q[s : s + 64]
+            cols = [render_jvp(dec, qb @ winv_t + mean_t, eye[j].expand_as(qb) @ winv_t, H, W)[1].reshape(len(qb), -1) for j in range(d)]
+            J = torch.stack(cols, 2).double()  # [B, n_pix, d]
+            G += (J.transpose(1, 2) @ J).sum(0).numpy() / J.shape[1]
+            svals.extend(torch.linalg.svdvals(J).numpy() / np.sqrt(J.shape[1]))
+        return G / len(q), np.array(svals)
     with torch.no_grad():
         for qi in torch.as_tensor(q, dtype=torch.float32):
             cols = [torch.func.jvp(render, (qi[None],), (eye[j][None],))[1][0] for j in range(d)]

@@ -14,7 +14,7 @@ from torch.profiler import record_function
 
 from lagsplat.render.rule import EPS2D, pixel_bounds, prepare_gaussians
 
-__all__ = ["rasterize_cpu", "run_parallel", "numba_available"]
+__all__ = ["rasterize_cpu", "rasterize_cpu_jvp", "run_parallel", "numba_available"]
 
 
 def _cpu_render(means, conic, opac, colors, r2, bounds, background, height, width) -> Tensor:
@@ -142,6 +142,45 @@ def rasterize_cpu(
     return _CpuRasterize.apply(
         means.float(), conic.float(), opacities.float(), colors.float(), r2, bounds, background, height, width
     )
+
+
+@torch.no_grad()
+def rasterize_cpu_jvp(
+    means: Tensor, covs: Tensor, opacities: Tensor, colors: Tensor, d_means: Tensor, d_opacities: Tensor, height: int, width: int,
+    background: Tensor | None = None, eps2d: float = EPS2D,
+) -> tuple[Tensor, Tensor]:
+    """The image of :func:`rasterize_cpu` and its directional derivative along tangents of the means and opacities.
+
+    The compiled forward-mode pass of :mod:`lagsplat.render.cpu_jvp` (covariances and colours held fixed).
+
+    Args:
+        means, covs, opacities, colors, height, width, background, eps2d: as :func:`rasterize_cpu`.
+        d_means: ``[B,K,2]`` tangent of the means, px.
+        d_opacities: ``[B,K]`` tangent of the opacities.
+
+    Returns:
+        ``(image [B,C,H,W], tangent [B,C,H,W])``, float32.
+
+    Raises:
+        ValueError: as :func:`rasterize_cpu`, or tangents of another shape.
+    """
+    from lagsplat.render.cpu_jvp import jvp_kernel
+
+    if means.device.type != "cpu":
+        raise ValueError("rasterize_cpu_jvp needs CPU tensors")
+    if d_means.shape != means.shape or d_opacities.shape != opacities.shape:
+        raise ValueError(f"tangents {tuple(d_means.shape)}, {tuple(d_opacities.shape)} must match means {tuple(means.shape)} and opacities {tuple(opacities.shape)}")
+    B, K, conic, colors, r2, sxx, syy = prepare_gaussians(means, covs, opacities, colors, eps2d)
+    bounds = pixel_bounds(means, r2, sxx, syy, height, width)
+    k = _prepare_kernel(means, conic, opacities, colors, r2, bounds, background, height, width)
+    C = colors.shape[2]
+    out, out_t = np.empty((B, C, height, width), np.float32), np.empty((B, C, height, width), np.float32)
+    dm = np.ascontiguousarray(d_means.detach().reshape(B * K, 2).numpy(), dtype=np.float32)
+    do = np.ascontiguousarray(d_opacities.detach().reshape(B * K).numpy(), dtype=np.float32)
+    x0, x1, y0, y1 = k["bounds"]
+    m, cn, op, rr, col, bg = k["arrays"]
+    run_parallel(jvp_kernel, k["pairs"], k["key_start"], m, cn, op, rr, col, bg, dm, do, x0, x1, y0, y1, height, width, k["ntx"], k["n_tiles"], out, out_t)
+    return torch.from_numpy(out), torch.from_numpy(out_t)
 
 
 def run_parallel(kernel, *args) -> None:
