@@ -182,26 +182,27 @@ def visibility_metric(model: AutoEncoder, chart_mean: np.ndarray, W_inv: np.ndar
     def render(qb: Tensor) -> Tensor:
         return dec(qb @ winv_t + mean_t, H, W, backend="torch").reshape(qb.shape[0], -1)
 
-    G = np.zeros((d, d))
-    svals = []
-    eye = torch.eye(d)
     from lagsplat.models.decoder_jvp import render_jvp, supports_render_jvp
 
-    if supports_render_jvp(dec):
-        Q = torch.as_tensor(q, dtype=torch.float32)
-        for s in range(0, len(Q), 64):
-            qb = Q[s : s + 64]
+    eye = torch.eye(d)
+    compiled = supports_render_jvp(dec)
+
+    def jacobian(qb: Tensor) -> Tensor:
+        """``[B, n_pix, d]`` Jacobians at the states ``qb [B,d]``: all at once by the compiled pass, else one by one."""
+        if compiled:
             cols = [render_jvp(dec, qb @ winv_t + mean_t, eye[j].expand_as(qb) @ winv_t, H, W)[1].reshape(len(qb), -1) for j in range(d)]
-            J = torch.stack(cols, 2).double()  # [B, n_pix, d]
-            G += (J.transpose(1, 2) @ J).sum(0).numpy() / J.shape[1]
-            svals.extend(torch.linalg.svdvals(J).numpy() / np.sqrt(J.shape[1]))
-        return G / len(q), np.array(svals)
+        else:
+            cols = [torch.func.jvp(render, (qb,), (eye[j].expand_as(qb),))[1] for j in range(d)]
+        return torch.stack(cols, 2).double()
+
+    G = np.zeros((d, d))
+    svals = []
+    Q = torch.as_tensor(q, dtype=torch.float32)
     with torch.no_grad():
-        for qi in torch.as_tensor(q, dtype=torch.float32):
-            cols = [torch.func.jvp(render, (qi[None],), (eye[j][None],))[1][0] for j in range(d)]
-            J = torch.stack(cols, 1).double()  # [n_pix, d]
-            G += (J.T @ J).numpy() / J.shape[0]
-            svals.append(torch.linalg.svdvals(J).numpy() / np.sqrt(J.shape[0]))
+        for s in range(0, len(Q), 64 if compiled else 1):
+            for J in jacobian(Q[s : s + (64 if compiled else 1)]):  # [n_pix, d] per state
+                G += (J.T @ J).numpy() / J.shape[0]
+                svals.append(torch.linalg.svdvals(J).numpy() / np.sqrt(J.shape[0]))
     return G / len(q), np.array(svals)
 
 

@@ -123,10 +123,10 @@ def stage_chart(cfg: DictConfig, a: "Artifacts | None" = None) -> None:
     from lagsplat.chart_gate import chart_from_record, chart_key, gate_summary, gated_chart
 
     a = a or artifacts_of(cfg)
-    model, clip = a.load_stage1(), a.load_clip()
+    clip = a.load_clip()
     kw = {"n_metric_samples": int(cfg.chart.n_metric_samples), "rho": float(cfg.chart.rho), "seed": int(cfg.seed), "refine_iters": int(cfg.chart.refine_iters)}
     kept = chart_from_record(a.load_stage1_history().get("gated_chart"), chart_key(clip, **kw))  # Stage 1 built it to gate its attempt
-    chart, gate = kept if kept is not None else gated_chart(model, clip, **kw)
+    chart, gate = kept if kept is not None else gated_chart(a.load_stage1(), clip, **kw)
     chart.meta["gate"] = gate
     if "refine_choice" in chart.meta:
         print(f"[lagsplat] {cfg.system.name}: chart {chart.meta['refine_choice']['reason']}", flush=True)

@@ -12,15 +12,10 @@
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from lagsplat.lazy import lazy_exports
 
 __all__ = ["LatentNeuralODE", "ode_rollout", "train_neural_ode"]
 
-
-def __getattr__(name: str) -> Any:
-    """The neural ODE's names, imported on first use: the configuration schema imports the baselines' settings from
-    their modules, and every stage pays for what this package imports (the ODE solvers' SciPy)."""
-    if name in __all__:
-        return getattr(importlib.import_module("lagsplat.baselines.neural_ode"), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+# imported on first use: the configuration schema imports the baselines' settings from their modules, and every
+# stage would otherwise pay for the ODE solvers' SciPy
+__getattr__, __dir__ = lazy_exports(__name__, dict.fromkeys(__all__, "neural_ode"))

@@ -19,28 +19,27 @@ Pipeline (each step usable alone):
 
 from __future__ import annotations
 
-import importlib
 from typing import TYPE_CHECKING, Any
+
+from lagsplat.lazy import lazy_exports
 
 if TYPE_CHECKING:
     from lagsplat.diagnose.diagnosis import Diagnosis
     from lagsplat.diagnose.residual_data import Residual
 
 #: Where each public name lives; imported on first use (the configuration schema imports the diagnosis settings
-#: from their modules, and every stage would otherwise pay for the effects' SciPy).
+#: from their modules, and every stage would otherwise pay for the effects' SciPy). ``signatures`` is not among them:
+#: it is also a submodule's name, which the import system binds on the package once the submodule is loaded.
 _WHERE = {
     "CandidateFit": "diagnosis", "Diagnosis": "diagnosis", "Effect": "effect_base", "EffectTerm": "effect_terms",
     "term_from_spec": "effect_terms", "EFFECTS": "effects", "effect_names": "effects", "get_effect": "effects",
     "LinearOscillator": "oscillator", "fit_linear_oscillator": "oscillator", "residual_force": "residual",
-    "residual_from_chart": "residual", "Residual": "residual_data", "select_effect": "select", "signatures": "signatures",
+    "residual_from_chart": "residual", "Residual": "residual_data", "select_effect": "select",
     "AugmentedLagrangian": "terms", "build_term": "terms", "delay_actuation": "terms", "with_time_channel": "terms",
 }  # fmt: skip
 
 
-def __getattr__(name: str) -> Any:
-    if name in _WHERE:
-        return getattr(importlib.import_module(f"lagsplat.diagnose.{_WHERE[name]}"), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__, __dir__ = lazy_exports(__name__, _WHERE)
 
 
 __all__ = [
@@ -56,7 +55,6 @@ __all__ = [
     "CandidateFit",
     "Diagnosis",
     "select_effect",
-    "signatures",
     "diagnose_chart",
     "EffectTerm",
     "AugmentedLagrangian",

@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING, Any, Callable, Mapping
 import numpy as np
 
 from lagsplat.evaluate.settings import EvalConfig, KraussEvalConfig
+from lagsplat.lazy import lazy_exports
 
 if TYPE_CHECKING:
     from lagsplat.chart import Chart
@@ -39,18 +40,9 @@ __all__ = ["EvalConfig", "evaluate", "KraussEvalConfig", "evaluate_krauss", "PRO
 Protocol = Callable[["Clip", "AutoEncoder", "Chart", Any, Mapping[str, Any], Mapping[str, Any], str], dict]
 
 
-def __getattr__(name: str) -> Any:
-    """The protocols' drivers, imported on first use (the configuration schema imports the settings above at every
-    stage's start-up; the drivers pull in the image metrics)."""
-    if name == "evaluate":
-        from lagsplat.evaluate.paper import evaluate
-
-        return evaluate
-    if name == "evaluate_krauss":
-        from lagsplat.evaluate.krauss import evaluate_krauss
-
-        return evaluate_krauss
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+# the protocols' drivers, imported on first use (the configuration schema imports the settings above at every
+# stage's start-up; the drivers pull in the image metrics)
+__getattr__, __dir__ = lazy_exports(__name__, {"evaluate": "paper", "evaluate_krauss": "krauss"})
 
 
 def observed_truth_frequency(clip: Clip, truth_path: str | Path) -> float:

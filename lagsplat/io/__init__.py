@@ -15,8 +15,7 @@ load OpenCV or mcap, and ``python -m lagsplat.io.download`` runs cleanly.
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from lagsplat.lazy import lazy_exports
 
 _EXPORTS = {
     "atomic_write": "atomic",
@@ -46,14 +45,4 @@ _EXPORTS = {
 __all__ = sorted(_EXPORTS)
 
 
-def __getattr__(name: str) -> Any:
-    mod = _EXPORTS.get(name)
-    if mod is None:
-        raise AttributeError(f"module 'lagsplat.io' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f"lagsplat.io.{mod}"), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_EXPORTS))
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -42,21 +42,21 @@ def render_jvp(dec: ConditionedGaussians, z: Tensor, dz: Tensor, height: int, wi
         raise ValueError(f"render_jvp renders the 2-D conditioned decoder, got {type(dec).__name__}")
     if z.shape != dz.shape:
         raise ValueError(f"z {tuple(z.shape)} and dz {tuple(dz.shape)} must have one shape")
-    with fwAD.dual_level():
-        means_d, gate_d, g = dec.condition(fwAD.make_dual(z.float(), dz.float()))
-        means, d_means = fwAD.unpack_dual(means_d)
-        gate, d_gate = fwAD.unpack_dual(gate_d)
-    d_means = torch.zeros_like(means) if d_means is None else d_means
-    d_gate = torch.zeros_like(gate) if d_gate is None else d_gate
+    g = dec.geometry()
     colors, bg = g.colors, dec.background
     backdrop = dec.backdrop_image(height, width)
     if backdrop is not None:  # the coverage channel, everything over zero (as render)
         colors = torch.cat([colors, colors.new_ones(*colors.shape[:-1], 1)], -1)
         bg = bg.new_zeros(4)
-    uv, covs, opacities, colors = dec.screen(means, gate, g, colors, height, width)
-    scale = means.new_tensor([float(width), float(height)])
-    img, tan = rasterize_cpu_jvp(uv.float(), covs.float(), opacities.float(), colors.float(), (d_means * scale).float(),
-                                 (g.alpha[None] * d_gate).float(), height, width, background=bg)  # fmt: skip
+    with fwAD.dual_level():  # the decoder's own conditioning and screen mapping, with the state's tangent
+        means, gate, _ = dec.condition(fwAD.make_dual(z.float(), dz.float()), g)
+        uv_d, covs, opacities_d, colors = dec.screen(means, gate, g, colors, height, width)
+        uv, d_uv = fwAD.unpack_dual(uv_d)
+        opacities, d_opacities = fwAD.unpack_dual(opacities_d)
+    d_uv = torch.zeros_like(uv) if d_uv is None else d_uv
+    d_opacities = torch.zeros_like(opacities) if d_opacities is None else d_opacities
+    img, tan = rasterize_cpu_jvp(uv.float(), covs.float(), opacities.float(), colors.float(), d_uv.float(), d_opacities.float(),
+                                 height, width, background=bg)  # fmt: skip
     rgb, d_rgb = img[:, :3], tan[:, :3]
     if backdrop is not None:
         rgb = rgb + (1.0 - img[:, 3:4]) * backdrop.to(rgb)[None]
