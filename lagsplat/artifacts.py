@@ -11,6 +11,7 @@ two-stage pipeline; ``docs/architecture.md``)::
     metrics.json    evaluate  the protocol's metrics                         (lagsplat.evaluate)
     figures/rollout.png, figures/forces.png, forces.json, diagnosis/...
     figures/deformation.png   deformation   the two decoders' velocity fields (paper App. B)
+    export/         export    the model for use outside lagsplat: dynamics.py, weights, TorchScript, CSV, .ply (lagsplat.export)
     variants/<name>/          a variant: stage2 onwards on the same chart, or (decoder_variant) its own stage1 and chart
     config/<stage>.yaml       the resolved configuration of each stage
 
@@ -84,6 +85,8 @@ class Artifacts:
         novel_views_video, novel_views_figure: a 3-D model's novel views, orbit video and contact sheet (model folder).
         robot_rollout_figure, robot_forces_figure, robot_forces: the soft robot's figures and the force
             figure's record (paper §4.4-4.5; model folder).
+        export: the export folder (``dynamics.py``, ``weights.npz``, TorchScript terms, ``model.json``, CSV
+            tables, ``.ply`` splats; :mod:`lagsplat.export`; model folder).
         system_dir, model_dir: the two folders.
     """
 
@@ -108,6 +111,7 @@ class Artifacts:
     robot_rollout_figure: Path
     robot_forces_figure: Path
     robot_forces: Path
+    export: Path
 
     @classmethod
     def at(cls, system_dir: str | Path, model_dir: str | Path | None = None) -> "Artifacts":
@@ -136,6 +140,7 @@ class Artifacts:
             robot_rollout_figure=m / "figures" / "robot_rollout.png",
             robot_forces_figure=m / "figures" / "robot_forces.png",
             robot_forces=m / "robot_forces.json",
+            export=m / "export",
         )
 
     @classmethod

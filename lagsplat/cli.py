@@ -6,7 +6,7 @@ One stage per Snakemake rule (:mod:`lagsplat.stages`, :mod:`lagsplat.stages_repo
 resolved configuration saved beside it (``config/<stage>.yaml``).
 
 Stages: ``download``, ``ingest``, ``stage1``, ``chart``, ``stage2``,
-``evaluate``, ``figures``, ``forces``, ``diagnose``, ``extrapolation``, ``extrapolation_table``, ``deformation``, ``table``, ``ablation``, ``krauss_table``,
+``evaluate``, ``figures``, ``forces``, ``export``, ``diagnose``, ``extrapolation``, ``extrapolation_table``, ``deformation``, ``table``, ``ablation``, ``krauss_table``,
 ``seed_table``, ``all`` (ingest ->
 figures in one process), and ``view`` (the interactive viewer, which writes
 nothing).
@@ -27,7 +27,7 @@ from lagsplat.cli_common import apply_variant, clear_stop, compose, find_conf_di
 from lagsplat.stages import stage_chart, stage_download, stage_evaluate, stage_figures, stage_ingest, stage_stage1, stage_stage2, stage_views
 from lagsplat.stages_baselines import stage_extrapolation, stage_extrapolation_table
 from lagsplat.stages_deformation import stage_deformation
-from lagsplat.stages_report import stage_ablation, stage_diagnose, stage_forces, stage_krauss_table, stage_robot_figures, stage_render, stage_seed_table, stage_table, stage_view
+from lagsplat.stages_report import stage_ablation, stage_diagnose, stage_export, stage_forces, stage_krauss_table, stage_robot_figures, stage_render, stage_seed_table, stage_table, stage_view
 
 __all__ = ["main", "STAGES", "stage_all", "stage_help", "run_logged"]
 
@@ -44,6 +44,9 @@ stages:
              the published soft-robot protocol, lagsplat.evaluate.krauss)
   figures    -> figures/rollout.png
   forces     -> forces.json, figures/forces.png (force-transport checks: background, linearity, kernel)
+  export     -> export/: the identified model for use outside lagsplat (docs/export.md): dynamics.py (NumPy,
+             rhs for scipy's solve_ivp) + weights.npz, TorchScript M/V/C(/b).pt, model.json, trajectory.csv,
+             rollout.csv, splat_q_<k>.ply (the decoder at chosen states, standard 3DGS layout)
   diagnose   -> diagnosis/report.md, report.json, figures/ (sim-to-real gap: which unmodelled effect,
              where it shows, held-out gap before / after a Stage-2 refit with it; lagsplat.diagnose)
   table      metrics.json of table.systems -> results/tables/<table.name>.tex/.csv
@@ -101,6 +104,7 @@ STAGES: dict[str, Callable[[DictConfig], None]] = {
     "evaluate": stage_evaluate,
     "figures": stage_figures,
     "forces": stage_forces,
+    "export": stage_export,
     "diagnose": stage_diagnose,
     "table": stage_table,
     "ablation": stage_ablation,

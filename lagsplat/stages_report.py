@@ -9,9 +9,9 @@ from __future__ import annotations
 
 from omegaconf import DictConfig, OmegaConf
 
-from lagsplat.cli_common import artifacts_of, plain
+from lagsplat.cli_common import artifacts_of, plain, save_stage_config
 
-__all__ = ["stage_forces", "stage_diagnose", "stage_table", "stage_ablation", "stage_seed_table", "stage_krauss_table", "stage_render", "stage_view"]
+__all__ = ["stage_forces", "stage_export", "stage_diagnose", "stage_table", "stage_ablation", "stage_seed_table", "stage_krauss_table", "stage_render", "stage_view"]
 
 
 def stage_forces(cfg: DictConfig) -> None:
@@ -70,6 +70,26 @@ def stage_forces(cfg: DictConfig) -> None:
             f"{cfg.system.name} ({name} brush): background {gap} ({verdict}, need {b['required_ratio']:g}x); "
             f"J^T f additivity {lin['f_lat_rel_err']:.1e}; kernel {ker['rel']:.1e}"
         )
+
+
+def stage_export(cfg: DictConfig) -> None:
+    """The identified model for use outside lagsplat -> ``export/`` (docs/export.md): ``dynamics.py`` (NumPy,
+    ``rhs(t, [q, qdot], u=None)`` for ``scipy.integrate.solve_ivp``) with ``weights.npz``, TorchScript ``M.pt``,
+    ``V.pt``, ``C.pt`` (``b.pt`` with inputs), ``model.json``, ``trajectory.csv``, ``rollout.csv`` and the decoder
+    at the chart's mean, min and max per coordinate as 3DGS ``splat_q_<k>.ply`` files.
+
+    Reads ``clip.npz``, ``stage1.pt``, ``chart.npz``, ``stage2.pt`` and, if present, ``metrics.json`` (of the
+    variant when ``variant`` is set). A model outside the compiled rollout path (``stage2.mass=decoder``) or a
+    decoder without conditioned Gaussians (the deformation decoder) stops with the reason, writing nothing.
+    """
+    from lagsplat.export import export_run
+
+    a = artifacts_of(cfg)
+    source = (cfg.system.get("source") or {}).get("path") if cfg.get("system") else None
+    written = export_run(a, provenance={"system": str(cfg.system.name), "variant": cfg.get("variant"), "source_path": source})
+    sizes = sum(p.stat().st_size for p in written.values())
+    print(f"[lagsplat] {cfg.system.name}: exported {len(written)} files ({sizes / 1e6:.2f} MB) to {a.export}", flush=True)
+    save_stage_config(cfg, "export", a)
 
 
 def stage_diagnose(cfg: DictConfig) -> None:

@@ -25,7 +25,7 @@ LAYERS: list[tuple[str, list[str]]] = [
     ("chart", ["lagsplat.chart", "lagsplat.chart_refine", "lagsplat.chart_gate"]),
     ("train", ["lagsplat.train"]),
     ("artifacts", ["lagsplat.artifacts"]),
-    ("evaluate and forces", ["lagsplat.evaluate", "lagsplat.force", "lagsplat.force3d", "lagsplat.force_checks"]),
+    ("evaluate, forces, export", ["lagsplat.evaluate", "lagsplat.force", "lagsplat.force3d", "lagsplat.force_checks", "lagsplat.export"]),
     ("diagnose, baselines, viewer, figures", ["lagsplat.diagnose", "lagsplat.baselines", "lagsplat.viewer", "lagsplat.viz"]),
     ("report", ["lagsplat.report"]),
     ("cli", ["lagsplat.cli", "lagsplat.__main__", "lagsplat.config_schema", "lagsplat.config_check", "lagsplat.cli_common", "lagsplat.stages", "lagsplat.stages_report", "lagsplat.stages_baselines", "lagsplat.stages_deformation"]),
