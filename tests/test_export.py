@@ -25,7 +25,7 @@ from lagsplat.chart import Chart, save_chart
 from lagsplat.cli import main
 from lagsplat.dynamics.fast import cached_export, fast_acceleration
 from lagsplat.export import export_run
-from lagsplat.export.splats import PLY_FIELDS, THIN_PX, covariance_to_scale_rotation, read_ply_vertices, splats_at, write_splat_ply
+from lagsplat.export.splats import DEPTH_STEP_PX, N_SH_REST, PLY_FIELDS, THIN_PX, covariance_to_scale_rotation, read_ply_vertices, splats_at, write_splat_ply
 from lagsplat.export.standalone_dynamics import Model
 from lagsplat.export.tables import chart_velocity
 from lagsplat.io.clip import HELD_OUT, TRAIN, Clip, save_clip
@@ -210,7 +210,10 @@ def test_ply_files_hold_the_decoder_at_the_chart_states(random_export):
         cov_px = ae.decoder.pixel_geometry(ae.height, ae.width)[1].double().numpy()
     scale = np.array([ae.width, ae.height])
     assert np.allclose(np.stack([v["x"], v["y"]], 1), means[0].numpy() * scale, atol=1e-4)
-    assert np.allclose(v["z"], 0.0) and np.allclose(np.stack([v["nx"], v["ny"], v["nz"]], 1), 0.0)
+    # the decoder composites front to back in index order; a viewer sorts by depth, seen from z < 0 along +z
+    assert np.array_equal(np.argsort(v["z"], kind="stable"), np.arange(len(v))) and np.all(np.diff(v["z"].astype(float)) > 0)
+    assert np.allclose(v["z"], DEPTH_STEP_PX * np.arange(len(v)), atol=1e-5)
+    assert np.allclose(np.stack([v["nx"], v["ny"], v["nz"]], 1), 0.0) and all(np.all(v[f"f_rest_{i}"] == 0) for i in range(N_SH_REST))
     assert np.allclose(1 / (1 + np.exp(-v["opacity"].astype(float))), np.clip((g.alpha * gate[0]).numpy(), 1e-6, 1 - 1e-6), atol=1e-5)
     rgb = 0.5 + 0.28209479177387814 * np.stack([v[f"f_dc_{i}"] for i in range(3)], 1)
     assert np.allclose(rgb, g.colors.numpy(), atol=1e-5)

@@ -3,16 +3,20 @@
 Slicing the conditioned decoder at a state ``q`` (``z = q W^-1 + mean``, the chart's de-whitening) gives
 ordinary Gaussians: centres ``mu_k(q)`` (Schur mean, Eq. 2), covariances (Schur complement, Eq. 3) and
 opacities ``alpha_k`` times the latent gate (Eq. 4). They are written in the vertex layout of the INRIA
-3-D Gaussian splatting code: ``x, y, z, nx, ny, nz, f_dc_0..2, opacity, scale_0..2, rot_0..3`` (float32,
-binary little-endian), with
+3-D Gaussian splatting code: ``x, y, z, nx, ny, nz, f_dc_0..2, f_rest_0..44, opacity, scale_0..2, rot_0..3``
+(float32, binary little-endian), with
 
-* colours as degree-0 spherical harmonics, ``f_dc = (rgb - 0.5) / SH_C0``;
+* colours as degree-0 spherical harmonics, ``f_dc = (rgb - 0.5) / SH_C0``, and the 45 higher-degree
+  coefficients of a degree-3 file zero (so loaders that expect degree 3, the INRIA default, read them);
 * opacity as a logit, scales as the log standard deviations along the principal axes, ``rot`` the unit
   quaternion ``(w, x, y, z)`` of the principal axes (``Sigma = R diag(exp(scale))^2 R^T``);
 * normals zero.
 
-The 2-D decoder is placed on the ``z = 0`` plane in pixels of the training resolution (``x`` right, ``y``
-down), with a thin standard deviation :data:`THIN_PX` across it; the 3-D decoder stays in its world units
+The 2-D decoder is placed in the image plane in pixels of the training resolution (``x`` right, ``y``
+down), with a thin standard deviation :data:`THIN_PX` across it. It composites its Gaussians front to back
+in index order (:mod:`lagsplat.render.rule`), which a viewer that sorts by depth cannot know on one plane:
+Gaussian ``k`` sits at ``z = k`` :data:`DEPTH_STEP_PX`, so seen from ``z < 0`` looking along ``+z`` (any
+standard viewer's depth sort) the order, and the picture, are the decoder's. The 3-D decoder stays in its world units
 (OpenCV axes, x right, y down, z forward). A 2-D decoder's static layer (``backdrop``) is not a Gaussian
 and is not in the files.
 """
@@ -28,13 +32,20 @@ from lagsplat.io.atomic import atomic_write
 from lagsplat.models.decoder import ConditionedGaussians
 from lagsplat.views_sharp import SH_C0
 
-__all__ = ["PLY_FIELDS", "THIN_PX", "SplatSet", "splat_states", "splats_at", "covariance_to_scale_rotation", "write_splat_ply", "read_ply_vertices"]
+__all__ = ["PLY_FIELDS", "N_SH_REST", "THIN_PX", "DEPTH_STEP_PX", "SplatSet", "splat_states", "splats_at", "covariance_to_scale_rotation", "write_splat_ply", "read_ply_vertices"]
 
-PLY_FIELDS = ("x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3")
+N_SH_REST = 45
+"""Higher-degree spherical-harmonic coefficients of a degree-3 INRIA file (``3 ((3 + 1)^2 - 1)``), written as zeros."""
+
+PLY_FIELDS = ("x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2", *(f"f_rest_{i}" for i in range(N_SH_REST)),
+              "opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3")  # fmt: skip
 """The INRIA 3-D Gaussian splatting vertex properties, in file order (all float32)."""
 
 THIN_PX = 0.01
 """Standard deviation across the image plane (pixels) of a 2-D decoder's Gaussians."""
+
+DEPTH_STEP_PX = 1e-3
+"""Depth between consecutive Gaussians of a 2-D decoder (pixels): the compositing order as a depth order."""
 
 SplatSet = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 """``(means [K,3], covariances [K,3,3], rgb [K,3] in [0, 1], opacity [K] in [0, 1])``."""
@@ -70,7 +81,8 @@ def splats_at(decoder: ConditionedGaussians, z: np.ndarray, height: int, width: 
         height, width: the training resolution, pixels (the 2-D decoder's units).
 
     Returns:
-        :data:`SplatSet`; 2-D: means in pixels on ``z = 0``, covariances in px^2 with :data:`THIN_PX` across.
+        :data:`SplatSet`; 2-D: means in pixels, Gaussian ``k`` at depth ``z = k DEPTH_STEP_PX`` (the decoder's
+        front-to-back order), covariances in px^2 with :data:`THIN_PX` across.
 
     Raises:
         ValueError: for a decoder that is not a conditioned-Gaussian one (e.g. the deformation decoder).
@@ -85,7 +97,7 @@ def splats_at(decoder: ConditionedGaussians, z: np.ndarray, height: int, width: 
     if decoder.n_space == 2:
         s = np.array([float(width), float(height)])
         K = len(means)
-        means = np.concatenate([means * s, np.zeros((K, 1))], 1)
+        means = np.concatenate([means * s, DEPTH_STEP_PX * np.arange(K, dtype=np.float64)[:, None]], 1)
         cov3 = np.zeros((K, 3, 3))
         cov3[:, :2, :2] = cov * s[None, :, None] * s[None, None, :]
         cov3[:, 2, 2] = THIN_PX**2
@@ -138,7 +150,7 @@ def write_splat_ply(path: str | Path, splats: SplatSet) -> Path:
     op = np.clip(np.asarray(opacity, np.float64), 1e-6, 1.0 - 1e-6)
     K = len(means)
     cols = np.concatenate([np.asarray(means, np.float64), np.zeros((K, 3)), (np.asarray(rgb, np.float64) - 0.5) / SH_C0,
-                           np.log(op / (1.0 - op))[:, None], np.log(std), quat], 1)  # fmt: skip
+                           np.zeros((K, N_SH_REST)), np.log(op / (1.0 - op))[:, None], np.log(std), quat], 1)  # fmt: skip
     vert = np.empty(K, dtype=[(f, "<f4") for f in PLY_FIELDS])
     for i, f in enumerate(PLY_FIELDS):
         vert[f] = cols[:, i]
