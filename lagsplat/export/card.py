@@ -38,7 +38,8 @@ HOW_TO_USE = (
     "(mass_matrix, potential, potential_grad, dissipation_matrix, input_map, energy) and rollout_verlet, the "
     "scheme rollout.csv was made with. In torch: torch.jit.load('M.pt') (V.pt, C.pt, b.pt), float64 q [B, d]. "
     "States are in the whitened chart: q = (z - chart.mean) @ chart.W, z the encoder's latent. "
-    "splat_q_<k>.ply are the decoder's Gaussians at the states listed under 'splats' (standard 3DGS layout). "
+    "splat_q_<k>.ply are the decoder's Gaussians at the states listed under 'splats' (standard 3DGS layout; "
+    "a 2-D decoder's image plane is seen as the camera saw it from z < 0 looking along +z, y down). "
     "trajectory.csv and rollout.csv: header row, comma-separated, t in seconds."
 )
 
