@@ -71,14 +71,15 @@ def _segments(res: Residual, p: np.ndarray) -> list[tuple[np.ndarray, np.ndarray
 def _envelope(res: Residual, segs: list[tuple[np.ndarray, ...]]) -> dict[str, Any]:
     """Fit linear, exponential and hyperbolic envelopes (shared rate, one intercept per segment) to the turning-point
     amplitudes of :func:`_segments`."""
-    T, TA, A, S = [], [], [], []
-    for k, (_, _, tk, ak) in enumerate(segs):
+    T, TA, A, S, SG = [], [], [], [], []
+    for k, (pk, tq, tk, ak) in enumerate(segs):
         keep = ak > MIN_AMPLITUDE_OVER_NOISE * float(np.max(res.noise_q))
         if keep.sum() >= 3:
             T.append(tk[keep] - tk[keep][0])
             TA.append(tk[keep])
             A.append(ak[keep])
             S.append(np.full(int(keep.sum()), k))
+            SG.append(np.sign(np.interp(tk[keep], tq, pk)))  # upper (+1) or lower (-1) turning point
     if not T:
         return {"n_turning_points": 0, "best": None}
     t, a, s = np.concatenate(T), np.concatenate(A), np.concatenate(S)
@@ -117,6 +118,31 @@ def _envelope(res: Residual, segs: list[tuple[np.ndarray, ...]]) -> dict[str, An
     else:
         out["best"] = None
     out["support"] = _envelope_support(out, len(a), len(segs))
+    out["level"] = _decay_level(t, a, np.concatenate(SG), D)
+    return out
+
+
+def _decay_level(t: np.ndarray, a: np.ndarray, side: np.ndarray, D: np.ndarray) -> dict[str, float]:
+    """The turning points' exponential decay rate with its standard error, for how well the recording fixes the damping.
+
+    ``log a`` (weights ``a^2``, amplitude errors) on one intercept per segment ``D [n, s]``, the time since the
+    segment's first turning point ``t [n]`` and the side ``side [n]`` (+1 upper, -1 lower turning point): a centre
+    a little off the segment's median makes the two sides' amplitudes differ by a constant, which a short clip's
+    rate would otherwise carry as noise. ``{"rate_per_s", "se", "z", "sse", "dof"}``: ``sse`` in amplitude units
+    and ``dof`` its degrees of freedom; ``z`` ``nan`` without one.
+    """
+    X = np.concatenate([D, side[:, None], t[:, None]], 1)
+    if np.linalg.matrix_rank(X) < X.shape[1]:  # one side only: the side is an intercept
+        X = np.concatenate([D, t[:, None]], 1)
+    dof = len(a) - X.shape[1]
+    sw = a
+    c = np.linalg.lstsq(X * sw[:, None], np.log(a) * sw, rcond=None)[0]
+    fit = X @ c
+    out = {"rate_per_s": float(-c[-1]), "sse": float(np.sum((a - np.exp(fit)) ** 2)), "dof": int(dof), "se": math.nan, "z": math.nan}
+    if dof >= 1:
+        s2 = float(np.sum((sw * (np.log(a) - fit)) ** 2)) / dof
+        out["se"] = float(math.sqrt(max(s2 * np.linalg.pinv((X * sw[:, None]).T @ (X * sw[:, None]))[-1, -1], 0.0)))
+        out["z"] = out["rate_per_s"] / max(out["se"], 1e-300)
     return out
 
 
@@ -230,8 +256,8 @@ def _frequency(res: Residual, segs: list[tuple[np.ndarray, ...]]) -> dict[str, A
             A2.append(amp * amp)
             TT.append(0.5 * (a + b))
             UP.append(1.0 if pk[i0] < 0 else -1.0)
-    if len(F) < MIN_TIMING_PERIODS:
-        return {"n_periods": len(F)}
+    if len(F) < MIN_TIMING_PERIODS:  # too few to regress, enough for the frequency itself
+        return {"n_periods": len(F), **({"f_mean_hz": float(np.mean(F))} if F else {})}
     F, A2, TT, UP = map(np.asarray, (F, A2, TT, UP))
     alt = UP - UP.mean()
     X = np.stack([np.ones_like(F), A2 - A2.mean(), TT - TT.mean(), alt], 1)
@@ -345,7 +371,8 @@ def signatures(res: Residual, model_freqs_hz: Sequence[float] | None = None, dir
       one rate shared by all segments; ``best`` and the SSE ratios; the chart noise
       (``noise``), the takes read (``n_segments``), their mean span and the turning points'
       sum of squared time deviations from each take's mean (``span_s``, ``sxx_s2``) and their
-      largest, smallest and mean amplitude, what a rate's precision is read from.
+      largest, smallest and mean amplitude, and the exponential rate with its standard error
+      (``level``, :func:`_decay_level`): what the damping's precision is read from.
     * ``frequency``: frequency of each period (between zero crossings in the same
       direction, so an offset cancels) regressed on ``amplitude^2``
       (Duffing shift: > 0 hardening, < 0 softening or a pendulum) and on time
