@@ -52,8 +52,10 @@ def _ev_text(v: float) -> str:
     return f"{v:.1f}" if math.isfinite(v) else "none (its coefficient takes the wrong sign)"
 
 
-def _more(x: float) -> int:
-    return max(1, math.ceil(x))
+def _more(x: float) -> str:
+    """``"about N more periods"``, ``N`` the estimate ``x`` rounded up, at least one."""
+    n = max(1, math.ceil(x))
+    return f"about {n} more period{'s' if n > 1 else ''}"
 
 
 def _frequency_hz(fr: Mapping[str, Any], gap: Mapping[str, Any]) -> float:
@@ -89,7 +91,7 @@ def _damping_level(env: Mapping[str, Any], f: float, takes: int) -> dict[str, An
     need = takes + 2  # an intercept per take, the rate, and one degree of freedom for the noise
     if not env.get("best") or n < need:
         return _record("damping level", False, f"{n} turning points above {MIN_AMPLITUDE_OVER_NOISE:g} chart-noise levels: too few to read a decay rate",
-                       f"about {_more((need - n) / 2)} more periods of the free decay")  # fmt: skip
+                       f"{_more((need - n) / 2)} of the free decay")  # fmt: skip
     level = env.get("level") or {}
     z, r = _num(level.get("z")), _num(level.get("rate_per_s"))
     zeta = f" (damping ratio about {100 * r / (2 * math.pi * f):.2g} %)" if f > 0 and r > 0 else ""
@@ -104,7 +106,7 @@ def _damping_level(env: Mapping[str, Any], f: float, takes: int) -> dict[str, An
     if not z > 0:
         return _record("damping level", False, why, "a longer recording in which the amplitude visibly falls (none is seen here)")
     more = _more((n * (STRONG_Z / z) ** (2 / 3) - n) / 2 / takes)
-    return _record("damping level", False, why, f"about {more} more periods{' per take' if takes > 1 else ''} (estimate: at a steady decay z "
+    return _record("damping level", False, why, f"{more}{' per take' if takes > 1 else ''} (estimate: at a steady decay z "
                    "grows as the number of turning points to the power 3/2)")  # fmt: skip
 
 
@@ -119,7 +121,8 @@ def _form_evidence(ev: Mapping[str, Any]) -> dict[str, tuple[float, str]]:
 
 
 def _form_settle(env: Mapping[str, Any], f: float, min_ev: float, has_law: bool) -> str:
-    """The recording a decay-form decision needs, by the envelope's curvature.
+    """The recording a decay-form decision needs, by the envelope's curvature (``r`` the ``level`` rate, ``sigma^2`` the
+    exponential fit's SSE per degree of freedom: the noise the forms' comparison itself reads against).
 
     Over a take of span ``T`` the exponential envelope ``a exp(-r t)`` and a linear or hyperbolic one of the same initial
     slope differ by ``a r^2 t^2 / 2``; its part no straight line absorbs has rms ``a r^2 T^2 / (2 sqrt(180))``, so ``m``
@@ -129,8 +132,6 @@ def _form_settle(env: Mapping[str, Any], f: float, min_ev: float, has_law: bool)
     """
     n, takes = int(env.get("n_turning_points") or 0), int(env.get("n_segments") or 1)
     r, sse = _num((env.get("level") or {}).get("rate_per_s")), _num((env.get("exponential") or {}).get("sse"))
-    if not r > 0:
-        r = _num((env.get("exponential") or {}).get("rate_per_s"))
     a, T, noise = _num(env.get("amplitude_mean")), _num(env.get("span_s")), _num(env.get("noise"))
     if not T > 0 and f > 0:
         T = (n / takes - 1) / (2 * f)
@@ -144,10 +145,10 @@ def _form_settle(env: Mapping[str, Any], f: float, min_ev: float, has_law: bool)
     more = _more((T_need - T) * f)
     a_end = _num(env.get("amplitude_min")) * math.exp(-r * (T_need - T))
     if noise > 0 and a_end < MIN_AMPLITUDE_OVER_NOISE * noise:
-        return (f"a take released at about {MIN_AMPLITUDE_OVER_NOISE * noise / a_end:.1f}x this amplitude and about {more} periods longer "
+        return (f"a take released at about {MIN_AMPLITUDE_OVER_NOISE * noise / a_end:.1f}x this amplitude and recorded for {more} "
                 "(at this one the swing reaches the chart noise before the forms separate)")  # fmt: skip
     sharper = "; the whole-trajectory fit, which reads every sample, may need fewer" if has_law else ""
-    return (f"about {more} more periods{' per take' if takes > 1 else ''} (estimate: the curvature that separates the forms grows as the "
+    return (f"{more}{' per take' if takes > 1 else ''} (estimate: the curvature that separates the forms grows as the "
             f"span squared, their evidence as its fifth power, expected {E:.1f} now){sharper}")  # fmt: skip
 
 
@@ -181,7 +182,7 @@ def _damping_form(ev: Mapping[str, Any], f: float, min_ev: float, takes: int) ->
     if not env.get("best") or n - takes < MIN_TURNING_POINTS:
         need = MIN_TURNING_POINTS + takes
         return [_record("damping form", False, f"{n} turning points above {MIN_AMPLITUDE_OVER_NOISE:g} chart-noise levels are too few to compare "
-                        f"decay forms (the envelope needs {need}{whole})", f"about {_more((need - n) / 2)} more periods to read the envelope at all, "
+                        f"decay forms (the envelope needs {need}{whole})", f"{_more((need - n) / 2)} to read the envelope at all, "
                         "and more to tell the forms apart")]  # fmt: skip
     why = f"{n} turning points leave the three decay forms within {min_ev:g} of each other (turning points: linear {lin:.1f}, hyperbolic {hyp:.1f} over exponential{whole})"
     return [_record("damping form", False, why, _form_settle(env, f, min_ev, bool(law)))]
@@ -201,7 +202,7 @@ def _amplitude_vs_time(fr: Mapping[str, Any], min_ev: float, takes: int) -> dict
     if "z_amp2" not in fr:
         more = _more((MIN_DRIFT_PERIODS - n) / 2)
         return _record(q, False, f"about {_periods(n):g} periods are too few to regress the frequency on amplitude and time",
-                       f"about {more} more periods" + (f", and {OTHER_AMPLITUDE} to tell the two apart" if takes == 1 else ""))  # fmt: skip
+                       f"{more}" + (f", and {OTHER_AMPLITUDE} to tell the two apart" if takes == 1 else ""))  # fmt: skip
     za, zt, corr, sup = (_num(fr.get(k)) for k in ("z_amp2", "z_time", "corr_amp2_time", "support_time"))
     shift = 100 * _num(fr.get("relative_shift_at_max_amplitude"))
     spring = "hardening" if za > 0 else "softening"
@@ -220,7 +221,7 @@ def _amplitude_vs_time(fr: Mapping[str, Any], min_ev: float, takes: int) -> dict
         why = f"{seen}: on this steady decay amplitude and time are one variable (corr(A^2, t) = {corr:.2f}; timing evidence for a drift {sup:.1f}, below {min_ev:g})"
         settle = f"{OTHER_AMPLITUDE}: a law of the amplitude changes the periods with the swing, a drift with the recording's clock"
         if n < MIN_DRIFT_PERIODS:
-            settle += f" (this take also needs about {_more((MIN_DRIFT_PERIODS - n) / 2)} more periods for the timing to be read)"
+            settle += f" (this take also needs {_more((MIN_DRIFT_PERIODS - n) / 2)} for the timing to be read)"
         return _record(q, False, why, settle)
     weak = [(z, w) for z, w in ((za, "amplitude"), (zt, "time")) if WEAK_Z <= abs(z) < STRONG_Z]
     apart = f"amplitude and time vary apart here (corr(A^2, t) = {corr:.2f}, {takes} take{'s' if takes > 1 else ''})"
@@ -228,14 +229,14 @@ def _amplitude_vs_time(fr: Mapping[str, Any], min_ev: float, takes: int) -> dict
         z, w = max(weak, key=lambda x: abs(x[0]))
         more = _more((n * (STRONG_Z / abs(z)) ** (2 / 3) - n) / 2)
         return _record(q, False, f"{apart}, but the slope against {w} is not conclusive (z = {z:.1f})",
-                       f"about {more} more periods (estimate: a trend's z grows as the number of periods to the power 3/2)")  # fmt: skip
+                       f"{more} (estimate: a trend's z grows as the number of periods to the power 3/2)")  # fmt: skip
     return _record(q, True, f"{apart}: the frequency against amplitude z = {za:.1f}, against time z = {zt:.1f}")
 
 
 def _rest(rest: Mapping[str, Any], env: Mapping[str, Any], f: float, min_ev: float) -> dict[str, Any] | None:
     """Determined where the motion rests and its offset from the oscillation's centre is either conclusive (``support >=
     min_delta_bic``) or nil (``support`` 0). Not at rest: the periods until the swing falls to half the rest band, at the
-    envelope's best-fitting form (linear: a constant fall per second; else exponential)."""
+    envelope's best-fitting form (linear: a constant fall per second; else the exponential ``level`` rate)."""
     if not rest:
         return None
     q = "rest position"
@@ -251,10 +252,10 @@ def _rest(rest: Mapping[str, Any], env: Mapping[str, Any], f: float, min_ev: flo
     settle = "a recording that lets the motion come to rest"
     a, noise = _num(env.get("amplitude_min")), _num(env.get("noise"))
     stop = 0.5 * REST_BAND_OVER_NOISE * noise
-    b, r = _num((env.get("linear") or {}).get("rate_per_s")), _num((env.get("exponential") or {}).get("rate_per_s"))
+    b, r = _num((env.get("linear") or {}).get("rate_per_s")), _num((env.get("level") or {}).get("rate_per_s"))
     t_more = (a - stop) / b if env.get("best") == "linear" and b > 0 else (math.log(a / stop) / r if r > 0 and a > stop > 0 else float("nan"))
     if t_more > 0 and f > 0:
-        settle += f" (about {_more(t_more * f)} more periods at the measured decay, until the swing falls to {0.5 * REST_BAND_OVER_NOISE:g} chart-noise levels)"
+        settle += f" ({_more(t_more * f)} at the measured decay, until the swing falls to {0.5 * REST_BAND_OVER_NOISE:g} chart-noise levels)"
     last = f" (the smallest turning point is {a / noise:.0f} chart-noise levels)" if a > 0 and noise > 0 else ""
     return _record(q, False, f"the motion does not come to rest in these frames{last}", settle)
 
