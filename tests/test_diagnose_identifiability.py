@@ -136,3 +136,18 @@ def test_no_section_where_the_report_carries_none() -> None:
         "frames": {"diagnosis_split": "train", "n_diagnosis_frames": 10, "n_held_out_frames": 0, "held_out_used_for": "nothing"},
     }  # fmt: skip
     assert "What this recording can and cannot tell" not in render_markdown(rep)
+
+
+def test_the_residual_force_shape_is_named_where_it_ranks_a_stiffness_law_far_from_a_drift() -> None:
+    """A realistic pendulum with a hardening spring (one take): the periods cannot tell it from a drift (z = 1.5 and -0.7,
+    corr -1.00), but the residual's fit puts the cubic stiffness 50 ahead; a stop its own check sets aside is not named."""
+    fr = {"n_periods": 14, "f_mean_hz": 0.966, "z_amp2": 1.54, "z_time": -0.67, "relative_shift_at_max_amplitude": 0.055,
+          "corr_amp2_time": -0.996, "support_time": 2.56}  # fmt: skip
+    ranking = [{"effect": "cubic_stiffness", "evidence": 52.9, "physical": True, "practical": True},
+               {"effect": "end_stop", "evidence": 32.5, "physical": True, "practical": False},
+               {"effect": "drift", "evidence": 2.8, "physical": True, "practical": False}]  # fmt: skip
+    dg = {"evidence": {"frequency": fr}, "settings": {"min_delta_bic": 10.0, "n_segments": 1}, "ranking": ranking}
+    rec = _records(dg)["frequency: amplitude vs time"]
+    assert not rec["determined"] and rec["why"].endswith("puts cubic_stiffness 50.1 ahead of a drift")
+    ranking[0]["practical"] = False  # only the stop's and the cubic's set-aside fits are left: the periods are all there is
+    assert "ahead of" not in _records(dg)["frequency: amplitude vs time"]["why"]

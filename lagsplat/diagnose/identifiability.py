@@ -188,7 +188,24 @@ def _damping_form(ev: Mapping[str, Any], f: float, min_ev: float, takes: int) ->
     return [_record("damping form", False, why, _form_settle(env, f, min_ev, bool(law)))]
 
 
-def _amplitude_vs_time(fr: Mapping[str, Any], min_ev: float, takes: int) -> dict[str, Any]:
+def _force_shape(ranking: list[Mapping[str, Any]], min_ev: float) -> str:
+    """Where the residual's own fit ranks a stiffness law of the state (one with a physical sign that its own check keeps)
+    and a drift ``min_delta_bic`` apart, that clause: the force's shape within each period (a cubic's or a stop's
+    harmonics) is evidence the periods' timing does not carry."""
+    ev = {r.get("effect"): _num(r.get("evidence", r.get("delta_bic"))) for r in ranking}
+    kept = {r.get("effect") for r in ranking if r.get("physical", True) and r.get("practical", True)}
+    laws = [(v, k) for k, v in ev.items() if k in ("cubic_stiffness", "end_stop") and k in kept and math.isfinite(v)]
+    drift = ev.get("drift", float("nan"))
+    if not laws or not math.isfinite(drift):
+        return ""
+    v, k = max(laws)
+    if abs(v - drift) < min_ev:
+        return ""
+    ahead, behind = (k, "a drift") if v > drift else ("drift", k)
+    return f"; the residual's force, which also sees the swing's shape within each period, puts {ahead} {abs(v - drift):.1f} ahead of {behind}"
+
+
+def _amplitude_vs_time(fr: Mapping[str, Any], min_ev: float, takes: int, ranking: list[Mapping[str, Any]] = ()) -> dict[str, Any]:
     """Whether the periods tell a frequency that depends on the amplitude from one that drifts in time.
 
     Not determined where the periods' squared amplitudes and times are one variable (``|corr| >= CONFOUNDED``: one
@@ -219,6 +236,7 @@ def _amplitude_vs_time(fr: Mapping[str, Any], min_ev: float, takes: int) -> dict
             seen = (f"neither slope is resolved (z = {za:.1f} against amplitude, {zt:.1f} against time), and a stiffness that depends on the "
                     "amplitude and one that drifts would read alike")  # fmt: skip
         why = f"{seen}: on this steady decay amplitude and time are one variable (corr(A^2, t) = {corr:.2f}; timing evidence for a drift {sup:.1f}, below {min_ev:g})"
+        why += _force_shape(ranking, min_ev)
         settle = f"{OTHER_AMPLITUDE}: a law of the amplitude changes the periods with the swing, a drift with the recording's clock"
         if n < MIN_DRIFT_PERIODS:
             settle += f" (this take also needs {_more((MIN_DRIFT_PERIODS - n) / 2)} for the timing to be read)"
@@ -313,6 +331,6 @@ def identifiability(dg: Mapping[str, Any], gap: Mapping[str, Any] | None = None)
     fr, env = ev.get("frequency") or {}, ev.get("envelope") or {}
     min_ev = float((dg.get("settings") or {}).get("min_delta_bic", 10.0))
     takes, f = int((dg.get("settings") or {}).get("n_segments") or 1), _frequency_hz(fr, gap or {})
-    out = [_natural_frequency(fr, gap or {}, f), _damping_level(env, f, takes), *_damping_form(ev, f, min_ev, takes), _amplitude_vs_time(fr, min_ev, takes)]
+    out = [_natural_frequency(fr, gap or {}, f), _damping_level(env, f, takes), *_damping_form(ev, f, min_ev, takes), _amplitude_vs_time(fr, min_ev, takes, list(dg.get("ranking") or []))]
     rest = _rest(ev.get("rest") or {}, env, f, min_ev)
     return out + ([rest] if rest else []) + _pairs(list(dg.get("ranking") or []), min_ev)
