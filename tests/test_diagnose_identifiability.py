@@ -104,7 +104,7 @@ def test_dry_friction_on_one_take_is_read_but_a_rising_damping_would_decay_alike
     pair = rec["damping form: dry friction vs a damping drifting in time"]
     assert not pair["determined"] and "a viscous damping that rises over the recording" in pair["why"]
     assert pair["settle_by"].startswith(OTHER_AMPLITUDE)
-    rest = rec["rest position"]
+    rest = rec["where the motion rests"]
     assert rest["determined"] and "off-centre, as dry friction sticks" in rest["why"]
 
 

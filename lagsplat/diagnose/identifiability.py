@@ -257,7 +257,7 @@ def _rest(rest: Mapping[str, Any], env: Mapping[str, Any], f: float, min_ev: flo
     envelope's best-fitting form (linear: a constant fall per second; else the exponential ``level`` rate)."""
     if not rest:
         return None
-    q = "rest position"
+    q = "where the motion rests"
     if rest.get("at_rest"):
         sup, z = _num(rest.get("support")), abs(_num(rest.get("offset_over_noise")))
         where = f"the motion stops at t = {_num(rest.get('rest_time_s')):.2f} s, {z:.1f} chart-noise levels from the centre of its oscillation"
@@ -320,7 +320,7 @@ def identifiability(dg: Mapping[str, Any], gap: Mapping[str, Any] | None = None)
     Returns:
         Records ``{"quantity", "determined", "why", "settle_by"}``, in this order: natural frequency, damping level,
         damping form (and, on one take where a decay law is found, that law against a damping drifting in time), the
-        frequency's dependence on amplitude against time, the rest position (where the rest was read) and each
+        frequency's dependence on amplitude against time, where the motion comes to rest (where the rest was read; the oscillation's centre is the model's) and each
         candidate the residual cannot tell from the best. ``why`` is one sentence with the numbers; ``settle_by`` the
         recording that would settle it, ``None`` where determined. Records with missing evidence read as not determined.
 
