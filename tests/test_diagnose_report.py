@@ -492,6 +492,8 @@ def test_report_writer_on_the_pushed_pendulum(tmp_path) -> None:
     md = (out / "report.md").read_text()
     assert md.startswith("# Sim-to-real gap diagnosis: pushed pendulum")
     assert "**Verdict:" in md and "## Where it shows" in md and "## Held-out gap" in md
+    assert on_disk["identifiability"][0]["quantity"] == "natural frequency"  # what the recording can and cannot tell, after the evidence
+    assert md.index("## Evidence") < md.index("## What this recording can and cannot tell") < md.index("## Where it shows")
     before = on_disk["gap"]["before"]
     assert before["eps_q"] > 0 and before["image_excess"] is not None and on_disk["gap"]["after"] is None
     if rep["verdict"] != "none":
@@ -515,6 +517,7 @@ def test_a_chart_that_fails_the_gate_gets_no_verdict_and_keeps_the_ranking_as_ev
     assert not on_disk["refit"]["done"] and on_disk["refit"]["reason"].startswith("cannot diagnose")
     md = (tmp_path / "diagnosis" / "report.md").read_text()
     assert "**Verdict: cannot diagnose: chart-quality gate coverage" in md and "not a finding" in md
+    assert on_disk["identifiability"] is None and "What this recording can and cannot tell" not in md  # no chart to read it off
 
 
 def test_reliability_reads_the_gate_when_the_chart_carries_one() -> None:

@@ -1,6 +1,7 @@
 """``report.md``: the diagnosis report rendered from its record (``report.json``), one function per section.
 
-Sections, in order: verdict, evidence (paper §3.3 selection), where the gap
+Sections, in order: verdict, evidence (paper §3.3 selection), what the
+recording can and cannot tell (where the report carries it), where the gap
 shows, the held-out gap, the refit (:mod:`lagsplat.diagnose.report` builds the
 record; :func:`render_markdown` joins the sections).
 """
@@ -178,6 +179,25 @@ def evidence_section(rep: Mapping[str, Any]) -> list[str]:
     return L
 
 
+def identifiability_section(rep: Mapping[str, Any]) -> list[str]:
+    """What the recording determines and what recording would settle the rest (``report.json``'s ``identifiability``,
+    :func:`~lagsplat.diagnose.identifiability.identifiability`); nothing where the report carries none (a chart that
+    supports no diagnosis, a stopped run, a record written before it)."""
+    recs = rep.get("identifiability")
+    if not recs:
+        return []
+    takes = ((rep.get("diagnosis") or {}).get("settings") or {}).get("n_segments")
+    what = f"{takes} take{'s' if takes != 1 else ''} of training frames" if isinstance(takes, int) else "the training frames"
+    L = ["", "## What this recording can and cannot tell", "",
+         f"Read off {what} (the evidence above; the lines on what tells the candidates apart give each signature):", ""]  # fmt: skip
+    for r in recs:
+        if r["determined"]:
+            L.append(f"- **{r['quantity']}**: determined. {r['why'][:1].upper() + r['why'][1:]}.")
+        else:
+            L.append(f"- **{r['quantity']}**: not determined. {r['why'][:1].upper() + r['why'][1:]}. Would settle it: {r['settle_by']}.")
+    return L
+
+
 def _where_time(tl: Mapping[str, Any], rep: Mapping[str, Any]) -> list[str]:
     """The time aspect: flagged shares, medians and the worst windows (:class:`~lagsplat.diagnose.where_time.TimeLocalisation`)."""
     L: list[str] = []
@@ -322,6 +342,6 @@ def refit_section(rep: Mapping[str, Any]) -> list[str]:
 def render_markdown(rep: Mapping[str, Any]) -> str:
     """``report.md`` from the report mapping (the content of ``report.json``)."""
     lines: list[str] = []
-    for section in (verdict_section, evidence_section, where_section, gap_section, refit_section):
+    for section in (verdict_section, evidence_section, identifiability_section, where_section, gap_section, refit_section):
         lines += section(rep)
     return "\n".join(lines)

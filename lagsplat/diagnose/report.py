@@ -9,7 +9,9 @@
   residual's ranking is kept in ``residual_ranking`` and the evidence), the evidence (:meth:`Diagnosis.to_dict
   <lagsplat.diagnose.diagnosis.Diagnosis.to_dict>`: every candidate's fit with
   coefficients and standard errors, ``Delta BIC``, ``R2``, CV gain, the
-  signatures), where the gap shows (:mod:`lagsplat.diagnose.where`), the
+  signatures), what the recording can and cannot tell (``identifiability``,
+  :func:`~lagsplat.diagnose.identifiability.identifiability`; ``None`` with
+  "cannot_diagnose"), where the gap shows (:mod:`lagsplat.diagnose.where`), the
   held-out gap before and after the refit (:mod:`lagsplat.diagnose.refit`), the
   refit terms and the energy check, the settings and which frames were used
   for what;
@@ -55,6 +57,7 @@ from lagsplat.diagnose.gap import (
     held_out_gap,
 )
 from lagsplat.diagnose.gap_plot import plot_gap
+from lagsplat.diagnose.identifiability import identifiability
 from lagsplat.diagnose.localise import localise
 from lagsplat.diagnose.pixels import add_pixel_sizes
 from lagsplat.diagnose.markdown import GAP_LABELS, render_markdown
@@ -228,6 +231,8 @@ def _report_record(
         "reliability": rel,
         "summary": diag.summary(),
         "diagnosis": diag.to_dict(),
+        # what the recording determines and what would settle the rest; none on a chart that supports no diagnosis
+        "identifiability": identifiability(diag.to_dict(), gap) if rel["reliable"] else None,
         "where": where.summary(),
         "gap": gap,
         "refit": refit_rec,

@@ -34,6 +34,12 @@ def directions(res: Residual, n_angles: int = 12) -> list[np.ndarray]:
 
 
 # ---------------------------------------------------------------------- evidence
+#: smallest amplitude, in chart-noise levels, at which a turning point enters the envelope or a period the timing
+MIN_AMPLITUDE_OVER_NOISE = 3.0
+
+#: peak-to-peak range, in chart-noise levels, within which the motion counts as at rest (:func:`_rest`)
+REST_BAND_OVER_NOISE = 6.0
+
 def _extrema(p: np.ndarray, t: np.ndarray, min_gap: int) -> tuple[np.ndarray, np.ndarray]:
     """Times and absolute values of the alternating extrema (turning points) of a centred oscillation."""
     from scipy.signal import find_peaks
@@ -65,17 +71,22 @@ def _segments(res: Residual, p: np.ndarray) -> list[tuple[np.ndarray, np.ndarray
 def _envelope(res: Residual, segs: list[tuple[np.ndarray, ...]]) -> dict[str, Any]:
     """Fit linear, exponential and hyperbolic envelopes (shared rate, one intercept per segment) to the turning-point
     amplitudes of :func:`_segments`."""
-    T, TA, A, S = [], [], [], []
-    for k, (_, _, tk, ak) in enumerate(segs):
-        keep = ak > 3 * float(np.max(res.noise_q))
+    T, TA, A, S, SG = [], [], [], [], []
+    for k, (pk, tq, tk, ak) in enumerate(segs):
+        keep = ak > MIN_AMPLITUDE_OVER_NOISE * float(np.max(res.noise_q))
         if keep.sum() >= 3:
             T.append(tk[keep] - tk[keep][0])
             TA.append(tk[keep])
             A.append(ak[keep])
             S.append(np.full(int(keep.sum()), k))
+            SG.append(np.sign(np.interp(tk[keep], tq, pk)))  # upper (+1) or lower (-1) turning point
     if not T:
         return {"n_turning_points": 0, "best": None}
     t, a, s = np.concatenate(T), np.concatenate(A), np.concatenate(S)
+    # what a rate's precision and the periods a longer recording would add are read from (lagsplat.diagnose.identifiability)
+    spread = {"noise": float(np.max(res.noise_q)), "n_segments": len(T), "span_s": float(np.mean([tk[-1] for tk in T])),
+              "sxx_s2": float(sum(np.sum((tk - tk.mean()) ** 2) for tk in T)),
+              "amplitude_max": float(a.max()), "amplitude_min": float(a.min()), "amplitude_mean": float(a.mean())}  # fmt: skip
     ta = np.concatenate(TA)
     ta = ta - ta.mean()
     segs = np.unique(s)
@@ -89,7 +100,7 @@ def _envelope(res: Residual, segs: list[tuple[np.ndarray, ...]]) -> dict[str, An
         c = np.linalg.lstsq(X * sw[:, None], y * sw, rcond=None)[0]
         return c, X @ c
 
-    out: dict[str, Any] = {"n_turning_points": int(len(a))}
+    out: dict[str, Any] = {"n_turning_points": int(len(a)), **spread}
     c, fit = lin(a, np.ones_like(a))
     out["linear"] = {"rate_per_s": float(-c[-1]), "sse": float(np.sum((a - fit) ** 2))}
     c, fit = lin(np.log(a), a**2)
@@ -107,6 +118,31 @@ def _envelope(res: Residual, segs: list[tuple[np.ndarray, ...]]) -> dict[str, An
     else:
         out["best"] = None
     out["support"] = _envelope_support(out, len(a), len(segs))
+    out["level"] = _decay_level(t, a, np.concatenate(SG), D)
+    return out
+
+
+def _decay_level(t: np.ndarray, a: np.ndarray, side: np.ndarray, D: np.ndarray) -> dict[str, float]:
+    """The turning points' exponential decay rate with its standard error, for how well the recording fixes the damping.
+
+    ``log a`` (weights ``a^2``, amplitude errors) on one intercept per segment ``D [n, s]``, the time since the
+    segment's first turning point ``t [n]`` and the side ``side [n]`` (+1 upper, -1 lower turning point): a centre
+    a little off the segment's median makes the two sides' amplitudes differ by a constant, which a short clip's
+    rate would otherwise carry as noise. ``{"rate_per_s", "se", "z", "sse", "dof"}``: ``sse`` in amplitude units
+    and ``dof`` its degrees of freedom; ``z`` ``nan`` without one.
+    """
+    X = np.concatenate([D, side[:, None], t[:, None]], 1)
+    if np.linalg.matrix_rank(X) < X.shape[1]:  # one side only: the side is an intercept
+        X = np.concatenate([D, t[:, None]], 1)
+    dof = len(a) - X.shape[1]
+    sw = a
+    c = np.linalg.lstsq(X * sw[:, None], np.log(a) * sw, rcond=None)[0]
+    fit = X @ c
+    out = {"rate_per_s": float(-c[-1]), "sse": float(np.sum((a - np.exp(fit)) ** 2)), "dof": int(dof), "se": math.nan, "z": math.nan}
+    if dof >= 1:
+        s2 = float(np.sum((sw * (np.log(a) - fit)) ** 2)) / dof
+        out["se"] = float(math.sqrt(max(s2 * np.linalg.pinv((X * sw[:, None]).T @ (X * sw[:, None]))[-1, -1], 0.0)))
+        out["z"] = out["rate_per_s"] / max(out["se"], 1e-300)
     return out
 
 
@@ -115,6 +151,9 @@ MIN_TURNING_POINTS = 4
 
 #: fewest periods (zero crossing to the second next) the frequency signature needs before it regresses them on amplitude^2 and time
 MIN_TIMING_PERIODS = 6
+
+#: fewest such periods from which the timing's evidence for a drift at a given amplitude (``support_time``) is read
+MIN_DRIFT_PERIODS = 8
 
 
 def _envelope_support(env: dict[str, Any], n: int, n_segments: int) -> dict[str, float]:
@@ -147,7 +186,7 @@ def _rest(res: Residual, p: np.ndarray) -> dict[str, Any]:
     """Where the motion along ``p`` comes to rest, and how far from the centre of its oscillation.
 
     Per segment, the rest is the last stretch (at least half a dominant period, and the
-    segment's end) whose whole range stays within ``6`` chart-noise levels, after an oscillation
+    segment's end) whose whole range stays within :data:`REST_BAND_OVER_NOISE` (6) chart-noise levels, after an oscillation
     larger than ``10`` noise levels. The centre is the median midpoint of the last four pairs of
     consecutive turning points. A viscous decay comes to rest at its centre; dry friction sticks
     anywhere within ``+- mu / k`` of it (an *off-centre* rest). The evidence is ``z^2 - log N``,
@@ -165,7 +204,7 @@ def _rest(res: Residual, p: np.ndarray) -> dict[str, Any]:
             continue
         # the earliest start from which the rest of the segment stays within the band
         hi, lo = np.maximum.accumulate(pk[::-1])[::-1], np.minimum.accumulate(pk[::-1])[::-1]
-        still = np.flatnonzero(hi - lo <= 6 * noise)
+        still = np.flatnonzero(hi - lo <= REST_BAND_OVER_NOISE * noise)
         if not len(still) or len(pk) - still[0] < max(period // 2, 3):
             continue
         i0 = int(still[0])
@@ -211,14 +250,14 @@ def _frequency(res: Residual, segs: list[tuple[np.ndarray, ...]]) -> dict[str, A
         tc = tk[cross] - pk[cross] * (tk[cross + 1] - tk[cross]) / (pk[cross + 1] - pk[cross])
         for a, b, i0 in zip(tc[:-2], tc[2:], cross[:-2]):
             amp = float(np.interp(0.5 * (a + b), te, ae))
-            if amp <= 3 * float(np.max(res.noise_q)) or b <= a:
+            if amp <= MIN_AMPLITUDE_OVER_NOISE * float(np.max(res.noise_q)) or b <= a:
                 continue
             F.append(1.0 / (b - a))
             A2.append(amp * amp)
             TT.append(0.5 * (a + b))
             UP.append(1.0 if pk[i0] < 0 else -1.0)
-    if len(F) < MIN_TIMING_PERIODS:
-        return {"n_periods": len(F)}
+    if len(F) < MIN_TIMING_PERIODS:  # too few to regress, enough for the frequency itself
+        return {"n_periods": len(F), **({"f_mean_hz": float(np.mean(F))} if F else {})}
     F, A2, TT, UP = map(np.asarray, (F, A2, TT, UP))
     alt = UP - UP.mean()
     X = np.stack([np.ones_like(F), A2 - A2.mean(), TT - TT.mean(), alt], 1)
@@ -249,10 +288,10 @@ def _time_support(F: np.ndarray, A2: np.ndarray, TT: np.ndarray, alt: np.ndarray
     ``n_eff = n / 2`` (consecutive periods share half their samples). Where the amplitude itself falls
     steadily with time the two cannot be told apart and the support stays near zero: a drift is claimed
     only where the timing changes in a way no dependence on the amplitude explains. ``support_time`` 0
-    with fewer than 8 periods.
+    with fewer than :data:`MIN_DRIFT_PERIODS` periods.
     """
     n = len(F)
-    if n < 8:
+    if n < MIN_DRIFT_PERIODS:
         return {"support_time": 0.0}
     a = (A2 - A2.mean()) / max(float(A2.std()), 1e-300)
     X0 = np.stack([np.ones(n), a, a * a, alt], 1)
@@ -329,7 +368,11 @@ def signatures(res: Residual, model_freqs_hz: Sequence[float] | None = None, dir
 
     * ``envelope``: turning-point amplitudes fitted with a linear (dry
       friction), exponential (viscous) and hyperbolic (quadratic drag) decay,
-      one rate shared by all segments; ``best`` and the SSE ratios.
+      one rate shared by all segments; ``best`` and the SSE ratios; the chart noise
+      (``noise``), the takes read (``n_segments``), their mean span and the turning points'
+      sum of squared time deviations from each take's mean (``span_s``, ``sxx_s2``) and their
+      largest, smallest and mean amplitude, and the exponential rate with its standard error
+      (``level``, :func:`_decay_level`): what the damping's precision is read from.
     * ``frequency``: frequency of each period (between zero crossings in the same
       direction, so an offset cancels) regressed on ``amplitude^2``
       (Duffing shift: > 0 hardening, < 0 softening or a pendulum) and on time
