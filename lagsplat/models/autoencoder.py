@@ -96,6 +96,8 @@ def load_stage1(path: str | Path) -> AutoEncoder:
         raise FileNotFoundError(f"{path}: stage-1 checkpoint not found")
     ck = torch.load(path, map_location="cpu", weights_only=False)
     enc = CpAEEncoder(ck["d"], tuple(ck["encoder_channels"]), ck["encoder_kernel"])
+    if "reference" in ck["encoder"]:
+        enc.set_reference(ck["encoder"]["reference"])
     enc.load_state_dict(ck["encoder"])
     backend = ck["config"].get("backend", "auto") if isinstance(ck.get("config"), dict) else "auto"
     try:

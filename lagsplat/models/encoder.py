@@ -23,6 +23,9 @@ class CpAEEncoder(nn.Module):
         channels: output channels of the three convolutions.
         kernel: filter size.
 
+    With a reference image (:meth:`set_reference`, a buffer saved with the weights) the convolutions read
+    each image's departure from it, ``x - reference``; without one (the paper's encoder) the image itself.
+
     Shapes:
         input ``[B,3,H,W]`` in [0, 1]; output ``[B,d]`` (raw, unwhitened ``z``).
     """
@@ -38,11 +41,19 @@ class CpAEEncoder(nn.Module):
         self.features = nn.Sequential(*layers, nn.AdaptiveAvgPool2d((4, 4)))
         self.head = nn.Linear(c_in * 16, d)
         self.d = d
+        self.register_buffer("reference", None)
+
+    def set_reference(self, image: Tensor | None) -> None:
+        """From now on encode each image's departure from ``image [3,H,W]`` (in [0, 1], the encoder's input size;
+        ``None``: the image itself). The image is copied into the ``reference`` buffer (saved in the state dict)."""
+        self.reference = None if image is None else image.detach().clone()
 
     def forward(self, x: Tensor) -> Tensor:
         """Encode ``x [B,3,H,W]`` to ``z [B,d]``."""
         if x.dim() != 4 or x.shape[1] != 3:
             raise ValueError(f"encoder input must be [B,3,H,W], got {tuple(x.shape)}")
+        if self.reference is not None:
+            x = x - self.reference
         return self.head(self.features(x).flatten(1))
 
     def large_kernels(self) -> list[Tensor]:

@@ -64,7 +64,11 @@ class Stage1Config:
     primitive cheap, and the encoder then learns to do so (its encodings leave every latent gate, the
     image is the layer alone); so with it, ``w_center`` times ``|mean z|^2 + |std z - 1|^2`` over the
     batch keeps the encodings centred with unit spread, and a primitive that no training state shows
-    is recycled as a dead one.
+    is recycled as a dead one. ``encoder_reference`` has the encoder read each frame's departure from the
+    training frames' per-pixel median (the static scene; :meth:`~lagsplat.models.encoder.CpAEEncoder.set_reference`,
+    kept with the checkpoint) instead of the frame: on a textured or cluttered scene, or for an object of a
+    few pixels, the frame is mostly what never moves, the paper's encoder's encodings then barely change with
+    the object, and the decoder, given no usable ``q``, draws the mean image.
     """
 
     n_gaussians: int = 1024
@@ -109,6 +113,7 @@ class Stage1Config:
     w_center: float = 0.1
     anchor_steps: int = 0
     anchor_share: float = 0.25
+    encoder_reference: bool = False
 
     @classmethod
     def from_mapping(cls, m: Mapping[str, Any]) -> "Stage1Config":
@@ -183,6 +188,8 @@ def train_stage1(
     static = static_pixels(frames, cfg.static_margin) if cfg.w_static > 0 else None
 
     enc = CpAEEncoder(d, cfg.encoder_channels, cfg.encoder_kernel)
+    if cfg.encoder_reference:
+        enc.set_reference(X.median(0).values)
     opts = {"hidden": tuple(cfg.deform_hidden), "n_freqs": cfg.deform_freqs} if cfg.decoder == "deformation" else {}
     V, view_cams, train_views = None, [], []
     if cfg.decoder == "conditioned3d":
