@@ -13,8 +13,9 @@ opposite turning points the amplitude ``H = |p_k - p_k+1| / 2`` (half the peak-t
 estimate) and the frequency ``1 / (2 (t_k+1 - t_k))``, and per two successive swings the half-cycle logarithmic
 decrement ``delta = log(H_k / H_k+1)`` and ``zeta = delta / sqrt(pi^2 + delta^2)`` (exact for a linear viscous
 decay). :func:`backbone` reads the encoded video (every frame: the backbone decides nothing, the held-out ones
-are marked) and the free rollouts of each model (the identified Stage-2 model, paper Eq. 7, and the diagnosis's
-refit) released at rest at amplitudes spanning the recorded ones, smoothed like the video.
+are marked; smoothed against the chart noise, each swing's amplitude divided by the smoothing's gain at its
+frequency) and the free rollouts of each model (the identified Stage-2 model, paper Eq. 7, and the diagnosis's
+refit) released at rest at amplitudes spanning the recorded ones (noise-free, read unsmoothed).
 
 Units: time in s, frequency in Hz, amplitude in chart units (whitened ``q``), ``zeta`` dimensionless.
 """
@@ -45,18 +46,21 @@ _KEYS = ("amplitude", "frequency_hz", "zeta_amplitude", "zeta")
 
 
 def local_backbone(
-    p: np.ndarray, t: np.ndarray, runs: Sequence[np.ndarray], f_hz: float, min_amplitude: float = 0.0, edge: int = 2,
+    p: np.ndarray, t: np.ndarray, runs: Sequence[np.ndarray], f_hz: float, min_amplitude: float = 0.0, sigma: float = 0.0,
 ) -> dict[str, np.ndarray]:
     """The local frequency and damping ratio of a scalar oscillation at each of its swings.
 
     Args:
-        p: ``[n]`` the (smoothed) coordinate, any units.
+        p: ``[n]`` the coordinate, any units (smoothed over ``sigma`` frames, or not).
         t: ``[n]`` times, s.
         runs: index arrays of the contiguous runs to read (a reading never spans two).
         f_hz: the oscillation's dominant frequency, Hz (turning points of one kind at least 0.35 periods apart).
         min_amplitude: swings below this amplitude are not read (units of ``p``).
-        edge: turning points fewer than this many samples from a run's ends are not read (a smoothing's edge
-            bends them; at least the refinement's two samples).
+        sigma: the Gaussian smoothing ``p`` went through, frames. It scales a sinusoid of frequency ``f`` by
+            ``g = exp(-(2 pi f sigma dt)^2 / 2)`` and shifts every turning point alike: each swing's amplitude is
+            divided by ``g`` at the swing's own frequency (times and ratios need nothing), and turning points
+            closer than ``3 sigma`` samples (at least 2) to a run's ends, where the smoothing's edge bends them,
+            are not read.
 
     Returns:
         ``amplitude [k]``, ``frequency_hz [k]`` and ``index [k]`` (the frame of the swing's first turning
@@ -70,17 +74,20 @@ def local_backbone(
             continue
         dt = float(np.median(np.diff(t[idx])))
         i, te, v, kind = turning_points(p[idx], t[idx], turning_gap(f_hz, dt), refine=True)
-        inside = (i >= max(edge, 2)) & (i <= len(idx) - 1 - max(edge, 2))
+        edge = max(2, int(math.ceil(3 * sigma)))
+        inside = (i >= edge) & (i <= len(idx) - 1 - edge)
         i, te, v, kind = i[inside], te[inside], v[inside], kind[inside]
         prev, prev_i = None, 0.0
         for k in range(len(te) - 1):
-            h = 0.5 * abs(v[k + 1] - v[k])
-            ok = kind[k] != kind[k + 1] and te[k + 1] > te[k] and h >= min_amplitude and (v[k] - v[k + 1]) * kind[k] > 0
+            half = te[k + 1] - te[k]
+            gain = math.exp(-0.5 * (math.pi * sigma * dt / half) ** 2) if half > 0 else 1.0  # 2 pi f sigma dt, f = 1 / (2 half)
+            h = 0.5 * abs(v[k + 1] - v[k]) / gain
+            ok = kind[k] != kind[k + 1] and half > 0 and h >= min_amplitude and (v[k] - v[k + 1]) * kind[k] > 0
             if not ok:
                 prev = None
                 continue
             out["amplitude"].append(h)
-            out["frequency_hz"].append(0.5 / (te[k + 1] - te[k]))
+            out["frequency_hz"].append(0.5 / half)
             out["index"].append(float(idx[i[k]]))
             if prev is not None:
                 delta = math.log(prev / h)
@@ -89,11 +96,6 @@ def local_backbone(
                 out["zeta_index"].append(prev_i)
             prev, prev_i = h, float(idx[i[k]])
     return {k: np.asarray(v, np.float64) for k, v in out.items()}
-
-
-def _edge(sigma: float) -> int:
-    """Samples a smoothing over ``sigma`` frames bends at a run's ends (three standard deviations, at least 2)."""
-    return max(2, int(math.ceil(3 * sigma)))
 
 
 def _rest_state(model: Any, d: int) -> np.ndarray:
@@ -108,14 +110,14 @@ def _rest_state(model: Any, d: int) -> np.ndarray:
 
 @torch.no_grad()
 def model_backbone(
-    model: Any, direction: np.ndarray, amplitudes: np.ndarray, dt: float, n_steps: int, f_hz: float, sigma: float = 0.0,
-    min_amplitude: float = 0.0, t0: float = 0.0, time_channel: bool = False,
+    model: Any, direction: np.ndarray, amplitudes: np.ndarray, dt: float, n_steps: int, f_hz: float, min_amplitude: float = 0.0,
+    t0: float = 0.0, time_channel: bool = False,
 ) -> dict[str, np.ndarray]:
     """:func:`local_backbone` of a model's free rollouts released at rest at each amplitude along ``direction``.
 
     Each rollout starts at ``q_rest + A e``, ``qdot = 0`` (velocity Verlet at the frame step, the compiled path of
-    :mod:`lagsplat.dynamics.fast` where the model supports it) and is read like the video: projected on ``e``,
-    smoothed over ``sigma`` frames; its first swing starts at the release.
+    :mod:`lagsplat.dynamics.fast` where the model supports it) and is read like the video, projected on ``e`` (without
+    smoothing: a rollout carries no noise); its first swing starts at the release.
 
     Args:
         model: an ``acceleration`` model (:class:`~lagsplat.models.lagrangian.Lagrangian`, a refit model, ...).
@@ -124,7 +126,6 @@ def model_backbone(
         dt: step, s (the chart's frame interval).
         n_steps: states per rollout.
         f_hz: the oscillation's frequency, Hz (:func:`local_backbone`).
-        sigma: smoothing of the projected rollout, frames (the video's).
         min_amplitude: swings below it are not read.
         t0: clock at the release, s; with ``time_channel`` the model reads it as its last input.
         time_channel: the model reads the clock as an input (a refit with a drift).
@@ -133,8 +134,6 @@ def model_backbone(
         :func:`local_backbone`'s arrays over all releases, with ``release [k]`` and ``zeta_release [m]``
         (which release each reading comes from). A rollout that becomes non-finite is read up to there.
     """
-    from scipy.ndimage import gaussian_filter1d
-
     e = np.asarray(direction, np.float64)
     A = np.asarray(amplitudes, np.float64)
     p0 = next(iter(model.parameters()), None) if hasattr(model, "parameters") else None
@@ -150,12 +149,11 @@ def model_backbone(
         p = qj @ e
         bad = np.flatnonzero(~np.isfinite(p))
         n = int(bad[0]) if len(bad) else len(p)
-        # the release is a turning point at the rollout's first state: mirrored in time about it (q(-t) = q(t), exact
-        # for a conservative model at rest there), it is read like any other, the smoothing seeing both sides of it
+        # the release is a turning point at the rollout's first state: mirrored in time about it (the refinement's
+        # parabola then sees the two sides of it), it is read like any other
         p = np.concatenate([p[1:n][::-1], p[:n]])
         ts = t0 + dt * np.arange(-(n - 1), n) if n else np.zeros(0)
-        p = gaussian_filter1d(p, sigma, mode="nearest", truncate=6.0) if sigma > 0 and n else p
-        r = local_backbone(p, ts, [np.arange(len(p))], f_hz, min_amplitude, _edge(sigma))
+        r = local_backbone(p, ts, [np.arange(len(p))], f_hz, min_amplitude)
         keep, keep_z = r.pop("index") >= n - 1, r.pop("zeta_index") >= n - 1  # the swings from the release on
         r = {k: v[keep_z if k.startswith("zeta") else keep] for k, v in r.items()}
         r["release"], r["zeta_release"] = np.full(len(r["amplitude"]), j), np.full(len(r["zeta"]), j)
@@ -199,15 +197,15 @@ def _reading(video: Mapping[str, float], models: Mapping[str, Mapping[str, float
     def pct(x: float) -> str:
         return "n/a" if not math.isfinite(x) else f"{100 * x:+.1f} %"
 
-    def z(x: float) -> str:
-        return "n/a" if not math.isfinite(x) else f"{x:.3f}"
+    def z(x: float, fmt: str = ".2g") -> str:
+        return "n/a" if not math.isfinite(x) else format(x, fmt)
 
     fc = video["f_change"]
     s = f"from amplitude {a_lo:.3g} to {a_hi:.3g} (chart units) the recorded frequency "
-    s += (f"{'rises' if fc > 0 else 'falls'} {100 * abs(fc):.1f} ± {100 * video['f_change_se']:.1f} %" if math.isfinite(fc)
+    s += (f"{'rises' if fc > 0 else 'falls'} {100 * abs(fc):.1f} % (± {100 * video['f_change_se']:.1g})" if math.isfinite(fc)
           else "changes by an amount too few swings can tell")  # fmt: skip
     s += "".join(f"; the {k}'s {pct(v['f_change'])}" for k, v in models.items())
-    s += (f"; the damping ratio goes from {z(video['zeta_lo'])} to {z(video['zeta_hi'])} (± {z(video['zeta_change_se'])})"
+    s += (f"; the damping ratio goes from {z(video['zeta_lo'])} to {z(video['zeta_hi'])} (± {z(video['zeta_change_se'], '.1g')})"
           + "".join(f", the {k}'s from {z(v['zeta_lo'])} to {z(v['zeta_hi'])}" for k, v in models.items()))  # fmt: skip
     return s[:1].upper() + s[1:] + "."
 
@@ -220,7 +218,7 @@ def backbone(chart: Any, res: Any, models: Mapping[str, tuple[Any, bool]], n_rel
     """The backbone record of a recording and its models (``report.json``'s ``backbone``).
 
     The video's readings come from every frame of the chart (each contiguous run of one episode, smoothed over the
-    residual's ``sigma`` frames and projected on the top eigenvector of ``G_bar``), swings below
+    residual's ``sigma`` frames, :func:`local_backbone`, and projected on the top eigenvector of ``G_bar``), swings below
     :data:`~lagsplat.diagnose.signatures.MIN_AMPLITUDE_OVER_NOISE` chart-noise levels left out. Each model is
     released at ``n_releases`` amplitudes from the smallest to 1.05 times the largest recorded one and rolled out
     for the longest run's length; its readings below 0.9 times the smallest recorded amplitude are left out.
@@ -248,7 +246,7 @@ def backbone(chart: Any, res: Any, models: Mapping[str, tuple[Any, bool]], n_rel
     p = np.zeros(len(chart.t))
     for idx in runs:
         p[idx] = res.smooth(np.asarray(chart.q[idx], np.float64)) @ e
-    video = local_backbone(p, np.asarray(chart.t, np.float64), runs, f_hz, MIN_AMPLITUDE_OVER_NOISE * noise, _edge(res.sigma))
+    video = local_backbone(p, np.asarray(chart.t, np.float64), runs, f_hz, MIN_AMPLITUDE_OVER_NOISE * noise, res.sigma)
     n = len(video["amplitude"])
     if n < MIN_READINGS:
         return {"done": False, "reason": f"{n} swing(s) above {MIN_AMPLITUDE_OVER_NOISE:g} chart-noise levels (a backbone needs {MIN_READINGS})"}
@@ -260,7 +258,7 @@ def backbone(chart: Any, res: Any, models: Mapping[str, tuple[Any, bool]], n_rel
     trends = {"video": trend(video, a_lo, a_hi)}
     for label, (model, time_channel) in models.items():
         try:
-            r = model_backbone(model, e, released, dt, n_steps, f_hz, res.sigma, 0.9 * a_lo, float(chart.t[0]), time_channel)
+            r = model_backbone(model, e, released, dt, n_steps, f_hz, 0.9 * a_lo, float(chart.t[0]), time_channel)
         except (RuntimeError, ValueError) as exc:  # a model that cannot be rolled out here: said, not fatal
             out_models[label] = {"error": str(exc)}
             continue
