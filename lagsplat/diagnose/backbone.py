@@ -10,9 +10,9 @@ chart's most visible direction ``e`` (top eigenvector of ``G_bar``, as the evalu
 :mod:`lagsplat.diagnose.signatures` project): the turning points of
 :func:`~lagsplat.diagnose.signatures.turning_points` (timed to a fraction of a frame), then per pair of successive
 opposite turning points the amplitude ``H = |p_k - p_k+1| / 2`` (half the peak-to-peak swing: no centre to
-estimate) and the frequency ``1 / (2 (t_k+1 - t_k))``, and per two successive swings the half-cycle logarithmic
-decrement ``delta = log(H_k / H_k+1)`` and ``zeta = delta / sqrt(pi^2 + delta^2)`` (exact for a linear viscous
-decay). :func:`backbone` reads the encoded video (every frame: the backbone decides nothing, the held-out ones
+estimate) and the frequency ``1 / (2 (t_k+1 - t_k))``, and per cycle the logarithmic decrement
+``delta = log(H_k / H_k+2)`` and ``zeta = delta / sqrt(4 pi^2 + delta^2)`` (exact for a linear viscous decay; over a
+whole cycle, so that a model whose damping differs on the two sides of its swing does not alternate). :func:`backbone` reads the encoded video (every frame: the backbone decides nothing, the held-out ones
 are marked; smoothed against the chart noise, each swing's amplitude divided by the smoothing's gain at its
 frequency) and the free rollouts of each model (the identified Stage-2 model, paper Eq. 7, and the diagnosis's
 refit) released at rest at amplitudes spanning the recorded ones (noise-free, read unsmoothed).
@@ -64,8 +64,9 @@ def local_backbone(
 
     Returns:
         ``amplitude [k]``, ``frequency_hz [k]`` and ``index [k]`` (the frame of the swing's first turning
-        point) per swing between two successive opposite turning points; ``zeta_amplitude [m]`` (mean of the
-        two swings), ``zeta [m]`` and ``zeta_index [m]`` (the first swing's frame) per two successive swings. Float64 arrays, in time order within each run.
+        point) per swing between two successive opposite turning points; per cycle (three successive swings)
+        ``zeta [m]`` from the first and the third, ``zeta_amplitude [m]`` and ``zeta_index [m]`` the middle
+        one's. Float64 arrays, in time order within each run.
     """
     p, t = np.asarray(p, np.float64), np.asarray(t, np.float64)
     out: dict[str, list[float]] = {k: [] for k in (*_KEYS, "index", "zeta_index")}
@@ -77,24 +78,24 @@ def local_backbone(
         edge = max(2, int(math.ceil(3 * sigma)))
         inside = (i >= edge) & (i <= len(idx) - 1 - edge)
         i, te, v, kind = i[inside], te[inside], v[inside], kind[inside]
-        prev, prev_i = None, 0.0
+        chain: list[tuple[float, float]] = []  # (amplitude, frame) of the unbroken run of swings so far
         for k in range(len(te) - 1):
             half = te[k + 1] - te[k]
             gain = math.exp(-0.5 * (math.pi * sigma * dt / half) ** 2) if half > 0 else 1.0  # 2 pi f sigma dt, f = 1 / (2 half)
             h = 0.5 * abs(v[k + 1] - v[k]) / gain
             ok = kind[k] != kind[k + 1] and half > 0 and h >= min_amplitude and (v[k] - v[k + 1]) * kind[k] > 0
             if not ok:
-                prev = None
+                chain = []
                 continue
             out["amplitude"].append(h)
             out["frequency_hz"].append(0.5 / half)
             out["index"].append(float(idx[i[k]]))
-            if prev is not None:
-                delta = math.log(prev / h)
-                out["zeta_amplitude"].append(0.5 * (prev + h))
-                out["zeta"].append(delta / math.sqrt(math.pi**2 + delta**2))
-                out["zeta_index"].append(prev_i)
-            prev, prev_i = h, float(idx[i[k]])
+            chain.append((h, float(idx[i[k]])))
+            if len(chain) >= 3:  # one cycle: the swing two before over this one, the middle swing's amplitude
+                delta = math.log(chain[-3][0] / h)
+                out["zeta_amplitude"].append(chain[-2][0])
+                out["zeta"].append(delta / math.sqrt(4 * math.pi**2 + delta**2))
+                out["zeta_index"].append(chain[-2][1])
     return {k: np.asarray(v, np.float64) for k, v in out.items()}
 
 
@@ -154,7 +155,8 @@ def model_backbone(
         p = np.concatenate([p[1:n][::-1], p[:n]])
         ts = t0 + dt * np.arange(-(n - 1), n) if n else np.zeros(0)
         r = local_backbone(p, ts, [np.arange(len(p))], f_hz, min_amplitude)
-        keep, keep_z = r.pop("index") >= n - 1, r.pop("zeta_index") >= n - 1  # the swings from the release on
+        # the swings from the release on; a cycle's first swing (the one before its middle) too
+        keep, keep_z = r.pop("index") >= n - 1, r.pop("zeta_index") > n - 1
         r = {k: v[keep_z if k.startswith("zeta") else keep] for k, v in r.items()}
         r["release"], r["zeta_release"] = np.full(len(r["amplitude"]), j), np.full(len(r["zeta"]), j)
         for k, v in r.items():
