@@ -180,6 +180,7 @@ def test_the_diagnosis_report_draws_and_reads_the_backbone(tmp_path) -> None:
     assert "backbone: [figures/backbone.png](figures/backbone.png): frequency and damping ratio against amplitude" in md
     assert "the recorded frequency rises" in md and "the identified model's" in md
     assert rep["backbone"]["reading"] == bb["reading"]
+    assert on_disk["frames"]["held_out_used_for"].endswith("their swings are drawn in the backbone figure, which decides nothing")
 
     # a chart that fails its checks: drawn, and said to be no finding; a too-short one: skipped with the reason
     failed = diagnose_artifacts(None, None, _duffing_chart(360, 18.0, gate_passed=False), model, None, tmp_path / "failed", system="x")

@@ -26,7 +26,8 @@
 Frames: the diagnosis (residual, selection) and the localisation read the
 *training* frames only (``diagnose.split``); the refit reads the training
 frames (windows and model selection, as Stage 2); the held-out frames are
-read only by the gap measurement. A clip identified on all its frames
+read only by the gap measurement (the backbone figure draws their swings too,
+deciding nothing). A clip identified on all its frames
 (:attr:`lagsplat.io.clip.Clip.no_held_out`) has none: the ranking is read off
 the training residual as usual, ``report.json``'s ``held_out`` carries the
 clip's note, and the held-out gap and the refit it validates are skipped, saying so.
@@ -251,6 +252,7 @@ def _report_record(
     ranked = "nothing significant" if diag.winner == "none" else ", ".join(diag.labels)
     verdict, text = (diag.winner, ranked) if rel["reliable"] else (CANNOT_DIAGNOSE, "cannot diagnose: " + "; ".join(rel["reasons"]))
     note = getattr(run.clip, "no_held_out", None)
+    drawn = any(((backbone_rec or {}).get("video") or {}).get("held_out", []))  # held-out swings in the backbone figure
     report = {
         "system": system, "title": title, "verdict": verdict, "verdict_text": text,
         "held_out": note,  # None: the held-out frames score the gap; a string: the clip has none (Clip.no_held_out)
@@ -268,7 +270,8 @@ def _report_record(
         "frames": {
             "diagnosis_split": cfg.split, "n_diagnosis_frames": int(n_which),
             "n_held_out_frames": int(np.sum(np.asarray(chart.split) == HELD_OUT)),
-            "held_out_used_for": "the gap only (before / after / control)" if note is None else f"nothing ({note})",
+            "held_out_used_for": ("the gap only (before / after / control)" if note is None else f"nothing ({note})")
+            + ("; their swings are drawn in the backbone figure, which decides nothing" if drawn else ""),
         },
         "config": cfg.to_dict(),
         "timings": timings,
