@@ -141,9 +141,14 @@ def model_backbone(
     dtype = p0.dtype if p0 is not None else torch.float64
     q0 = torch.as_tensor(_rest_state(model, len(e))[None] + A[:, None] * e[None], dtype=dtype)
     u = (lambda s: torch.full((len(A), 1), float(s), dtype=dtype)) if time_channel else None
+    was_training = bool(getattr(model, "training", False))
     if hasattr(model, "eval"):
-        model.eval()
-    q, _ = rollout(model, q0, torch.zeros_like(q0), dt, int(n_steps), t0=t0, u=u)
+        model.eval()  # the compiled path wants eval mode
+    try:
+        q, _ = rollout(model, q0, torch.zeros_like(q0), dt, int(n_steps), t0=t0, u=u)
+    finally:
+        if was_training:
+            model.train()
     t = t0 + dt * np.arange(int(n_steps))
     out: dict[str, list[np.ndarray]] = {}
     for j, qj in enumerate(q.double().numpy()):
