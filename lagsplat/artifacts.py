@@ -66,9 +66,11 @@ DIAGNOSIS_FIGURES = {
     "where_latent": "where_latent.png",
     "where_image": "where_image.png",
     "gap": "gap.png",
+    "backbone": "backbone.png",
 }
-"""The diagnosis figures, inside ``diagnosis/figures/``: where the gap shows (:mod:`lagsplat.diagnose.where`)
-and the held-out gap before / after the refit."""
+"""The diagnosis figures, inside ``diagnosis/figures/``: where the gap shows (:mod:`lagsplat.diagnose.where`),
+the held-out gap before / after the refit, and the backbone curves (frequency and damping ratio against
+amplitude, :mod:`lagsplat.diagnose.backbone`)."""
 
 
 @dataclass(frozen=True)

@@ -306,6 +306,17 @@ def gap_section(rep: Mapping[str, Any]) -> list[str]:
     return L
 
 
+def _figure_reading(key: str, rep: Mapping[str, Any]) -> str:
+    """The sentence read off a figure, after its link (the backbone's; nothing for the others)."""
+    bb = rep.get("backbone") or {}
+    if key != "backbone" or not bb.get("reading"):
+        return ""
+    caveat = " (on a chart that fails its checks: a description, not a finding)" if rep.get("verdict") == "cannot_diagnose" else ""
+    errors = "".join(f" The {k} could not be rolled out ({m['error']})." for k, m in (bb.get("models") or {}).items() if "error" in m)
+    note = f" Note: {bb['note']}." if bb.get("note") else ""
+    return f": frequency and damping ratio against amplitude{caveat}. {bb['reading']}{errors}{note}"
+
+
 def refit_section(rep: Mapping[str, Any]) -> list[str]:
     """The refit (or why none), the figures and which frames were read."""
     L: list[str] = []
@@ -332,7 +343,10 @@ def refit_section(rep: Mapping[str, Any]) -> list[str]:
         L.append(f"- energy bound (App. A.2): {'holds' if ec['holds'] else 'VIOLATED'}; max power of the dissipative terms "
                  f"{fmt_value(ec['max_dissipative_power'], '.2g')}, max energy rise along free rollouts {fmt_value(ec['max_energy_rise'], '.2g')}")  # fmt: skip
     if rep.get("figures"):
-        L += ["", "## Figures", ""] + [f"- {k}: [{v}]({v})" for k, v in rep["figures"].items()]
+        L += ["", "## Figures", ""] + [f"- {k}: [{v}]({v})" + _figure_reading(k, rep) for k, v in rep["figures"].items()]
+    bb = rep.get("backbone") or {}
+    if bb and not bb.get("done"):
+        L += (["", "## Figures", ""] if not rep.get("figures") else []) + [f"- backbone: not drawn: {bb.get('reason')}."]
     fr_ = rep["frames"]
     L += ["", f"Frames: diagnosis and localisation on {fr_['n_diagnosis_frames']} {fr_['diagnosis_split']} frames; "
           f"{fr_['n_held_out_frames']} held-out frames used for {fr_['held_out_used_for']}.", ""]  # fmt: skip

@@ -16,14 +16,18 @@
   refit terms and the energy check, the settings and which frames were used
   for what;
 * ``report.md``: the same for a reader;
-* ``figures/where_{time,state,latent,image}.png`` and ``figures/gap.png``
-  (held-out free rollouts before / after against the encoded video);
+* ``figures/where_{time,state,latent,image}.png``, ``figures/gap.png``
+  (held-out free rollouts before / after against the encoded video) and
+  ``figures/backbone.png`` (frequency and damping ratio against amplitude, the
+  video's swings against the models' free releases; ``report.json``'s ``backbone``,
+  :mod:`lagsplat.diagnose.backbone`);
 * ``refit.pt`` when a refit was made (:func:`lagsplat.diagnose.refit_io.load_refit`).
 
 Frames: the diagnosis (residual, selection) and the localisation read the
 *training* frames only (``diagnose.split``); the refit reads the training
 frames (windows and model selection, as Stage 2); the held-out frames are
-read only by the gap measurement. A clip identified on all its frames
+read only by the gap measurement (the backbone figure draws their swings too,
+deciding nothing). A clip identified on all its frames
 (:attr:`lagsplat.io.clip.Clip.no_held_out`) has none: the ranking is read off
 the training residual as usual, ``report.json``'s ``held_out`` carries the
 clip's note, and the held-out gap and the refit it validates are skipped, saying so.
@@ -50,6 +54,8 @@ import numpy as np
 
 from lagsplat.artifacts import DIAGNOSIS_FIGURES, DIAGNOSIS_FILES, Artifacts
 from lagsplat.diagnose import diagnose_chart
+from lagsplat.diagnose.backbone import backbone
+from lagsplat.diagnose.backbone_plot import plot_backbone
 from lagsplat.diagnose.gap import (
     common_noise_floor,
     energy_check,
@@ -68,7 +74,7 @@ from lagsplat.diagnose.refit import (
     refit,
 )
 from lagsplat.diagnose.refit_choice import choose_by_refit
-from lagsplat.diagnose.refit_io import save_refit
+from lagsplat.diagnose.refit_io import load_refit, save_refit
 from lagsplat.diagnose.refit_terms import refit_spec
 from lagsplat.diagnose.report_checks import held_out_check, reliability, stopped_run_report
 from lagsplat.diagnose.where import split_code
@@ -213,9 +219,31 @@ def _gap_figure(run: _Run, runs: dict[str, tuple[Any, Any]], figures: dict[str, 
             f.unlink()
 
 
+def _backbone_step(run: _Run, res: Any, refit_rec: Mapping[str, Any], figures: dict[str, str], title: str) -> dict[str, Any]:
+    """The backbone record (:func:`~lagsplat.diagnose.backbone.backbone`) of the video, the identified model and the
+    refit model when one was saved (``refit.pt``), and its figure; an earlier run's figure is removed when none is drawn."""
+    models: dict[str, tuple[Any, bool]] = {"identified model": (run.model, False)}
+    note = None
+    if refit_rec.get("done"):
+        try:
+            m, ck = load_refit(run.out / DIAGNOSIS_FILES["refit"], run.inertia)
+            models["refit model"] = (m, bool(ck.get("time_channel", False)))
+        except (FileNotFoundError, KeyError, RuntimeError) as e:  # the refit stands; only its backbone is missing
+            note = f"the refit model could not be reloaded ({e})"
+    rec = backbone(run.chart, res, models)
+    if note:
+        rec["note"] = note
+    path = run.out / "figures" / DIAGNOSIS_FIGURES["backbone"]
+    if plot_backbone(rec, path, title) is not None:
+        figures["backbone"] = str(path.relative_to(run.out))
+    else:
+        path.unlink(missing_ok=True)
+    return rec
+
+
 def _report_record(
     run: _Run, diag: Any, where: Any, gap: dict[str, Any], refit_rec: dict[str, Any], figures: dict[str, str], which: int | None,
-    timings: dict[str, float], title: str, system: str,
+    timings: dict[str, float], title: str, system: str, backbone_rec: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """The content of ``report.json`` (JSON-ready)."""
     chart, cfg = run.chart, run.cfg
@@ -224,6 +252,7 @@ def _report_record(
     ranked = "nothing significant" if diag.winner == "none" else ", ".join(diag.labels)
     verdict, text = (diag.winner, ranked) if rel["reliable"] else (CANNOT_DIAGNOSE, "cannot diagnose: " + "; ".join(rel["reasons"]))
     note = getattr(run.clip, "no_held_out", None)
+    drawn = any(((backbone_rec or {}).get("video") or {}).get("held_out", []))  # held-out swings in the backbone figure
     report = {
         "system": system, "title": title, "verdict": verdict, "verdict_text": text,
         "held_out": note,  # None: the held-out frames score the gap; a string: the clip has none (Clip.no_held_out)
@@ -237,10 +266,12 @@ def _report_record(
         "gap": gap,
         "refit": refit_rec,
         "figures": figures,
+        "backbone": backbone_rec,  # frequency and damping ratio against amplitude (lagsplat.diagnose.backbone)
         "frames": {
             "diagnosis_split": cfg.split, "n_diagnosis_frames": int(n_which),
             "n_held_out_frames": int(np.sum(np.asarray(chart.split) == HELD_OUT)),
-            "held_out_used_for": "the gap only (before / after / control)" if note is None else f"nothing ({note})",
+            "held_out_used_for": ("the gap only (before / after / control)" if note is None else f"nothing ({note})")
+            + ("; their swings are drawn in the backbone figure, which decides nothing" if drawn else ""),
         },
         "config": cfg.to_dict(),
         "timings": timings,
@@ -309,12 +340,15 @@ def diagnose_artifacts(
         diag, refit_rec = _refit_step(run, diag, gap, runs, timings)
         _gap_figure(run, runs, figures, refit_rec["done"], title or system)
     timings["gap_and_refit_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    backbone_rec = _backbone_step(run, res, refit_rec, figures, title or system)
+    timings["backbone_s"] = time.perf_counter() - t0
     if ae is not None:  # the effect's size in pixels of the video, through the decoder
         from lagsplat.diagnose.screen import ScreenKinematics
 
         add_pixel_sizes(diag, ScreenKinematics.from_autoencoder(ae, chart), getattr(clip, "meta", None))
 
-    report = _report_record(run, diag, where, gap, refit_rec, figures, which, timings, title, system)
+    report = _report_record(run, diag, where, gap, refit_rec, figures, which, timings, title, system, backbone_rec)
     write_report(report, run.out)
     return report
 

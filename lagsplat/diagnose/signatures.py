@@ -15,7 +15,7 @@ from lagsplat.diagnose.impacts import impact_signature
 from lagsplat.diagnose.residual_data import Residual
 from lagsplat.diagnose.spectrum import frequency_allowed, reference_frequencies, residual_peaks
 
-__all__ = ["directions", "signatures"]
+__all__ = ["directions", "signatures", "turning_points", "turning_gap"]
 
 
 def directions(res: Residual, n_angles: int = 12) -> list[np.ndarray]:
@@ -40,20 +40,58 @@ MIN_AMPLITUDE_OVER_NOISE = 3.0
 #: peak-to-peak range, in chart-noise levels, within which the motion counts as at rest (:func:`_rest`)
 REST_BAND_OVER_NOISE = 6.0
 
-def _extrema(p: np.ndarray, t: np.ndarray, min_gap: int) -> tuple[np.ndarray, np.ndarray]:
-    """Times and absolute values of the alternating extrema (turning points) of a centred oscillation."""
+def turning_points(p: np.ndarray, t: np.ndarray, min_gap: int, refine: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The turning points (extrema) of an oscillation ``p [n]`` sampled at times ``t [n]`` (s).
+
+    Maxima and minima are each at least ``min_gap`` samples from their own kind (:func:`turning_gap`).
+    With ``refine``, each one's time and value are the vertex of the least-squares parabola through the
+    five samples around it (three at a segment's edge; the vertex kept within one sample): a half period of
+    16 frames is then timed to a small fraction of a frame instead of to the nearest frame.
+
+    Returns:
+        ``(idx [k] int, times [k] s, values [k], kind [k])`` in time order; ``values`` in the units of ``p``
+        (signed), ``kind`` +1 for a maximum and -1 for a minimum.
+    """
     from scipy.signal import find_peaks
 
     i_max, _ = find_peaks(p, distance=max(1, min_gap))
     i_min, _ = find_peaks(-p, distance=max(1, min_gap))
-    idx = np.sort(np.concatenate([i_max, i_min]))
-    return t[idx], np.abs(p[idx])
+    idx = np.concatenate([i_max, i_min])
+    kind = np.concatenate([np.ones(len(i_max)), -np.ones(len(i_min))])
+    order = np.argsort(idx, kind="stable")
+    idx, kind = idx[order], kind[order]
+    times, values = t[idx].astype(np.float64), p[idx].astype(np.float64)
+    if refine:
+        for k, i in enumerate(idx):
+            h = min(2, i, len(p) - 1 - i)
+            if h < 1:
+                continue
+            x = np.arange(-h, h + 1, dtype=np.float64)
+            a, b, c = np.polyfit(x, p[i - h : i + h + 1], 2)
+            if a * kind[k] >= 0:  # not curved towards the centre: keep the sample
+                continue
+            xv = float(np.clip(-b / (2 * a), -1.0, 1.0))
+            j = i + (1 if xv > 0 else -1)
+            times[k] = t[i] + abs(xv) * (t[j] - t[i])
+            values[k] = a * xv * xv + b * xv + c
+    return idx, times, values, kind
+
+
+def _extrema(p: np.ndarray, t: np.ndarray, min_gap: int) -> tuple[np.ndarray, np.ndarray]:
+    """Times and absolute values of the alternating extrema (turning points) of a centred oscillation."""
+    _, times, values, _ = turning_points(p, t, min_gap)
+    return times, np.abs(values)
+
+
+def turning_gap(f_hz: float, dt: float) -> int:
+    """Samples between neighbouring turning points of the same kind: 0.35 periods at ``f_hz`` (Hz), frames ``dt`` (s)
+    apart (5 without a frequency)."""
+    return int(0.35 / (f_hz * dt)) if math.isfinite(f_hz) and f_hz > 0 else 5
 
 
 def _turning_gap(res: Residual) -> int:
-    """Samples between neighbouring turning points of the same kind: 0.35 dominant periods (5 without a frequency)."""
-    f = res.f_dominant_hz
-    return int(0.35 / (f * res.dt)) if math.isfinite(f) and f > 0 else 5
+    """:func:`turning_gap` at the residual's dominant frequency."""
+    return turning_gap(res.f_dominant_hz, res.dt)
 
 
 def _segments(res: Residual, p: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
