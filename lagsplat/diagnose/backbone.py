@@ -149,7 +149,6 @@ def model_backbone(
     finally:
         if was_training:
             model.train()
-    t = t0 + dt * np.arange(int(n_steps))
     out: dict[str, list[np.ndarray]] = {}
     for j, qj in enumerate(q.double().numpy()):
         p = qj @ e
