@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from lagsplat.render.cpu_kernels import ALPHA_MAX, ALPHA_MIN, TILE, exp_neg
+from lagsplat.render.cpu_kernels import ALPHA_MAX, ALPHA_MIN, TILE, exp_neg, tile_origin
 
 _NPIX = TILE * TILE
 _F0, _F1 = np.float32(0.0), np.float32(1.0)
@@ -39,12 +39,7 @@ def jvp_kernel(pairs, key_start, means, conic, opac, r2, colors, bg, d_means, d_
     n_keys = key_start.shape[0] - 1
     C = colors.shape[1]
     for key in prange(n_keys):
-        b = key // n_tiles
-        tid = key - b * n_tiles
-        ty = tid // ntx
-        tx = tid - ty * ntx
-        ox, oy = tx * TILE, ty * TILE
-        xlim = min(TILE, W - ox)
+        b, ox, oy, xlim = tile_origin(key, n_tiles, ntx, W)
         T = np.ones(_NPIX, np.float32)
         dT = np.zeros(_NPIX, np.float32)
         acc = np.zeros((C, _NPIX), np.float32)

@@ -45,6 +45,19 @@ _F0 = np.float32(0.0)
 _F1 = np.float32(1.0)
 
 
+@njit(inline="always")
+def tile_origin(key, n_tiles, ntx, W):  # pragma: no cover - compiled
+    """The image ``b``, the tile's top-left pixel ``(ox, oy)`` and its width ``xlim`` inside the image (a tile
+    cut by the right edge is narrower) of a (image, tile) sort ``key``, the tiles of a row of ``ntx`` numbered
+    row by row, ``n_tiles`` per image."""
+    b = key // n_tiles
+    tid = key - b * n_tiles
+    ty = tid // ntx
+    tx = tid - ty * ntx
+    ox, oy = tx * TILE, ty * TILE
+    return b, ox, oy, min(TILE, W - ox)
+
+
 @njit(inline="always", error_model="numpy")
 def exp_neg_shift(x):  # pragma: no cover - compiled
     """``exp(x)`` in float32 for ``x`` in ``[-4.5, 0]`` (the Gaussian falloff ``-d2/2`` inside the 3-sigma cut).
@@ -173,12 +186,7 @@ def forward_kernel(pairs, key_start, means, conic, opac, r2, colors, bg, x0, x1,
     n_keys = key_start.shape[0] - 1
     C = colors.shape[1]
     for key in prange(n_keys):
-        b = key // n_tiles
-        tid = key - b * n_tiles
-        ty = tid // ntx
-        tx = tid - ty * ntx
-        ox, oy = tx * TILE, ty * TILE
-        xlim = min(TILE, W - ox)
+        b, ox, oy, xlim = tile_origin(key, n_tiles, ntx, W)
         T = np.ones(_NPIX, np.float32)
         w_r = np.empty(_NPIX, np.float32)
         acc = np.zeros((C, _NPIX), np.float32)
@@ -231,12 +239,7 @@ def backward_kernel(pairs, key_start, means, conic, opac, r2, colors, y0, y1, H,
     n_keys = key_start.shape[0] - 1
     C = colors.shape[1]
     for key in prange(n_keys):
-        b = key // n_tiles
-        tid = key - b * n_tiles
-        ty = tid // ntx
-        tx = tid - ty * ntx
-        ox, oy = tx * TILE, ty * TILE
-        xlim = min(TILE, W - ox)
+        b, ox, oy, xlim = tile_origin(key, n_tiles, ntx, W)
         T = np.ones(_NPIX, np.float32)
         Gb = np.zeros(_NPIX, np.float32)  # sum_c grad_c * (colour behind the next primitive)_c
         w_r = np.empty(_NPIX, np.float32)
