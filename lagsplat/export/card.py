@@ -18,6 +18,7 @@ import torch
 
 from lagsplat.chart import Chart
 from lagsplat.io.clip import Clip
+from lagsplat.io.common import jsonable
 from lagsplat.models.lagrangian import Lagrangian
 
 __all__ = ["FORMAT", "IDENTIFIED_METRICS", "HOW_TO_USE", "code_commit", "rest_matrices", "identified_metrics", "metric_intervals", "model_card"]
@@ -83,19 +84,6 @@ def metric_intervals(metrics: Mapping[str, Any] | None) -> dict[str, Any]:
     """Every entry of ``metrics.json``'s metrics whose name mentions an interval (e.g. ``free_intervals``), as stored."""
     block = (metrics or {}).get("metrics") or {}
     return {k: v for k, v in block.items() if "interval" in k.lower()}
-
-
-def _clean(x: Any) -> Any:
-    """``x`` with NumPy scalars and arrays as plain JSON values."""
-    if isinstance(x, Mapping):
-        return {str(k): _clean(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_clean(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    if isinstance(x, np.generic):
-        return x.item()
-    return x
 
 
 def model_card(
@@ -164,4 +152,4 @@ def model_card(
         },  # fmt: skip
         "how_to_use": HOW_TO_USE,
     }
-    return _clean(card)
+    return jsonable(card)  # NumPy values as JSON ones, non-finite numbers as null

@@ -27,22 +27,15 @@ TERMS = {"M": "M.pt", "V": "V.pt", "C": "C.pt", "b": "b.pt"}
 """Term name -> file name in the export folder."""
 
 
-class _Inertia(nn.Module):
-    def __init__(self, model: Lagrangian) -> None:
+class _MatrixField(nn.Module):
+    """One of the model's ``q [B,d] -> [B,d,d]`` fields, by method name (``mass_matrix``, ``dissipation_matrix``)."""
+
+    def __init__(self, model: Lagrangian, method: str) -> None:
         super().__init__()
-        self.model = model
+        self.model, self.method = model, method
 
     def forward(self, q: Tensor) -> Tensor:
-        return self.model.mass_matrix(q)
-
-
-class _Dissipation(nn.Module):
-    def __init__(self, model: Lagrangian) -> None:
-        super().__init__()
-        self.model = model
-
-    def forward(self, q: Tensor) -> Tensor:
-        return self.model.dissipation_matrix(q)
+        return getattr(self.model, self.method)(q)
 
 
 class _Potential(nn.Module):
@@ -89,7 +82,7 @@ def term_modules(model: Lagrangian) -> dict[str, nn.Module]:
     m = copy.deepcopy(model).double().eval()
     for p in m.parameters():
         p.requires_grad_(False)
-    out = {"M": _Inertia(m), "V": _Potential(m), "C": _Dissipation(m)}
+    out = {"M": _MatrixField(m, "mass_matrix"), "V": _Potential(m), "C": _MatrixField(m, "dissipation_matrix")}
     if m.n_u:
         out["b"] = _InputMap(m)
     return out
