@@ -153,9 +153,12 @@ def stage_stage2(cfg: DictConfig, a: "Artifacts | None" = None) -> None:
 
         ae = a.load_stage1()
         inertia = DecoderInertia.from_decoder(ae.decoder, chart.W_inv, chart.mean, chart.height, chart.width)
+    # a clip identified on all its frames: its selection rollouts start at several phases, over at most half of it
+    share = 0.5 if a.load_clip().no_held_out is not None else 1.0
     model, hist = train_stage2(
-        chart, s2, seed=int(cfg.seed), progress=bool(cfg.progress), inertia=inertia, device=str(cfg.device), label=f"{cfg.system.name} stage2"
-    )
+        chart, s2, seed=int(cfg.seed), progress=bool(cfg.progress), inertia=inertia, device=str(cfg.device), label=f"{cfg.system.name} stage2",
+        select_share=share,
+    )  # fmt: skip
     save_stage2(a.stage2, model, s2, hist)
     save_stage_config(cfg, "stage2", a)
 

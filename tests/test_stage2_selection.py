@@ -13,7 +13,7 @@ from lagsplat.chart import Chart
 from lagsplat.cli_common import plain
 from lagsplat.dynamics.integrators import rollout
 from lagsplat.io.clip import HELD_OUT, TRAIN
-from lagsplat.train.stage2 import Stage2Config, _param_groups, selection_replaces, train_stage2
+from lagsplat.train.stage2 import Stage2Config, _param_groups, selection_replaces, train_stage2, training_windows
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -24,6 +24,21 @@ def test_selection_keeps_the_last_finite_epoch_or_the_lowest_error():
     assert not selection_replaces(0.5, 0.1, 90, anywhere) and selection_replaces(0.05, 0.1, 90, anywhere)
     half = Stage2Config(epochs=100, select_from=0.5)
     assert selection_replaces(0.5, 0.1, 40, half) and not selection_replaces(0.5, 0.1, 60, half)
+
+
+def test_a_clip_without_held_out_frames_selects_on_rollouts_from_several_phases():
+    # 2.3 periods of 0.56 Hz at 30 fps (120 frames): four periods' horizon (214 frames) cannot fit, so by default one
+    # rollout from the first frame spans the clip; with half the clip at most, the rollouts start at several frames
+    t = np.arange(120) / 30.0
+    q = np.cos(2 * np.pi * 0.56 * t)[:, None]
+    I = np.eye(1)
+    chart = Chart(mean=np.zeros(1), W=I, W_inv=I, q=q, t=t, split=np.full(len(t), TRAIN, np.int8), G_bar=I,
+                  A=I, ae_mse=np.zeros(len(t)), ae_floor_train=0.0, ae_floor_held_out=0.0, height=8, width=8)  # fmt: skip
+    whole = training_windows(chart, Stage2Config())
+    assert list(whole.select_starts) == [0] and whole.select_horizon == 118
+    half = training_windows(chart, Stage2Config(), select_share=0.5)
+    assert half.select_horizon == 60
+    assert len(set(half.select_starts.tolist())) > 4 and max(half.select_starts) + half.select_horizon <= len(t)
 
 
 def test_the_potentials_input_layers_learn_faster():

@@ -133,8 +133,13 @@ class TrainingWindows:
     substeps: int = 1
 
 
-def training_windows(chart: Chart, cfg: Stage2Config, seed: int = 0, what: str = "stage-2") -> TrainingWindows:
+def training_windows(chart: Chart, cfg: Stage2Config, seed: int = 0, what: str = "stage-2", select_share: float = 1.0) -> TrainingWindows:
     """The one-step windows and the selection set-up of the chart's training frames (:class:`TrainingWindows`).
+
+    The selection rollouts run ``cfg.select_periods`` natural periods, at most ``select_share`` of the longest
+    training segment (``1``: up to all of it, from one start when it is shorter than the horizon; ``0.5`` for
+    a clip identified on all its frames, so that the rollouts start at several phases of the motion rather
+    than once from the clip's first frame, whose state may not be a free motion's).
 
     Raises:
         ValueError: if no training segment is long enough for one window (``what`` names the model).
@@ -159,6 +164,8 @@ def training_windows(chart: Chart, cfg: Stage2Config, seed: int = 0, what: str =
     if len(shooting[0]) == 0:
         raise ValueError(f"no training segment is long enough for one {what} window of {K} steps (stage2.rollout_steps)")
     horizon = max(8, int(round(cfg.select_periods / (f_train * dt))))
+    if select_share < 1.0:
+        horizon = max(8, min(horizon, int(select_share * len(longest))))
     hi = len(longest) - horizon - 2
     starts = metrics.window_starts(0, hi, cfg.select_windows, seed) if hi > 0 else np.zeros(1, int)
     return TrainingWindows(dt, q_smooth, u_segs, Q0, V0, Q1, V1, U0, U1, G, f_train, longest, u_segs[i_long], starts,
@@ -175,6 +182,7 @@ def train_stage2(
     n_u_model: int | None = None,
     device: str = "cpu",
     label: str = "stage2",
+    select_share: float = 1.0,
 ) -> tuple[Lagrangian, dict]:
     """Fit the Lagrangian by one differentiable Verlet step per window (Eq. 8).
 
@@ -212,6 +220,8 @@ def train_stage2(
             the selection rollouts run on a CPU copy, and the model is
             returned on the CPU.
         label: what the progress report is headed with (e.g. ``"toy stage2"``).
+        select_share: the selection rollouts' longest horizon as a share of the longest training
+            segment (:func:`training_windows`; 0.5 for a clip without held-out frames).
 
     Returns:
         ``(model, history)``; ``model`` is ``augment``'s module when given. ``history`` holds
@@ -228,7 +238,7 @@ def train_stage2(
     starts = [cfg.effective_kinks(d, n_u)]
     if augment is None and starts[0] > 0:
         starts += [s for s in dict.fromkeys(map(float, cfg.potential_kinks_alternatives)) if s != starts[0]]
-    w = training_windows(chart, cfg, seed, "stage-2")
+    w = training_windows(chart, cfg, seed, "stage-2", select_share)
     if len(starts) == 1:
         return _fit(chart, w, cfg, seed, progress, inertia, augment, n_u_model, device, label, starts[0])
     fits = [_fit(chart, w, cfg, seed, progress, inertia, augment, n_u_model, device, f"{label} (kinks {s:g})", s) for s in starts]
