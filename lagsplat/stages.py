@@ -180,6 +180,10 @@ def stage_evaluate(cfg: DictConfig) -> None:
         from lagsplat.evaluate.views import view_metrics
 
         m.update(view_metrics(ae, clip, a.load_views()))
+    if protocol in ("paper", "default"):  # the identified frequency's and damping ratio's calibrated intervals
+        from lagsplat.evaluate.intervals import intervals, load_calibration
+
+        m.update(intervals(m, load_calibration()))
     gate = chart.meta.get("gate")
     if gate is not None and not gate["passed"]:  # run with chart.gate=false: every number says what it stands on
         from lagsplat.chart_gate import gate_summary

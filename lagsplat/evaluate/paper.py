@@ -139,6 +139,7 @@ def evaluate(clip: Clip, ae: AutoEncoder, chart: Chart, model: Lagrangian, cfg: 
             "all frames",
             "ratio",
         )
+    out.update(held_out_damping(model, q_s, u_ho, dt, top, cfg, f_enc))
     out.update(modal_metrics(clip, chart, model))
     if "f_observed_hz" in clip.meta.get("truth", {}):
         f_true = float(clip.meta["truth"]["f_observed_hz"])
@@ -202,6 +203,37 @@ def frequency_windows(
         f_seg = timeseries.spectral_peak_frequency(metrics.project(seg, top), dt)
         rows.append((f_seg, timeseries.spectral_peak_frequency(metrics.project(sim, top), dt) if np.isfinite(sim).all() else float("nan")))
     return np.array([r[0] for r in rows]), np.array([r[1] for r in rows]), w
+
+
+def held_out_damping(model: Lagrangian, q_s: np.ndarray, u: np.ndarray, dt: float, top: np.ndarray, cfg: EvalConfig, f_enc: float) -> dict[str, dict]:
+    """``zeta_enc`` and ``zeta_sim``: the damping ratio of the encoded held-out segment and of one free rollout of the
+    model through it from its first usable frame (:func:`lagsplat.metrics.rollout_start`), by the same estimator
+    (:func:`lagsplat.evaluate.in_sample.damping_ratio`: exponential envelope of the half-cycle amplitudes of the
+    projection on ``G_bar``'s top direction ``top``); ``None`` with fewer than three half cycles.
+
+    Args:
+        model: the Lagrangian; ``q_s [n, d]`` the smoothed held-out segment, ``u [n, n_u]`` its actuation;
+        dt: frame interval, s; cfg: settings (``sigma``); f_enc: the segment's frequency, Hz.
+    """
+    from lagsplat.evaluate.in_sample import damping_ratio
+
+    n = len(q_s)
+    lo = metrics.rollout_start(cfg.sigma, n, 16)
+    q0, v0 = initial_state(q_s, np.array([lo]), dt)
+    sim, _ = rollout(model, q0, v0, dt, n - lo, u=actuation_schedule(u[lo:][None], dt))
+    sim = sim[0].numpy()
+    p_enc = metrics.project(q_s[lo:], top)
+    z_enc = damping_ratio(p_enc, dt, f_enc)
+    z_sim = None
+    if np.isfinite(sim).all():
+        p_sim = metrics.project(sim, top)
+        z_sim = damping_ratio(p_sim, dt, float(timeseries.spectral_peak_frequency(p_sim, dt)))
+    env = "exponential envelope of the half-cycle amplitudes of the projection on G_bar's top eigenvector, s / sqrt(s^2 + (2 pi f)^2)"
+    span = f"the held-out segment from frame {lo} ({(n - lo) * dt:.2f} s)"
+    return {
+        "zeta_enc": metric_entry(z_enc, f"damping ratio of the encoded held-out video; {env}", span, "1"),
+        "zeta_sim": metric_entry(z_sim, f"damping ratio of the model's free rollout through the held-out segment; {env}", span, "1"),
+    }
 
 
 def modal_metrics(clip: Clip, chart: Chart, model: Lagrangian) -> dict[str, dict]:
