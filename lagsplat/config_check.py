@@ -72,6 +72,7 @@ CHECKS: dict[str, Bound] = {
     "system.frames[]": COUNT, "system.crop[]": COUNT, "system.resize[]": POSITIVE_INT,
     "system.source.fps": POSITIVE, "system.source.dt": POSITIVE, "system.source.max_fps": POSITIVE,
     "system.source.jitter_tol": NON_NEGATIVE, "system.source.frames[]": COUNT,
+    "system.scale.points[]": NON_NEGATIVE, "system.scale.metres": POSITIVE, "system.scale.pendulum_length_m": POSITIVE,
     "system.views.fps": POSITIVE, "system.views.holdout[]": COUNT, "system.views.n_views": POSITIVE_INT,
     "system.views.angle_deg": Bound(0, 90, lo_open=True, hi_open=True, words="in (0, 90) degrees"),
     # stage1 (Stage1Config)

@@ -38,7 +38,7 @@ from lagsplat.train.stage2 import Stage2Config
 
 __all__ = [
     "register_schemas", "structured_node", "SCHEMAS", "NESTED", "RunConfig", "SystemConfig", "SourceConfig", "SplitConfig", "ChartConfig",
-    "ViewConfig", "ViewsConfig", "RenderConfig", "DownloadConfig", "TableConfig", "SeedTableConfig", "KraussTableConfig", "ArtifactsConfig",
+    "ViewConfig", "ViewsConfig", "ScaleConfig", "RenderConfig", "DownloadConfig", "TableConfig", "SeedTableConfig", "KraussTableConfig", "ArtifactsConfig",
 ]  # fmt: skip
 
 
@@ -95,6 +95,22 @@ class SplitConfig:
 
 
 @dataclass
+class ScaleConfig:
+    """What a length in the image is in metres (``system.scale``; :mod:`lagsplat.diagnose.units`).
+
+    Attributes:
+        points: two points ``[x0, y0, x1, y1]`` in the source video's pixels (a ruler's marks, a known part).
+        metres: their distance, m (> 0).
+        pendulum_length_m: a pendulum's length (pivot to the bob's centre), m: the report then gives the
+            amplitude in degrees and compares the length the frequency implies.
+    """
+
+    points: Optional[tuple[float, float, float, float]] = None
+    metres: Optional[float] = None
+    pendulum_length_m: Optional[float] = None
+
+
+@dataclass
 class ViewsConfig:
     """A 3-D system's cached novel views (``system.views``; :mod:`lagsplat.views`).
 
@@ -145,6 +161,7 @@ class SystemConfig:
             sway is read and taken out where it stills the picture (:mod:`lagsplat.prepare.stabilise`); ``False``:
             the frames are read as they are (a camera on a tripod).
         views: :class:`ViewsConfig` of a 3-D system (``stage1.decoder: conditioned3d``), ``None`` for a 2-D one.
+        scale: :class:`ScaleConfig`, a known length in the image (the report's physical units), or ``None``.
     """
 
     name: str = "?"
@@ -163,6 +180,7 @@ class SystemConfig:
     split: SplitConfig = field(default_factory=SplitConfig)
     stabilise: Union[Literal["auto"], bool] = "auto"
     views: Optional[ViewsConfig] = None
+    scale: Optional[ScaleConfig] = None
 
 
 @dataclass

@@ -112,7 +112,7 @@ def stage_diagnose(cfg: DictConfig) -> None:
     dc.refit.seed = int(cfg.seed)
     title = str(cfg.system.get("title", cfg.system.name)) + (f" [{cfg.variant}]" if cfg.get("variant") else "")
     a = artifacts_of(cfg)
-    rep = diagnose_system(a, dc, EvalConfig(**plain(cfg.evaluate)), title, bool(cfg.progress))
+    rep = diagnose_system(a, dc, EvalConfig(**plain(cfg.evaluate)), title, bool(cfg.progress), plain(cfg.system.scale) if cfg.system.get("scale") else None)
     gap = rep.get("gap") or {}  # none when the run stopped at the chart-quality gate
     red = (gap.get("reduction") or {}).get("eps_q")
     print(

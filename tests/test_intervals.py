@@ -62,3 +62,22 @@ def test_a_calibration_file_is_read_and_a_wrong_one_named(tmp_path):
     bad.write_text(json.dumps({"k": 1}))
     with pytest.raises(ValueError, match="bad.json"):
         load_calibration(bad)
+
+
+def test_the_report_leads_with_the_identified_quantities_and_their_intervals():
+    from lagsplat.diagnose.quantities import Z90, identified_quantities, quantities_section
+
+    mj = {"metrics": {"f_sim_hz": _entry(0.79), "f_sim_hz_interval": _entry([0.77, 0.81]), "zeta_sim": _entry(0.01),
+                      "zeta_sim_interval": {"value": None, "definition": "no interval: the package has no calibration"},
+                      "f_modes_hz": _entry([0.83]), "zeta_modes": _entry([0.0095])}}  # fmt: skip
+    diag = {"effects": [{"effect": "coulomb", "coefficients": {"mu": {"value": 4.0, "se": 0.5}}},
+                        {"effect": "drift", "coefficients": {"dk_dt": {"value": 1.0, "se": 0.1}}}]}  # fmt: skip
+    rows = identified_quantities(mj, diag, "coulomb")
+    by = {r["quantity"]: r for r in rows}
+    assert by["natural frequency (free rollout)"]["interval"] == [0.77, 0.81]
+    assert by["damping ratio (free rollout)"]["interval"] is None and "no calibration" in by["damping ratio (free rollout)"]["method"]
+    assert by["coulomb: mu"]["interval"] == pytest.approx([4.0 - Z90 * 0.5, 4.0 + Z90 * 0.5])
+    assert "drift: dk_dt" not in by  # only the named effect's coefficients
+    text = "\n".join(quantities_section({"identified": rows}))
+    assert "## Identified quantities" in text and "0.77 to 0.81" in text
+    assert quantities_section({"identified": []}) == []

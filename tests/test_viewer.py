@@ -283,6 +283,10 @@ def test_the_rollout_figure_states_its_key_metrics_in_plain_words() -> None:
     m = {"eps_freq": {"value": 0.0123}, "eps_q": {"value": 0.051}, "eps_I_over_AE": {"value": 2.5}, "f_enc_hz": {"value": 0.8}}
     assert metrics_line(m) == "eps_freq 1.23%, eps_q 0.051, eps_I / eps_AE 2.50  (held-out frames)"
     assert metrics_line({"mse_0p5s": {"value": 1.5e-3}, "eps_freq": {"value": None}}) == "MSE(0.5 s) 1.50e-03  (held-out frames)"
+    # the calibrated 90 % intervals where metrics.json has them; none where it has no interval
+    with_iv = {**m, "f_sim_hz": {"value": 0.79}, "f_sim_hz_interval": {"value": [0.77, 0.81]}, "zeta_sim": {"value": 0.01},
+               "zeta_sim_interval": {"value": None}}  # fmt: skip
+    assert metrics_line(with_iv) == "eps_freq 1.23%, eps_q 0.051, eps_I / eps_AE 2.50, f 0.790 Hz [0.770, 0.810]  (held-out frames)"
     assert held_out_frequency(m) == 0.8  # the soft-robot protocol writes no f_enc_segment_hz
     assert held_out_frequency({"f_enc_segment_hz": {"value": 0.7}, **m}) == 0.7
     # held-out frames at rest: no encoded frequency, the model's slowest mode instead

@@ -12,6 +12,7 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
+from lagsplat.diagnose.quantities import quantities_section
 from lagsplat.diagnose.reading import carried_nonlinearity_line, distinguishing_lines, not_significant_lines
 from lagsplat.diagnose.refit import GAP_METRICS
 
@@ -356,6 +357,6 @@ def refit_section(rep: Mapping[str, Any]) -> list[str]:
 def render_markdown(rep: Mapping[str, Any]) -> str:
     """``report.md`` from the report mapping (the content of ``report.json``)."""
     lines: list[str] = []
-    for section in (verdict_section, evidence_section, identifiability_section, where_section, gap_section, refit_section):
+    for section in (verdict_section, quantities_section, evidence_section, identifiability_section, where_section, gap_section, refit_section):
         lines += section(rep)
     return "\n".join(lines)

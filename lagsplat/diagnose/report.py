@@ -54,6 +54,7 @@ import numpy as np
 
 from lagsplat.artifacts import DIAGNOSIS_FIGURES, DIAGNOSIS_FILES, Artifacts
 from lagsplat.diagnose import diagnose_chart
+from lagsplat.diagnose.quantities import report_quantities
 from lagsplat.diagnose.backbone import backbone
 from lagsplat.diagnose.backbone_plot import plot_backbone
 from lagsplat.diagnose.gap import (
@@ -283,6 +284,7 @@ def diagnose_artifacts(
     clip: Any | None, ae: Any | None, chart: Any, model: Any, stage2_cfg: Any | None, out_dir: str | Path,
     cfg: DiagnoseConfig | None = None, eval_cfg: Any | None = None, title: str = "", system: str = "", inertia: Any | None = None,
     metrics_json: Mapping[str, Any] | None = None, progress: bool = False, stage2_history: Mapping[str, Any] | None = None,
+    scale: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Diagnose, localise, refit and measure the held-out gap; write ``report.json``, ``report.md`` and the figures.
 
@@ -301,11 +303,20 @@ def diagnose_artifacts(
         metrics_json: the system's ``metrics.json`` (cross-check of the "before" numbers).
         progress: tqdm bars of the refit.
         stage2_history: the Stage-2 training history (``selected_nrmse`` enters :func:`reliability`).
+        scale: ``system.scale`` (a known length in the image): the identified quantities in physical units
+            (:mod:`lagsplat.diagnose.units`).
 
     Returns:
         The report (the content of ``report.json``).
+
+    Raises:
+        ValueError: a ``scale`` with coinciding points or with only one of ``points`` and ``metres``
+            (:func:`~lagsplat.diagnose.units.metres_per_source_px`), before any work.
     """
+    from lagsplat.diagnose.units import metres_per_source_px
     from lagsplat.evaluate import EvalConfig
+
+    metres_per_source_px(scale)  # a malformed scale stops here, before the work
 
     cfg = cfg or DiagnoseConfig()
     run = _Run(clip, ae, chart, model, stage2_cfg, cfg, eval_cfg or EvalConfig(), inertia, progress, stage2_history, Path(out_dir),
@@ -349,12 +360,15 @@ def diagnose_artifacts(
         add_pixel_sizes(diag, ScreenKinematics.from_autoencoder(ae, chart), getattr(clip, "meta", None))
 
     report = _report_record(run, diag, where, gap, refit_rec, figures, which, timings, title, system, backbone_rec)
+    # the identified frequency, damping and the named effect's coefficients, each with its 90 % interval
+    report["identified"] = jsonable(report_quantities(metrics_json, report, ae, chart, clip, scale))
     write_report(report, run.out)
     return report
 
 
 def diagnose_system(
     artifacts: Artifacts | str | Path, cfg: DiagnoseConfig | None = None, eval_cfg: Any | None = None, title: str = "", progress: bool = False,
+    scale: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """:func:`diagnose_artifacts` on the artifacts of one run.
 
@@ -362,7 +376,7 @@ def diagnose_system(
         artifacts: the run's :class:`~lagsplat.artifacts.Artifacts` (``clip.npz``, ``stage1.pt``,
             ``chart.npz``, ``stage2.pt``, optional ``metrics.json``; the report goes to
             ``artifacts.diagnosis``), or a ``results/<system>/`` folder in the standard layout.
-        cfg, eval_cfg, title, progress: see :func:`diagnose_artifacts`.
+        cfg, eval_cfg, title, progress, scale: see :func:`diagnose_artifacts`.
 
     Returns:
         The report.
@@ -395,7 +409,7 @@ def diagnose_system(
     name = a.system_dir.name
     return diagnose_artifacts(
         clip, ae, chart, model, s2, a.diagnosis, cfg, eval_cfg,
-        title or (mj or {}).get("title", name), name, inertia, mj, progress, ck.get("history"),
+        title or (mj or {}).get("title", name), name, inertia, mj, progress, ck.get("history"), scale,
     )  # fmt: skip
 
 

@@ -24,7 +24,9 @@ def metrics_line(metrics: dict, no_held_out: str | None = None) -> str:
     """The key metrics of a ``metrics.json`` block in one line, those present and finite (paper §4.1):
     ``eps_freq`` (%), ``eps_q``, ``eps_I / eps_AE``, and the soft-robot protocol's ``mse_0p5s``; for a clip
     without held-out frames (``no_held_out``, ``metrics.json``'s ``held_out`` note) the in-sample
-    ``eps_freq_in_sample`` and the damping ratios ``zeta_sim`` / ``zeta_enc``, followed by the note."""
+    ``eps_freq_in_sample`` and the damping ratios ``zeta_sim`` / ``zeta_enc``, followed by the note. Where
+    ``metrics.json`` has them, the frequency and damping ratio with their 90 % intervals
+    (:mod:`lagsplat.evaluate.intervals`) come after."""
     parts = []
     keys = (("eps_freq", "eps_freq {:.2%}"), ("eps_q", "eps_q {:.3f}"), ("eps_I_over_AE", "eps_I / eps_AE {:.2f}"), ("mse_0p5s", "MSE(0.5 s) {:.2e}"))
     if no_held_out:
@@ -33,6 +35,10 @@ def metrics_line(metrics: dict, no_held_out: str | None = None) -> str:
         v = (metrics.get(key) or {}).get("value")
         if isinstance(v, (int, float)) and np.isfinite(v):
             parts.append(fmt.format(v))
+    for key, fmt in (("f_sim_hz", "f {:.3f} Hz [{:.3f}, {:.3f}]"), ("zeta_sim", "zeta {:.3f} [{:.3f}, {:.3f}]")):
+        v, iv = (metrics.get(key) or {}).get("value"), (metrics.get(f"{key}_interval") or {}).get("value")
+        if isinstance(v, (int, float)) and iv is not None:  # the calibrated 90 % interval (lagsplat.evaluate.intervals)
+            parts.append(fmt.format(v, *iv))
     if no_held_out:
         return ", ".join(parts) + f"  (in-sample: {no_held_out})"
     return ", ".join(parts) + ("  (held-out frames)" if parts else "")
