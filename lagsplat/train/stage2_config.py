@@ -96,7 +96,7 @@ class Stage2Config:
             (``augment``) trains one start. Empty (default): one start. ``[0]`` helps where the spread
             kinks make the fitted frequency depend on the amplitude and hurts on drifts and end stops,
             where the start that follows the training frames best extrapolates worse (measured on the
-            realistic and blind suites in ``docs/diagnosis.md``), so the default is one start.
+            realistic and blind suites; ``docs/experiments/diagnosis_history.md``), so the default is one start.
         select_every: epochs between model-selection rollouts.
         select_from: fraction of the epochs after which a model can be selected: 0 (default) selects over
             the whole run on rollout error (paper §3.3), 1 keeps the last epoch's model (the reference
