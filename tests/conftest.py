@@ -74,3 +74,35 @@ def load_benchmark():
         return mod
 
     return load
+
+
+@pytest.fixture()
+def http_folder(tmp_path_factory):
+    """A real HTTP server on localhost (in a thread) serving a fresh folder: ``(root, base_url, gets)``.
+
+    Put files under ``root`` and fetch ``f"{base_url}/{name}"``; ``gets`` lists the path of every GET the
+    server answered, so a test can tell a cached file from a second download.
+    """
+    import http.server
+    import threading
+
+    root = tmp_path_factory.mktemp("www")
+    gets: list[str] = []
+
+    class Handler(http.server.SimpleHTTPRequestHandler):
+        def __init__(self, *a, **kw):
+            super().__init__(*a, directory=str(root), **kw)
+
+        def do_GET(self):
+            gets.append(self.path)
+            super().do_GET()
+
+        def log_message(self, *a):  # keep test output clean
+            pass
+
+    srv = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+    th = threading.Thread(target=srv.serve_forever, daemon=True)
+    th.start()
+    yield root, f"http://127.0.0.1:{srv.server_address[1]}", gets
+    srv.shutdown()
+    srv.server_close()

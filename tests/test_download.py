@@ -3,11 +3,9 @@
 from __future__ import annotations
 
 import hashlib
-import http.server
 import os
 import subprocess
 import sys
-import threading
 from pathlib import Path
 
 import pytest
@@ -28,24 +26,16 @@ def src(tmp_path) -> Path:
     return p
 
 
-@pytest.fixture(scope="module")
-def http_server(tmp_path_factory):
-    root = tmp_path_factory.mktemp("www")
+@pytest.fixture()
+def http_server(http_folder):
+    """A local HTTP server serving ``file.bin`` (``PAYLOAD``): ``(base_url, gets)``."""
+    root, url, gets = http_folder
     (root / "file.bin").write_bytes(PAYLOAD)
+    return url, gets
 
-    class Handler(http.server.SimpleHTTPRequestHandler):
-        def __init__(self, *a, **kw):
-            super().__init__(*a, directory=str(root), **kw)
 
-        def log_message(self, *a):  # keep test output clean
-            pass
-
-    srv = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-    th = threading.Thread(target=srv.serve_forever, daemon=True)
-    th.start()
-    yield f"http://127.0.0.1:{srv.server_address[1]}"
-    srv.shutdown()
-    srv.server_close()
+def _names(folder: Path) -> list[str]:
+    return sorted(p.name for p in folder.iterdir())
 
 
 def test_sha256_file(tmp_path):
@@ -63,6 +53,12 @@ def test_fetch_file_url(src, tmp_path):
     assert fetch(src.as_uri(), dest, PAYLOAD_SHA) == dest
 
 
+def test_fetch_relative_destination(src, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert fetch(src.as_uri(), "raw/file.bin", PAYLOAD_SHA) == Path("raw/file.bin")
+    assert (tmp_path / "raw" / "file.bin").read_bytes() == PAYLOAD and _names(tmp_path / "raw") == ["file.bin"]
+
+
 def test_fetch_replaces_stale_file(src, tmp_path):
     dest = tmp_path / "file.bin"
     dest.write_bytes(b"old version")
@@ -71,14 +67,38 @@ def test_fetch_replaces_stale_file(src, tmp_path):
 
 
 def test_fetch_http(http_server, tmp_path):
+    base, gets = http_server
     dest = tmp_path / "d" / "file.bin"
-    fetch(f"{http_server}/file.bin", dest, PAYLOAD_SHA)
+    fetch(f"{base}/file.bin", dest, PAYLOAD_SHA)
     assert sha256_file(dest) == PAYLOAD_SHA
     with pytest.raises(DownloadError) as ei:
-        fetch(f"{http_server}/missing.bin", tmp_path / "d" / "m.bin", PAYLOAD_SHA)
+        fetch(f"{base}/missing.bin", tmp_path / "d" / "m.bin", PAYLOAD_SHA)
     msg = str(ei.value)
     assert "HTTP 404" in msg and "offline" not in msg and str(tmp_path / "d" / "m.bin") in msg
     assert sorted(p.name for p in (tmp_path / "d").iterdir()) == ["file.bin"]
+    assert gets == ["/file.bin", "/missing.bin"]
+
+
+def test_fetch_http_cached_file_is_not_fetched_twice(http_server, tmp_path):
+    base, gets = http_server
+    dest = tmp_path / "d" / "file.bin"
+    assert fetch(f"{base}/file.bin", dest, PAYLOAD_SHA) == dest
+    mtime = dest.stat().st_mtime_ns
+    assert fetch(f"{base}/file.bin", dest, PAYLOAD_SHA) == dest  # verified in place: no second request
+    assert gets == ["/file.bin"] and dest.stat().st_mtime_ns == mtime
+    dest.write_bytes(b"stale")  # a wrong local copy is fetched again and replaced
+    fetch(f"{base}/file.bin", dest, PAYLOAD_SHA)
+    assert gets == ["/file.bin", "/file.bin"] and dest.read_bytes() == PAYLOAD
+
+
+def test_fetch_http_checksum_mismatch_names_the_file(http_server, tmp_path):
+    base, gets = http_server
+    folder = tmp_path / "out"
+    wrong = "f" * 64
+    with pytest.raises(DownloadError) as ei:
+        fetch(f"{base}/file.bin", folder / "file.bin", wrong)
+    assert str(ei.value) == f"sha256 mismatch for {base}/file.bin: expected {wrong}, got {PAYLOAD_SHA}"
+    assert gets == ["/file.bin"] and list(folder.iterdir()) == []  # downloaded, refused, nothing kept
 
 
 def test_fetch_checksum_mismatch_leaves_nothing(src, tmp_path):
@@ -106,6 +126,18 @@ def test_fetch_offline_message(tmp_path):
 def test_fetch_rejects_bad_digest(src, tmp_path):
     with pytest.raises(ValueError, match="64 hex"):
         fetch(src.as_uri(), tmp_path / "x", "abc")
+
+
+def test_fetch_missing_local_file_and_unknown_scheme(tmp_path):
+    dest = tmp_path / "raw" / "x.bin"
+    missing = (tmp_path / "nowhere.bin").as_uri()
+    with pytest.raises(DownloadError) as ei:
+        fetch(missing, dest, PAYLOAD_SHA)
+    assert str(ei.value) == (f"cannot download {missing} (No such file or directory); "
+                             f"download it by hand and place it at {dest} (sha256 {PAYLOAD_SHA})")
+    with pytest.raises(DownloadError, match=r"^cannot download gopher://h/x \(unsupported URL scheme 'gopher'"):
+        fetch("gopher://h/x", dest, PAYLOAD_SHA)
+    assert list(dest.parent.iterdir()) == []
 
 
 def _cli(*args: str) -> subprocess.CompletedProcess:

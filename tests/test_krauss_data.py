@@ -118,6 +118,28 @@ def test_corrupt_member_crc(archive, tmp_path):
     assert _listing(folder) == []
 
 
+def test_extract_member_takes_that_member_only(archive, tmp_path):
+    """pooch.Unzip matches members by prefix: a longer name beside the member must neither be taken nor left."""
+    z, sha, data = archive
+    both = tmp_path / "both.zip"
+    with zipfile.ZipFile(z) as src, zipfile.ZipFile(both, "w") as zf:
+        zf.writestr(MEMBER + ".old", b"an older version")
+        zf.writestr(MEMBER, src.read(MEMBER))
+    dest = tmp_path / "raw" / "x.npz"
+    assert extract_member(both, MEMBER, dest, sha) == dest and dest.read_bytes() == data
+    assert _listing(dest.parent) == ["x.npz"]  # the temporary folder is gone with the other file
+
+
+def test_relative_paths(archive, tmp_path, monkeypatch):
+    """Archive, cache and destination given relative to the working folder (as the CLI gets them)."""
+    z, sha, data = archive
+    monkeypatch.chdir(tmp_path)
+    assert fetch_member(z.as_uri(), MEMBER, Path("raw/a.npz"), sha, progress=False) == Path("raw/a.npz")
+    assert extract_member(Path("remote/processed_data.zip"), MEMBER, Path("raw/b.npz"), sha) == Path("raw/b.npz")
+    assert (tmp_path / "raw" / "a.npz").read_bytes() == data == (tmp_path / "raw" / "b.npz").read_bytes()
+    assert _listing(tmp_path / "raw") == ["a.npz", "b.npz"]
+
+
 def test_fetch_member_offline_says_what_and_where(tmp_path):
     dest = tmp_path / "raw" / "scr_dataset_raw_2seg_32x32_59fps.npz"
     sha = "dd2d8508cffb30284e46a375fc662d168c1f50b759445a4eaf601734293e82bc"
@@ -151,6 +173,26 @@ def test_cache_serves_the_second_member(archive, tmp_path):
     sha_other = hashlib.sha256(zipfile.ZipFile(z).read(OTHER)).hexdigest()
     fetch_member(UNREACHABLE, OTHER, tmp_path / "raw" / "b.npz", sha_other, cache=cache, progress=False)
     assert sha256_file(tmp_path / "raw" / "b.npz") == sha_other
+
+
+def test_fetch_member_over_http_downloads_the_archive_once(archive, http_folder, tmp_path):
+    """A real HTTP download (pooch's HTTPDownloader): the archive is fetched once, cached, and serves both members."""
+    z, sha, data = archive
+    root, base, gets = http_folder
+    (root / z.name).write_bytes(z.read_bytes())
+    url, raw = f"{base}/{z.name}", tmp_path / "raw"
+    cache = raw / "processed_data.zip"
+    assert fetch_member(url, MEMBER, raw / "a.npz", sha, cache=cache, progress=False) == raw / "a.npz"
+    assert (raw / "a.npz").read_bytes() == data and cache.read_bytes() == z.read_bytes()
+    sha_other = hashlib.sha256(zipfile.ZipFile(z).read(OTHER)).hexdigest()
+    fetch_member(url, OTHER, raw / "b.npz", sha_other, cache=cache, progress=False)
+    fetch_member(url, MEMBER, raw / "a.npz", sha, cache=cache, progress=False)  # already verified in place
+    assert gets == [f"/{z.name}"] and sha256_file(raw / "b.npz") == sha_other
+    assert _listing(raw) == ["a.npz", "b.npz", "processed_data.zip"]  # no temporaries
+    with pytest.raises(DownloadError) as ei:
+        fetch_member(f"{base}/gone.zip", MEMBER, raw / "c.npz", sha, progress=False)
+    assert str(ei.value).startswith(f"cannot download {base}/gone.zip (HTTP 404 ") and "offline" not in str(ei.value)
+    assert _listing(raw) == ["a.npz", "b.npz", "processed_data.zip"]
 
 
 def test_fetch_archive_checks_members(archive, tmp_path):

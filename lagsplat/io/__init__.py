@@ -5,8 +5,9 @@ Public entry points (a system configuration becomes a clip in :mod:`lagsplat.ing
 * Readers: :func:`read_video`, :func:`read_image_folder`, :func:`read_npz`,
   :func:`read_mcap` (all raise :class:`ClipError` with one line naming the file).
 * Timing rule: :func:`resolve_timing`, :class:`TimingWarning`.
-* Downloads: :func:`fetch`, :func:`sha256_file`, :class:`DownloadError`
-  (command line: ``python -m lagsplat.io.download URL DEST SHA256``).
+* Downloads (through pooch): :func:`fetch`, :func:`sha256_file`, :class:`DownloadError`
+  (command line: ``python -m lagsplat.io.download URL DEST SHA256``); a member of a
+  zip archive: :mod:`lagsplat.io.zenodo`.
 * The clip artifact: :class:`Clip`, :func:`save_clip`, :func:`load_clip`.
 
 Names are imported lazily on first use, so ``import lagsplat.io.clip`` does not

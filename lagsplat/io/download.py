@@ -1,11 +1,13 @@
-"""Fetch a file by URL and check its SHA256, atomically.
+"""Fetch a file by URL and check its SHA256, atomically, through pooch.
 
-``fetch(url, dest, sha256)`` returns at once if ``dest`` already holds the
-right bytes. Otherwise it downloads (``urllib``: ``http(s)://``, ``file://``)
-into a hidden temporary file beside ``dest``, checks the SHA256 and only then
-renames it onto ``dest``; on any failure the temporary file is removed and
-``dest`` is not created. Failures raise :class:`DownloadError` with one line
-that says what to do, e.g. when offline::
+``fetch(url, dest, sha256)`` hands the work to :func:`pooch.retrieve`
+(https://www.fatiando.org/pooch/) with ``known_hash="sha256:..."``: it returns
+at once if ``dest`` already holds the right bytes; otherwise pooch streams the
+URL into a temporary file beside ``dest``, checks the SHA256 and only then
+moves it onto ``dest``; on any failure the temporary file is removed and
+``dest`` is left as it was. What this module adds to pooch: ``file://`` URLs
+(a local copy, e.g. in tests), quiet logging, and one-line
+:class:`DownloadError` messages that say what to do, e.g. when offline::
 
     cannot download https://... (Connection refused); you appear to be offline:
     download it by hand and place it at data/raw/x.webm (sha256 061e...)
@@ -21,21 +23,20 @@ to stderr and exits with status 1 (no traceback).
 from __future__ import annotations
 
 import contextlib
-import hashlib
-import http.client
-import os
-import socket
+import logging
+import re
+import shutil
 import sys
-import tempfile
-import urllib.error
-import urllib.parse
-import urllib.request
 from pathlib import Path
+from urllib.parse import urlsplit
+from urllib.request import url2pathname
+
+import pooch
 
 __all__ = ["DownloadError", "fetch", "sha256_file", "main"]
 
-_CHUNK = 1 << 20
-_USER_AGENT = "lagsplat-fetch/0.1"
+_CHUNK = 1 << 20  # bytes per read of a download
+_USER_AGENT = "lagsplat-fetch/0.1 (pooch)"
 
 
 class DownloadError(RuntimeError):
@@ -43,36 +44,117 @@ class DownloadError(RuntimeError):
 
 
 def sha256_file(path: str | Path) -> str:
-    """Return the lower-case hex SHA256 of a file's bytes (read in 1 MiB chunks).
+    """Return the lower-case hex SHA256 of a file's bytes (:func:`pooch.file_hash`, read in chunks).
 
     Raises:
         OSError: if the file cannot be read.
     """
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for chunk in iter(lambda: fh.read(_CHUNK), b""):
-            h.update(chunk)
-    return h.hexdigest()
+    return pooch.file_hash(str(path), alg="sha256")
+
+
+def check_digest(sha256: str) -> str:
+    """``sha256`` stripped and lower-cased; raises ``ValueError`` unless it is 64 hex digits."""
+    expected = str(sha256).strip().lower()
+    if len(expected) != 64 or any(c not in "0123456789abcdef" for c in expected):
+        raise ValueError(f"sha256 must be 64 hex digits, got {sha256!r}")
+    return expected
 
 
 def failure_reason(exc: BaseException) -> str:
-    """A short human reason for a failed download (HTTP status, network error, OS error)."""
-    if isinstance(exc, urllib.error.HTTPError):
-        return f"HTTP {exc.code} {exc.reason}"
-    if isinstance(exc, urllib.error.URLError):
-        r = exc.reason
-        if isinstance(r, BaseException):
-            return failure_reason(r)
-        return str(r)
-    if isinstance(exc, (socket.timeout, TimeoutError)):
+    """A short human reason for a failed download: an HTTP status, the network or OS error at the root."""
+    response = getattr(exc, "response", None)
+    if response is not None and getattr(response, "status_code", None):
+        return f"HTTP {response.status_code} {response.reason}"
+    if isinstance(exc, TimeoutError) or type(exc).__name__ in ("ReadTimeout", "ConnectTimeout", "Timeout"):
         return "timed out"
     if isinstance(exc, OSError) and exc.strerror:
         return exc.strerror
+    for inner in (getattr(exc, "reason", None), exc.args[0] if exc.args else None, exc.__cause__):
+        if isinstance(inner, BaseException) and inner is not exc:
+            return failure_reason(inner)
     return str(exc) or type(exc).__name__
 
 
+@contextlib.contextmanager
+def quiet_pooch():
+    """Silence pooch's INFO lines ("Downloading data from ...") so a failure prints one line only."""
+    log = pooch.get_logger()
+    level = log.level
+    log.setLevel(logging.WARNING)
+    try:
+        yield
+    finally:
+        log.setLevel(level)
+
+
+def _downloader(url: str, by_hand: str, timeout: float, progress: bool):
+    """The pooch downloader for ``url``: pooch's HTTP one, a copy for ``file://``, or one that refuses the scheme.
+
+    pooch calls it only when a download is needed, into its temporary file (which it then verifies and moves).
+    """
+    scheme = url.split(":", 1)[0].lower() if ":" in url else ""
+    if scheme in ("http", "https"):
+        return pooch.HTTPDownloader(progressbar=progress, chunk_size=_CHUNK, timeout=timeout, headers={"User-Agent": _USER_AGENT})
+
+    def local_or_refuse(url: str, output_file: str, _pooch: object) -> None:
+        if scheme != "file":
+            raise DownloadError(f"cannot download {url} (unsupported URL scheme {scheme!r}; use http, https or file); {by_hand}")
+        try:
+            src = open(url2pathname(urlsplit(url).path), "rb")
+        except OSError as exc:
+            raise DownloadError(f"cannot download {url} ({failure_reason(exc)}); {by_hand}") from None
+        with src, open(output_file, "wb") as out:
+            shutil.copyfileobj(src, out, _CHUNK)
+
+    return local_or_refuse
+
+
+def retrieve(url: str, dest: Path, known_hash: str | None, by_hand: str, timeout: float = 60, progress: bool = False) -> Path:
+    """:func:`pooch.retrieve` ``url`` to ``dest`` with ``known_hash`` (``"sha256:<hex>"`` or ``None``).
+
+    Args:
+        url: ``http(s)://`` or ``file://`` URL.
+        dest: destination path; its folder is created if needed. A file there
+            whose hash matches ``known_hash`` is returned without a download
+            (with ``known_hash=None``, any file there is).
+        known_hash: pooch's hash string, or ``None`` to skip the check.
+        by_hand: advice ending the error messages ("download it by hand ...").
+        timeout: seconds allowed for connecting and for each read.
+        progress: pooch's tqdm progress bar (bytes) on stderr while downloading
+            over HTTP, drawn once the server has answered (a refused request
+            prints nothing); ``TQDM_MININTERVAL=30`` thins it in a log file.
+
+    Returns:
+        ``dest``.
+
+    Raises:
+        DownloadError: one line: ``"sha256 mismatch for <url>: expected X, got Y"``,
+            ``"cannot download <url> (<reason>); <by_hand>"`` (an HTTP status,
+            a missing local file, an unsupported scheme), the same with ``"you
+            appear to be offline: "`` before ``by_hand`` for a network failure,
+            or ``"cannot write the download of <url> to <folder> (<reason>)"``.
+    """
+    import requests
+
+    try:
+        with quiet_pooch():
+            pooch.retrieve(url, known_hash, fname=dest.name, path=dest.parent, downloader=_downloader(url, by_hand, timeout, progress))
+    except requests.exceptions.RequestException as exc:  # an HTTP status or a malformed URL (a ValueError) is no network failure
+        offline = "" if isinstance(exc, (requests.exceptions.HTTPError, ValueError)) else "you appear to be offline: "
+        raise DownloadError(f"cannot download {url} ({failure_reason(exc)}); {offline}{by_hand}") from None
+    except ValueError as exc:  # pooch's hash mismatch ("... expected sha256:X but got Y. ...")
+        if known_hash is None or "does not match the known hash" not in str(exc):
+            raise DownloadError(f"cannot download {url} ({exc}); {by_hand}") from None
+        got = re.search(r"but got ([0-9a-fA-F]+)", str(exc))
+        raise DownloadError(f"sha256 mismatch for {url}: expected {known_hash.split(':')[-1]}, "
+                            f"got {got.group(1).lower() if got else 'a different digest'}") from None
+    except OSError as exc:  # a local write: disk full, read-only folder (network errors come as requests' exceptions)
+        raise DownloadError(f"cannot write the download of {url} to {dest.parent} ({failure_reason(exc)})") from None
+    return dest
+
+
 def fetch(url: str, dest: str | Path, sha256: str, timeout: float = 60) -> Path:
-    """Make ``dest`` hold the file at ``url`` whose SHA256 is ``sha256``.
+    """Make ``dest`` hold the file at ``url`` whose SHA256 is ``sha256`` (through :func:`pooch.retrieve`).
 
     Args:
         url: ``http://``, ``https://`` or ``file://`` URL.
@@ -81,7 +163,8 @@ def fetch(url: str, dest: str | Path, sha256: str, timeout: float = 60) -> Path:
         timeout: seconds allowed for connecting and for each read.
 
     Returns:
-        ``dest`` as a :class:`~pathlib.Path`.
+        ``dest`` as a :class:`~pathlib.Path`; nothing is downloaded when it
+        already holds the right bytes.
 
     Raises:
         DownloadError: one line, either ``"sha256 mismatch for <url>:
@@ -93,45 +176,9 @@ def fetch(url: str, dest: str | Path, sha256: str, timeout: float = 60) -> Path:
         ValueError: if ``sha256`` is not 64 hex digits.
     """
     dest = Path(dest)
-    expected = str(sha256).strip().lower()
-    if len(expected) != 64 or any(c not in "0123456789abcdef" for c in expected):
-        raise ValueError(f"sha256 must be 64 hex digits, got {sha256!r}")
-    if dest.is_file() and sha256_file(dest) == expected:
-        return dest
-
+    expected = check_digest(sha256)
     by_hand = f"download it by hand and place it at {dest} (sha256 {expected})"
-    scheme = urllib.parse.urlsplit(url).scheme.lower()
-    dest.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=".part", dir=dest.parent)
-    tmp = Path(tmp_name)
-    try:
-        h = hashlib.sha256()
-        with os.fdopen(fd, "wb") as out:
-            try:
-                req = urllib.request.Request(url, headers={"User-Agent": _USER_AGENT})
-                with urllib.request.urlopen(req, timeout=timeout) as resp:
-                    for chunk in iter(lambda: resp.read(_CHUNK), b""):
-                        h.update(chunk)
-                        out.write(chunk)
-            except urllib.error.HTTPError as exc:
-                raise DownloadError(f"cannot download {url} ({failure_reason(exc)}); {by_hand}") from None
-            except ValueError as exc:  # unknown url type, malformed URL
-                raise DownloadError(f"cannot download {url} ({exc}); {by_hand}") from None
-            except (urllib.error.URLError, OSError, http.client.HTTPException) as exc:
-                if scheme == "file" and not isinstance(exc, (socket.timeout, TimeoutError)):
-                    raise DownloadError(f"cannot download {url} ({failure_reason(exc)}); {by_hand}") from None
-                raise DownloadError(
-                    f"cannot download {url} ({failure_reason(exc)}); you appear to be offline: {by_hand}"
-                ) from None
-        got = h.hexdigest()
-        if got != expected:
-            raise DownloadError(f"sha256 mismatch for {url}: expected {expected}, got {got}")
-        os.replace(tmp, dest)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            tmp.unlink()
-        raise
-    return dest
+    return retrieve(url, dest, f"sha256:{expected}", by_hand, timeout=timeout)
 
 
 def main(argv: list[str] | None = None) -> int:

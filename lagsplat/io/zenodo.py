@@ -1,18 +1,20 @@
-"""Fetch a zip archive, extract one member, verify the member's SHA256, atomically.
+"""Fetch a zip archive, extract one member, verify the member's SHA256, atomically (through pooch).
 
 Data published as one large archive (e.g. Zenodo record 17812071,
 ``processed_data.zip``, about 4.5 GB, holding the soft-robot recordings of
 Krauss et al. 2026) come with a checksum for the files inside, not for the
 archive. So the member is what is verified:
 
-* :func:`fetch_archive` downloads the archive (``http(s)://`` or ``file://``)
-  into a hidden temporary file beside its destination, checks that it is a
-  readable zip listing the expected members, and only then renames it into
-  place. It has no checksum to verify: the archive is trusted only as far as
-  the members extracted from it match theirs.
-* :func:`extract_member` streams one member of a local archive into a hidden
-  temporary file beside its destination while hashing it (zipfile checks the
-  member's CRC-32 on the way), compares the SHA256 and renames it into place.
+* :func:`fetch_archive` downloads the archive (``http(s)://`` or ``file://``;
+  :func:`pooch.retrieve` with ``known_hash=None``, through
+  :func:`lagsplat.io.download.retrieve`) to a hidden temporary name beside its
+  destination, checks that it is a readable zip listing the expected members,
+  and only then renames it into place. It has no checksum to verify: the
+  archive is trusted only as far as the members extracted from it match theirs.
+* :func:`extract_member` unpacks one member of a local archive with
+  ``pooch.Unzip(members=[member])`` into a hidden temporary folder beside its
+  destination (zipfile checks the member's CRC-32 on the way), compares its
+  SHA256 (:func:`pooch.file_hash`) and renames it into place.
 * :func:`fetch_member` composes the two: it returns at once if the
   destination already holds the right bytes; otherwise it uses a local archive
   the user gave (``archive=``, never modified or deleted), an archive cached
@@ -44,76 +46,36 @@ print the one-line error to stderr and exit with status 1 (no traceback).
 from __future__ import annotations
 
 import argparse
-import contextlib
-import hashlib
-import http.client
 import os
-import socket
+import shutil
 import sys
 import tempfile
-import urllib.error
-import urllib.parse
-import urllib.request
 import zipfile
 import zlib
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Iterable
 
-from lagsplat.io.download import DownloadError, failure_reason, sha256_file
+import pooch
+
+from lagsplat.io.download import (
+    DownloadError,
+    check_digest,
+    failure_reason,
+    quiet_pooch,
+    retrieve,
+    sha256_file,
+)
 
 __all__ = ["fetch_archive", "extract_member", "fetch_member", "main"]
 
-_CHUNK = 1 << 20
-_USER_AGENT = "lagsplat-fetch/0.1"
-_PROGRESS_EVERY = 512 << 20  # bytes between progress lines of a large download
 
-
-def _check_digest(sha256: str) -> str:
-    expected = str(sha256).strip().lower()
-    if len(expected) != 64 or any(c not in "0123456789abcdef" for c in expected):
-        raise ValueError(f"sha256 must be 64 hex digits, got {sha256!r}")
-    return expected
-
-
-def _tmp_beside(dest: Path, suffix: str = ".part") -> Path:
+def _tmp_name(dest: Path, suffix: str = ".part") -> Path:
+    """A unique unused hidden path beside ``dest`` (its folder is created)."""
     dest.parent.mkdir(parents=True, exist_ok=True)
     fd, name = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=suffix, dir=dest.parent)
     os.close(fd)
+    os.unlink(name)  # only the name is reserved: pooch would take an existing file for a cached download
     return Path(name)
-
-
-def _unlink(p: Path | None) -> None:
-    if p is not None:
-        with contextlib.suppress(FileNotFoundError):
-            p.unlink()
-
-
-def _download(url: str, out: Path, timeout: float, by_hand: str, progress: bool) -> None:
-    """Stream ``url`` into ``out`` (overwritten); raise a one-line :class:`DownloadError` on failure."""
-    scheme = urllib.parse.urlsplit(url).scheme.lower()
-    try:
-        req = urllib.request.Request(url, headers={"User-Agent": _USER_AGENT})
-        with urllib.request.urlopen(req, timeout=timeout) as resp, open(out, "wb") as fh:
-            total = resp.headers.get("Content-Length")
-            total_s = f" of {int(total) / 1e9:.2f} GB" if total and total.isdigit() else ""
-            got, next_report = 0, _PROGRESS_EVERY
-            for chunk in iter(lambda: resp.read(_CHUNK), b""):
-                try:
-                    fh.write(chunk)
-                except OSError as exc:  # disk full, read-only folder: not a network problem
-                    raise DownloadError(f"cannot write the download of {url} to {out.parent} ({failure_reason(exc)})") from None
-                got += len(chunk)
-                if progress and got >= next_report:
-                    print(f"[lagsplat] {url}: {got / 1e9:.2f} GB{total_s}", file=sys.stderr, flush=True)
-                    next_report += _PROGRESS_EVERY
-    except urllib.error.HTTPError as exc:
-        raise DownloadError(f"cannot download {url} ({failure_reason(exc)}); {by_hand}") from None
-    except ValueError as exc:  # unknown url type, malformed URL
-        raise DownloadError(f"cannot download {url} ({exc}); {by_hand}") from None
-    except (urllib.error.URLError, OSError, http.client.HTTPException) as exc:
-        if scheme == "file" and not isinstance(exc, (socket.timeout, TimeoutError)):
-            raise DownloadError(f"cannot download {url} ({failure_reason(exc)}); {by_hand}") from None
-        raise DownloadError(f"cannot download {url} ({failure_reason(exc)}); you appear to be offline: {by_hand}") from None
 
 
 def _members(archive: Path, label: str) -> set[str]:
@@ -152,7 +114,8 @@ def fetch_archive(
         timeout: seconds allowed for connecting and for each read.
         hint: extra advice appended to the "download it by hand" message
             (e.g. the Snakemake option that takes a local archive).
-        progress: print a line to stderr every 512 MB.
+        progress: draw pooch's progress bar (tqdm, bytes) on stderr while
+            downloading over HTTP (see :func:`lagsplat.io.download.retrieve`).
         by_hand: replaces the whole "download it by hand" advice of the
             error messages (``hint`` is then ignored).
 
@@ -177,16 +140,16 @@ def fetch_archive(
         return dest
     if by_hand is None:
         by_hand = f"download {url} by hand and place it at {dest}" + (f", {hint}" if hint else "")
-    tmp = _tmp_beside(dest)
+    tmp = _tmp_name(dest)
     try:
-        _download(url, tmp, timeout, by_hand, progress)
+        retrieve(url, tmp, None, by_hand, timeout=timeout, progress=progress)  # no archive checksum exists
         names = _members(tmp, f"the file downloaded from {url}")
         for m in expect:
             if m not in names:
                 raise _missing_member(f"the archive downloaded from {url}", m, names)
         os.replace(tmp, dest)
     except BaseException:
-        _unlink(tmp)
+        tmp.unlink(missing_ok=True)
         raise
     return dest
 
@@ -194,9 +157,10 @@ def fetch_archive(
 def extract_member(archive: str | Path, member: str, dest: str | Path, sha256: str) -> Path:
     """Extract ``member`` of the zip ``archive`` to ``dest`` and verify its SHA256, atomically.
 
-    The member is streamed (1 MiB chunks) into a hidden temporary file beside
-    ``dest`` while hashing; zipfile also checks its CRC-32. Only a member whose
-    SHA256 matches is renamed onto ``dest``. The archive is only read.
+    ``pooch.Unzip(members=[member])`` unpacks the member into a hidden
+    temporary folder beside ``dest`` (zipfile checks its CRC-32), which is
+    removed afterwards; only a member whose SHA256 matches is renamed onto
+    ``dest``. The archive is only read.
 
     Args:
         archive: path of a local zip file.
@@ -217,38 +181,33 @@ def extract_member(archive: str | Path, member: str, dest: str | Path, sha256: s
             and no temporary file survives.
         ValueError: if ``sha256`` is not 64 hex digits.
     """
-    expected = _check_digest(sha256)
+    expected = check_digest(sha256)
     archive, dest = Path(archive), Path(dest)
     if not archive.is_file():
         raise DownloadError(f"archive {archive} not found (expected a zip file holding {member})")
-    tmp: Path | None = None
+    names = _members(archive, str(archive))
+    if member not in names:
+        raise _missing_member(str(archive), member, names)
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    # absolute: pooch.Unzip joins a relative extract_dir onto the archive's folder
+    unzipped = Path(tempfile.mkdtemp(prefix=f".{dest.name}.", suffix=".unzip", dir=dest.parent)).resolve()
     try:
         try:
-            zf = zipfile.ZipFile(archive)
-        except (zipfile.BadZipFile, zipfile.LargeZipFile, OSError, EOFError, ValueError) as exc:
-            raise DownloadError(f"{archive} is not a readable zip archive ({exc})") from None
-        with zf:
-            names = set(zf.namelist())
-            if member not in names:
-                raise _missing_member(str(archive), member, names)
-            tmp = _tmp_beside(dest)
-            h = hashlib.sha256()
-            try:
-                with zf.open(member) as src, open(tmp, "wb") as out:
-                    for chunk in iter(lambda: src.read(_CHUNK), b""):
-                        h.update(chunk)
-                        out.write(chunk)
-            except (zipfile.BadZipFile, zlib.error, EOFError, ValueError, NotImplementedError) as exc:
-                raise DownloadError(f"member {member} of {archive} is corrupt ({exc})") from None
-            except OSError as exc:
-                raise DownloadError(f"cannot extract {member} of {archive} to {dest} ({failure_reason(exc)})") from None
-        got = h.hexdigest()
+            with quiet_pooch():
+                pooch.Unzip(members=[member], extract_dir=str(unzipped))(str(archive.resolve()), "download", None)
+        except (zipfile.BadZipFile, zlib.error, EOFError, ValueError, NotImplementedError) as exc:
+            raise DownloadError(f"member {member} of {archive} is corrupt ({exc})") from None
+        except OSError as exc:
+            raise DownloadError(f"cannot extract {member} of {archive} to {dest} ({failure_reason(exc)})") from None
+        out = unzipped / member
+        if not out.is_file():
+            raise DownloadError(f"member {member} of {archive} is not a file that unzips to its own name (a folder, or an unsafe path)")
+        got = sha256_file(out)
         if got != expected:
             raise DownloadError(f"sha256 mismatch for member {member} of {archive}: expected {expected}, got {got}")
-        os.replace(tmp, dest)
-    except BaseException:
-        _unlink(tmp)
-        raise
+        os.replace(out, dest)
+    finally:
+        shutil.rmtree(unzipped, ignore_errors=True)
     return dest
 
 
@@ -286,7 +245,7 @@ def fetch_member(
             calls (e.g. the other members of the same record).
         timeout: seconds allowed for connecting and for each read.
         hint: extra advice for the offline message (how to pass a local archive).
-        progress: print download progress to stderr.
+        progress: draw a download progress bar on stderr (see :func:`fetch_archive`).
 
     Returns:
         ``dest`` as a :class:`~pathlib.Path`.
@@ -298,7 +257,7 @@ def fetch_member(
             and its SHA256.
         ValueError: if ``sha256`` is not 64 hex digits.
     """
-    expected = _check_digest(sha256)
+    expected = check_digest(sha256)
     dest = Path(dest)
     if dest.is_file() and sha256_file(dest) == expected:
         return dest
@@ -309,20 +268,18 @@ def fetch_member(
             return extract_member(cache, member, dest, expected)
         except DownloadError as exc:
             raise DownloadError(f"{exc} [cached archive {cache} kept; delete it to download again]") from None
-    target = Path(cache) if cache is not None else _tmp_beside(dest, ".zip.part")
+    target = Path(cache) if cache is not None else _tmp_name(dest, ".zip.part")
     place = f"place it at {target}" if cache is not None else "give its path as the local archive"
     by_hand = f"download {url} by hand and {place}" + (f", {hint}" if hint else "")
     by_hand += f", or place its member {member} at {dest} (sha256 {expected})"
     try:
-        if cache is None:
-            _unlink(target)  # the placeholder only reserved a unique name; fetch_archive never overwrites
         fetch_archive(url, target, [member], timeout=timeout, progress=progress, by_hand=by_hand)
         extract_member(target, member, dest, expected)
     except BaseException:
-        _unlink(target)
+        target.unlink(missing_ok=True)
         raise
     if cache is None:
-        _unlink(target)
+        target.unlink(missing_ok=True)
     return dest
 
 
