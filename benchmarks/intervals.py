@@ -76,12 +76,14 @@ def row(name: str, runs: Path, clips: Path) -> dict | None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--calibrate", action="store_true", required=True)
+    ap.add_argument("--calibrate", action="store_true", help="calibrate on the calibration half and score the test half")
     ap.add_argument("--runs", type=Path, required=True, help="the realistic suite's run folders (one per clip)")
     ap.add_argument("--clips", type=Path, default=Path("data/cache/realistic"), help="the rendered clips and their truth")
     ap.add_argument("--out", type=Path, default=REPORTS / "intervals.md")
     ap.add_argument("--calibration", type=Path, default=CALIBRATION_FILE, help="where the constants go")
     args = ap.parse_args()
+    if not args.calibrate:
+        ap.error("nothing to do: give --calibrate")
     rep = Report("Interval calibration on the realistic suite (split conformal, 90 %)", args.out, __file__)
     names = sorted(p.name for p in args.runs.iterdir() if p.is_dir() and (args.clips / f"{p.name}.truth.npz").exists())
     rows = [r for r in (row(n, args.runs, args.clips) for n in names) if r is not None]
