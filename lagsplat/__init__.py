@@ -12,10 +12,10 @@ import os as _os
 # thread spins before it sleeps: spinning for ever (OMP_WAIT_POLICY=ACTIVE)
 # starves the other pool, never spinning (PASSIVE) makes each of the hundreds
 # of small torch operations of a step wait for a sleeping thread to wake. A
-# short spin (about tens of microseconds) keeps both: on 2 cores a Stage-1 step
-# of the main job took 22 ms with it, 32 ms with PASSIVE and 26 ms with the
-# runtime's default (benchmarks/stage1.py). Must be set before torch starts its
-# thread pool, hence here; an explicit user setting wins.
+# short spin (about tens of microseconds) keeps both: a Stage-1 step is faster
+# with it than with PASSIVE or the runtime's default (benchmarks/stage1.py
+# times a step; docs/experiments/code_comment_history.md). Must be set before
+# torch starts its thread pool, hence here; an explicit user setting wins.
 _os.environ.setdefault("GOMP_SPINCOUNT", "30000")
 
 __version__ = "0.1.0"

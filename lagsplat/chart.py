@@ -19,12 +19,12 @@ frames.
 Optionally (``chart.refine_iters > 0``; 0, the paper's chart, by default) each
 encoding is first moved to where the decoder draws its frame best
 (:func:`refine_latents`). The encoder is amortised and saturates where images are
-extreme: on the blind suite's 32-pixel clips it read the turning points up to
-0.3 (whitened units) short of what its own decoder drew, a flattened peak that
-Stage 2 then fits as physics. Per frame, the refinement gives up the
-encoder's temporal regularity (paper §3.2), and on real video that can cost
-more than it buys: on the red apple pendulum it tore the chart (jump ratio
-5.2 -> 16.8), on the oscillating cart held-out ``eps_q`` went 0.047 -> 0.054.
+extreme: it can read the turning points short of where its own decoder draws
+them, a flattened peak that Stage 2 then fits as physics. Per frame, the
+refinement gives up the encoder's temporal regularity (paper §3.2), and on real
+video that can cost more than it buys: it can tear the chart or widen the
+held-out gap (the blind suite's and the real clips' measurements are in
+``docs/experiments/diagnosis_history.md``).
 """
 
 from __future__ import annotations

@@ -250,8 +250,8 @@ def gated_chart(
     With ``refine_iters > 0`` both charts are built (:func:`lagsplat.chart.build_chart`): the encoder's (paper §3.2)
     and the one whose encodings took ``refine_iters`` Levenberg-Marquardt steps towards where the decoder draws each
     frame (:func:`lagsplat.chart_refine.refine_latents`). Per frame the refinement gives up the encoder's temporal
-    regularity: it can lower the chart's noise (on the realistic suite's clips about twofold) or tear the chart (a
-    real pendulum's speed-jump ratio 5.2 -> 16.8). So the refined chart is used only when it passes the gate and its
+    regularity: it can lower the chart's noise or tear the chart (both measured on rendered and real clips,
+    ``docs/experiments/diagnosis_history.md``). So the refined chart is used only when it passes the gate and its
     :func:`relative_chart_noise` is below the encoder's; otherwise the encoder's chart is used, unless it alone fails
     the gate. ``chart.meta["refine_choice"]`` records both noise levels and the reason.
 

@@ -30,9 +30,8 @@ def refine_latents(
     accepting a step only where it lowers the error, so no frame gets worse.
     Central differences use the compiled CPU renderer; the exact Jacobian by
     forward-mode AD through the torch rasteriser (as :func:`visibility_metric`)
-    was measured 20x slower on a blind-suite clip (``cart-coulomb-0``, 8
-    iterations) for the same result (latents 0.3 % of their spread apart,
-    equal mean MSE).
+    was measured many times slower for the same result (the measurement:
+    ``docs/experiments/code_comment_history.md``).
 
     Args:
         model: trained autoencoder (frozen).

@@ -33,8 +33,8 @@ Two brushes (``brush=``):
   With ``min_transmittance`` ``tau > 0`` only the surface the ray meets first
   counts: a sample's weight on primitive ``i`` is dropped where
   ``T_i < tau``, so colour that shows through a not quite opaque part (a
-  static background primitive seen through the checkered pendulum's bob took
-  11-17 % of the weight at its centre on some trainings) no longer pulls the
+  static background primitive seen through the checkered pendulum's bob, on
+  some trainings; ``docs/experiments/code_comment_history.md``) no longer pulls the
   part's Jacobian towards the background's. Default 0: every composited
   primitive (docs/forces.md gives what ``tau = 0.5`` changes).
 
@@ -288,9 +288,8 @@ class ForceTransport(ChartKinematics):
         of this material the video showed the decoder. Its ``J_i`` are learned
         from that motion alone, so where it is below about a pixel the video
         barely constrains them and a force there is extrapolated
-        (docs/forces.md: the checkered pendulum's counter-arm, seen moving 0.41-0.57 px
-        against 2.5-5.5 px along the rod, reads its lever arm 11-38 % short
-        over 9 trainings).
+        (docs/forces.md: the checkered pendulum's counter-arm, seen moving far less
+        than the rod, reads its lever arm short).
 
         Raises:
             ValueError: if ``q`` is not ``[T,d]`` with ``T >= 1``.

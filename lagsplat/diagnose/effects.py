@@ -41,8 +41,8 @@ Where the search is restricted:
   :func:`~lagsplat.diagnose.select.select_effect`), which a distorted chart cannot;
 * a ``periodic_force`` must drive, off resonance, a motion of at least 1 % of
   the recorded one (rms; :meth:`~lagsplat.diagnose.effect_base.Effect.practical`): coherent over a whole clip,
-  a far smaller one passes the statistical rule (an actuated control of the
-  blind suite: 0.34 %, Delta BIC 10.5; the weakest real one there 2.5 %) but
+  a far smaller one passes the statistical rule (as on an actuated control of the
+  blind suite, below the weakest real force there; ``docs/experiments/diagnosis_history.md``) but
   changes nothing the video shows;
 * ``periodic_force`` and ``missing_dof`` are not sought near the model's own
   modes, their harmonics and combination tones, nor near the logged
@@ -56,10 +56,10 @@ Features are evaluated on the de-blurred state of the residual
 position, stiffness and share of samples in contact are read on the chart's
 own, unsmoothed positions: a bounce lasts a few frames, the smoothing pulls
 its turning point in, and the first-order de-blurring gives back little of it.
-On the cart stand-in of ``tests/test_diagnose.py`` the stop sat 0.08 chart
-units too shallow on the smoothed positions; on the de-blurred ones it was
-placed right but came out 2.3 times too stiff; on the chart's own positions the
-stiffness is within 10 % of the truth.
+On the cart stand-in of ``tests/test_diagnose.py`` the smoothed positions place
+the stop too shallow and the de-blurred ones make it too stiff; the chart's own
+positions give its position and stiffness (the measurement:
+``docs/experiments/code_comment_history.md``).
 
 The energy-consistent torch forms used to refit Stage 2 with a winning effect
 are in :mod:`lagsplat.diagnose.terms`.

@@ -48,12 +48,12 @@ class CoulombEffect(Effect):
 
         The residual is smoothed over ``sigma`` frames, in which the speed near a
         reversal sweeps a large part of its range, so the residual barely tells
-        a sharp sign from a smooth one: on the blind suite's four friction clips
-        the BIC over ``v_s`` from 0.01 to 0.4 rms speed moves by 8 or less. Fitted
-        anyway, ``v_s`` went where the noise put it (2.3 chart units/s on
-        ``cart-coulomb-0``, 0.64 of its rms speed), and the refit with that
-        near-viscous term decayed exponentially: envelope error 0.068 against 0.037
-        for the model without it; 0.004 with ``v_s`` set here.
+        a sharp sign from a smooth one: on the blind suite's friction clips the BIC
+        barely moves over ``v_s`` from 0.01 to 0.4 rms speed. Fitted anyway, ``v_s``
+        went where the noise put it, and the refit with that near-viscous term
+        decayed exponentially, worse than the model without it; with ``v_s`` set here
+        it does not (measured on the blind suite: ``docs/experiments/diagnosis_history.md``,
+        ``docs/experiments/code_comment_history.md``).
         """
         v = float(np.sqrt(np.mean((res.qdot @ e) ** 2)))
         return [{"v_s": self.V_S_FRACTION * v}]
@@ -138,9 +138,10 @@ class EndStopEffect(Effect):
     the stop is touched on at most ``max_stop_contact_fraction`` of the samples. A stop limits the
     range of motion and is far stiffer than the spring, so the object spends a minority of its time
     on it, whether it sits at a gap beyond the rest position or at rest itself (a bouncing contact
-    takes ``1 / (1 + sqrt(ratio))`` of the time at zero gap: under a quarter from about 9x; true
-    stops on the suites' clips and the real bouncing cart: 1-18 % of the samples). A kink touched on
-    more of the samples lies inside the range: a spring that is stiffer on one side (34 % at 3.7x).
+    takes ``1 / (1 + sqrt(ratio))`` of the time at zero gap: under a quarter from about 9x; the true
+    stops of the suites' clips and of the real bouncing cart are touched on fewer samples than that). A kink
+    touched on more of the samples lies inside the range: a spring that is stiffer on one side (the
+    measurements: ``docs/experiments/code_comment_history.md``).
     A rigid stop struck on every swing (the motion arrives at speed and reverses at a fixed position on
     the fitted side, losing energy: the signatures' ``impacts``, :mod:`lagsplat.diagnose.impacts`) spends no time past
     the stop at all; the penalty's kink then sits wherever the smoothed chart rounds the reversal off, and
@@ -233,7 +234,7 @@ def _struck(res: Any, e: np.ndarray, side: float) -> dict[str, Any] | None:
     read along ``e``: ``{side, s_stop, n_impacts, n_while_met, restitution, restitution_90}``; ``None`` where the
     motion does not strike a stop there, or where the reversals lose no energy (the restitution's 90 % interval
     reaches 1): a spring ten times stiffer past a kink inside the range turns the motion around within a few frames
-    too, elastically (restitution 0.96-0.99 read on such charts), and the contact share tells it from a stop."""
+    too, elastically (a restitution close to 1 read on such charts), and the contact share tells it from a stop."""
     sig = (res.meta.get("signatures") or {}).get("impacts") or {}
     if not sig.get("stop_side"):
         return None

@@ -152,8 +152,8 @@ class DriftEffect(Effect):
         Nor where the fitted trend, linear about the middle of the span, takes the stiffness or the damping
         through zero within the recording by more than two standard errors of its rate
         (:func:`_through_zero`): a stiffness changing sign or a damping turning negative is no slow change of a
-        stable oscillator but a misfit the time trend happens to follow (a realistic double pendulum without
-        any effect, on three periods: stiffness -1093 %, damping +4985 % over 3 s). This check needs no timing
+        stable oscillator but a misfit the time trend happens to follow (as on a realistic double pendulum without
+        any effect cut to three periods; ``docs/experiments/code_comment_history.md``). This check needs no timing
         signature, so it also holds on short clips and on several latent dimensions.
         """
         through_zero = _through_zero(interpretation)

@@ -194,11 +194,12 @@ def _gauged(base: nn.Module, gauge: float) -> None:
     so the learned part takes over what the floor gives up:
     ``L_C L_C^T <- L_C L_C^T(0) + (g - 1) c0 / e^{s_M'} I``, made constant (the last layer
     of :class:`~lagsplat.models.inertia.CholeskyField` set to that Cholesky factor,
-    weights zero). Exact where the fitted field is constant; in practice it has
-    collapsed (``L_C L_C^T`` ~ 1e-29 on the blind suite's end-stop clips, as the floor
-    already over-damps), and there its gradient vanishes (softplus far below zero),
-    so without this the fine-tune starts ``g`` times less damped and cannot raise the
-    damping again: those refits ran 5-8 % fast with swings too large.
+    weights zero). Exact where the fitted field is constant; in practice it can have
+    collapsed (``L_C L_C^T`` near zero, as the floor already over-damps), and there its
+    gradient vanishes (softplus far below zero), so without this the fine-tune starts
+    ``g`` times less damped and cannot raise the damping again: its free rollouts run
+    fast with swings too large (the blind suite's end-stop clips,
+    ``docs/experiments/diagnosis_history.md``).
     """
     base.s_M.add_(math.log(gauge))
     base.s_V.add_(math.log(gauge))

@@ -38,7 +38,8 @@ def choose_by_refit(
     ranks candidates whose refits help: it only rejects a winner whose refit
     makes the model follow its own training video worse, and only in favour of a rival the residual does not
     reject by very strong evidence (within ``min_delta_bic`` of the winner's: a stiff end stop, hard to refit,
-    led a drift by Delta BIC 93 to 48 on a rendered torsion disk). A missing degree of freedom, which no refit can
+    can lead a drift by far, as on a rendered torsion disk: ``docs/experiments/code_comment_history.md``).
+    A missing degree of freedom, which no refit can
     confirm, gives way to a significant rival with a Stage-2 remedy that the residual cannot tell apart from
     it (evidence within 2) when that rival's refit beats the identified model. Neither does it overrule a winner that its
     own chart-invariant signature confirms (:func:`~lagsplat.diagnose.select.signature_confirmed`: a

@@ -42,9 +42,10 @@ def poly_features(res: Residual, parts: tuple[str, ...] = ("potential", "inertia
       stiffness follows the amplitude a little differently from the recording's
       (a pendulum's ``1 - cos`` read through a chart) leaves a force a cubic does
       not follow, and on one decaying take that rest fits as a drift of the
-      stiffness (a realistic pendulum with dry friction: drift Delta BIC 30.6,
-      dry friction 0.4; with the quintic terms drift 15, not practical, and dry
-      friction 15, significant);
+      stiffness (on a realistic pendulum with dry friction, up to the cubic a
+      drift led the friction by far; with the quintic terms the drift is not
+      practical and the friction is significant;
+      ``docs/experiments/code_comment_history.md``);
     * ``qdot_i qdot_j`` and ``(q_k - q_bar_k) qdot_i qdot_j``: the Coriolis /
       centrifugal forces ``-(dM/dq) qdot qdot`` of a position-dependent inertia
       (paper §3.3, "Inertia"), which is also what a chart that is a nonlinear
@@ -175,9 +176,10 @@ class Regression:
         amplitudes of the training blocks (on a decay the first block holds the largest), and a candidate
         correlated with them on the training blocks moves that extrapolation: :meth:`cv_sse` then measures the
         polynomial's tail as much as the candidate. Held at their fit on the whole take, they leave the question
-        whether the candidate's own coefficients, fitted on some blocks, predict the others (a realistic pendulum
-        with dry friction, ``pendulum-coulomb-s1`` of ``benchmarks/realistic.py``: dry friction's coefficient 4.7 to 5.4
-        on every fold, CV gain -0.25 with the polynomials refitted per fold, 0.69 with them held; in-sample R2 0.59).
+        whether the candidate's own coefficients, fitted on some blocks, predict the others (on a realistic pendulum
+        with dry friction of ``benchmarks/realistic.py`` the friction's coefficient is stable over the folds and
+        its CV gain turns from negative to positive with the polynomials held;
+        ``docs/experiments/diagnosis_history.md``, ``docs/experiments/code_comment_history.md``).
         """
         if n_cv_folds(self.folds) < 2:
             return float("nan")

@@ -59,9 +59,10 @@ default, on which :func:`~lagsplat.diagnose.select_effect` fits those
 the fundamental still passes at 0.73 (0.87 at ``period / 12``), and the
 features are evaluated on a state de-blurred from less noisy derivatives.
 The in-class candidates (end stop, cubic stiffness) keep the sharp residual.
-On the blind suite's pendulum clips at 32 x 32 px the change takes quadratic
-drag from Delta BIC 1 / 6 (missed) to 19 / 41 (found) while the controls'
-out-of-class candidates stay below zero (``benchmarks/diagnosis.py``).
+On the blind suite's pendulum clips at 32 x 32 px the change turns quadratic
+drag from missed to found while the controls' out-of-class candidates stay
+below zero (``benchmarks/diagnosis.py``; the measurement:
+``docs/experiments/code_comment_history.md``).
 
 Noise level
 -----------

@@ -58,11 +58,10 @@ the sharp residual. Both regressions keep their own null, noise level and
 sample spacing, and the ranking compares their ``Delta BIC``. The reported
 ``null`` (``excess_over_noise``, ``unexplained``, the nuisance corrections) is
 that of the sharp residual, as the localisation reads it; ``null["out_of_class"]``
-is the null of the wide regression. Example (blind suite, cheap budget with Stage 2 at 60 epochs,
-32 x 32 px, ``benchmarks/diagnosis.py``): ``pendulum-quadratic_drag-0`` / ``-1``,
-whose drag causes 76 % / 81 % of the energy loss per cycle at the nominal
-amplitude, were missed (Delta BIC 0.9 / 5.5, R2 0.035 / 0.054) and are found
-at the wider smoothing (Delta BIC 19 / 41, R2 0.19 / 0.30, CV gain 0.20 / 0.28).
+is the null of the wide regression. On the blind suite's quadratic-drag pendulums
+(``benchmarks/diagnosis.py``), whose drag causes most of the energy loss per cycle,
+the drag is missed at the default smoothing and found at the wider one (the
+measurement: ``docs/experiments/code_comment_history.md``).
 
 Ranking and significance
 ------------------------

@@ -423,9 +423,9 @@ def signatures(res: Residual, model_freqs_hz: Sequence[float] | None = None, dir
       modes, the motion's own frequency, their harmonics and combination tones
       and the logged inputs' frequencies; a force or a mode the model lacks).
       A nonlinear model's modes at rest can sit well off the frequency it moves
-      at on the clip (a learned potential 0.74 Hz at rest moving at 0.62 Hz on a
-      realistic spring cart): a residual at the motion's own frequency is a
-      stiffness or damping misfit, not a force the model lacks.
+      at on the clip (as a learned potential on a realistic spring cart did;
+      ``docs/experiments/code_comment_history.md``): a residual at the motion's own
+      frequency is a stiffness or damping misfit, not a force the model lacks.
     * ``asymmetry``: ratio of the largest excursions on either side of the
       median (a one-sided stop clips one side).
     * ``rest``: where the motion comes to rest and its offset from the centre of the

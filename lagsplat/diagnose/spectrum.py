@@ -46,13 +46,13 @@ def excluded_bands(res: Residual, model_freqs_hz: Sequence[float] | None = None)
     fewer than 1.5 times over the record, and that slow modulation cannot be
     told from a drift of the oscillation or from a model whose frequency follows
     the decaying amplitude a little differently (on a realistic pendulum with
-    dry friction, 9.4 s of training frames, a "force" at 0.86x the oscillation
-    was such a misfit). The observed frequency counts besides the
+    dry friction, a "force" just below the oscillation's frequency was such a
+    misfit). The observed frequency counts besides the
     model's linearised ones because a chart distortion puts its harmonics at
-    multiples of the motion *as recorded*: on a control clip of the blind suite
-    (``cart-none-1``, model mode 0.78 Hz, motion 0.755 Hz) the 2nd harmonic of the
-    motion, 1.465 Hz, sat just outside the band around twice the model's mode
-    and was taken for a hidden mode.
+    multiples of the motion *as recorded*: on a control clip of the blind suite,
+    whose motion ran a little slower than the model's mode, the 2nd harmonic of the
+    motion sat just outside the band around twice the model's mode and was taken
+    for a hidden mode (the measurements: ``docs/experiments/code_comment_history.md``).
     """
     base = reference_frequencies(res, model_freqs_hz)
     f_max = 0.25 / res.dt

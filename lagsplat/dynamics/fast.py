@@ -1,8 +1,9 @@
 """Compiled (numba) inference path for rollouts of a :class:`~lagsplat.models.lagrangian.Lagrangian`.
 
-A rollout through torch costs ~1-7 ms per step at batch 1, almost all of it autograd and dispatch
-overhead (two ``acceleration`` calls per step, each taking ``dV/dq`` by autograd, and with a learned
-inertia ``d`` more backward passes for the velocity terms). This module exports the model's weights to
+A rollout through torch costs milliseconds per step at batch 1 (``benchmarks/rollout.py``,
+``results/benchmarks/rollout.md``), almost all of it autograd and dispatch overhead (two ``acceleration``
+calls per step, each taking ``dV/dq`` by autograd, and with a learned inertia ``d`` more backward passes
+for the velocity terms). This module exports the model's weights to
 float64 NumPy arrays once (:func:`~lagsplat.dynamics.fast_export.export_model`) and integrates the same
 equation of motion (paper Eq. 7),
 

@@ -90,7 +90,8 @@ def rollout(
         f_ext, u: as in :func:`verlet_step` (callables receive absolute time ``t0 + i h``).
         t0: start time, seconds.
         fast: use the compiled path of :mod:`lagsplat.dynamics.fast` (same
-            scheme, float64 inside, analytic gradients; ~400x faster at batch 1, benchmarks/rollout.py).
+            scheme, float64 inside, analytic gradients; much faster at batch 1: benchmarks/rollout.py,
+            results/benchmarks/rollout.md).
             ``None`` (default): automatically when the model supports it
             (:func:`~lagsplat.dynamics.fast.supports_fast`: ``Lagrangian`` with
             ``"scalar"``/``"constant"``/``"learned"`` mass, any actuation), is in

@@ -36,7 +36,8 @@ CHANGE_FRACTION = 0.15
 #: Within the object's region, a changing blob is kept when its summed standard deviation reaches this share of the largest's.
 KEEP_SHARE = 0.3
 #: A rotation (:func:`image_winding`): at least this many net turns of the object's image, and this share of all its
-#: turning. Every oscillation of the realistic suite and the real clips stays within 0.9 net turns and 7 % of its turning.
+#: turning. Every oscillation of the realistic suite and the real clips stays well below both
+#: (docs/experiments/code_comment_history.md).
 ROTATION_TURNS, ROTATION_SHARE = 2.0, 0.5
 #: A pixel of a part kept with the object changes with the object's rhythm when its power at the object's frequency
 #: and harmonics holds this share (:func:`periodic_pixels`).

@@ -26,8 +26,9 @@ __all__ = ["camera_motion", "sway_px", "warp_frames", "to_native", "motion_stats
 
 MIN_SWAY_PX = 2.0
 """Largest displacement of the frame's corners (analysis px, 160 on the long side) up to which the camera is
-taken as still. A smaller sway costs less than the warp's resampling: a rendered pendulum swayed by 1.4 px
-read its frequency 1.3 % off as it was and 2.5 % off stabilised (``eps_q`` 0.089 against 0.143)."""
+taken as still. A smaller sway costs less than the warp's resampling: a rendered pendulum swayed by less than
+this read its frequency and its held-out gap better as it was than stabilised
+(docs/experiments/code_comment_history.md)."""
 
 MAX_SHARE_KEPT = 0.9
 """The warp is kept only where it leaves at most this share of the pixels that moved before it: a camera
@@ -37,10 +38,10 @@ sway moves the whole picture and its correction stills most of it; a "sway" fitt
 MAX_TYPICAL_KEPT = 0.55
 """... or where it leaves at most this share of the typical pixel's motion (the median temporal standard deviation):
 in a cluttered room filmed by a shaking hand, the blur flickers on every edge, so nearly every pixel still
-changes after the warp (the moving share of the ``shaky`` nuisance clips fell only 0.71 -> 0.65 and 0.80 -> 0.72)
-while the typical pixel's motion fell to 0.29 and 0.21 of its value; a fit to a moving part leaves it as it was
-or raises it (distractor and walk-in clips 0.98 to 1.09, a leaf that fills the frame 2.8; the hand-held clips
-0.26 and 0.32). The geometric mean of 0.32 and 0.98, rounded."""
+changes after the warp while the typical pixel's motion falls to a fraction of its value; a fit to a moving part
+leaves it as it was or raises it. The threshold is the geometric mean, rounded, of the largest share that a
+camera-shake clip of the nuisance set kept and the smallest that a clip with a moving part kept (the measured
+shares: docs/experiments/code_comment_history.md)."""
 
 MIN_MOTION_KEPT = 0.5
 """The warp is kept only where the strongest motion left after it (the 99.5th percentile of the pixels'

@@ -38,9 +38,9 @@ class Stage2Config:
             (see :class:`Lagrangian`; ``"decoder"`` needs the Stage-1 decoder), or ``"auto"``:
             ``"learned"``, except on a d = 1 chart with a logged input, where it is ``"scalar"``
             (:meth:`effective_mass`). There the learned ``M(q)`` trades off against the actuation
-            map (blind suite, 32 px, actuated pendulum with nothing missing: held-out ``eps_q`` 0.099 and
-            frequency 40 % off with the learned inertia, 0.074 and 0.01 % with the scalar one; the
-            actuated cart 0.137 against 0.106).
+            map (on the blind suite's actuated pendulum and cart with nothing missing it read the held-out
+            gap, and the pendulum's frequency, worse than the scalar inertia;
+            ``docs/experiments/code_comment_history.md``).
         potential: ``"convex"`` (ICNN) or ``"invex"`` (ICNN o i-ResNet).
         c0: dissipation floor (App. C: 1).
         dissipation_init: initial learned dissipation (0.2 I).
@@ -53,8 +53,9 @@ class Stage2Config:
             frames' observed frequency. Above it the step is integrated as ``k`` Verlet steps of one frame
             and scored against one-frame central-difference velocities, so that the model fitted is the
             frame-rate map every rollout runs (a Verlet step's frequency error grows as ``(omega h)^2 / 24``:
-            an exact oscillator filmed at 9 frames per period, stride 2, was identified 5.3 % low; 0.2 %
-            with the frame-interval steps). 0: always; a large value: never (the reference code).
+            an exact oscillator filmed at few frames per period is identified low with stride-2 steps, close
+            with the frame-interval steps; ``docs/experiments/code_comment_history.md``). 0: always; a large value:
+            never (the reference code).
         sigma: Gaussian smoothing of the encoded trajectory, frames (reference: 1).
         w_q, w_v: weights of position and velocity terms of Eq. 8.
         lr, epochs, batch, windows_per_epoch, grad_clip: optimisation.
@@ -62,33 +63,31 @@ class Stage2Config:
             ``q`` into each hidden layer, :class:`~lagsplat.models.icnn.ICNN`). A sharp feature of ``V``
             (an end stop's kink) needs input weights many times the initial ones, which Adam reaches
             at about ``lr`` per step. 10 (with ``select_from = 1``) identifies an end stop from its exact
-            trajectory (held-out frequency within 0-7 % where the default misses by 9-25 %), but on
-            the realistic suite's encoded charts it fits their noise (a plain torsion disk 1.7 % -> 8.4 %,
-            a plain pendulum 0.3 % -> 3.0 %), so the default stays 1.
+            trajectory better than the default, but on the realistic suite's encoded charts it fits their
+            noise and worsens the held-out frequency of plain oscillators
+            (``docs/experiments/code_comment_history.md``), so the default stays 1.
         w_actuation_linear: weight of a prior toward a linear actuation map (an actuated model, paper
             Eq. 6): ``w |grad_q sum_j g_j(q)|^2`` at the windows' states is added to the loss
             (:meth:`~lagsplat.models.icnn.ConcaveMap.nonlinearity`). Without it, where the
             pressures never vanish in training, the concave map takes over the restoring force
-            (a pressure-proportional stiffness) and the unloaded model is too soft: on the
-            simulated two-segment robot the lowest unloaded mode fell to 0.44 Hz at 400 epochs
-            (1.55 Hz simulated); with 1 the map's stiffness share went from 0.47 of ``V``'s to 0
-            and the free frequency at the published budget (500 x 3000 windows) from 12.0 % to
-            4.9 % off (seed 0). 0: the free concave map. No effect without actuation.
+            (a pressure-proportional stiffness) and the unloaded model is too soft, as on the
+            simulated two-segment robot, where 1 keeps the restoring force in ``V`` and brings the
+            free frequency at the published budget (500 x 3000 windows) closer to the simulator's
+            (``docs/experiments/code_comment_history.md``). 0: the free concave map. No effect without actuation.
         rollout_steps: Verlet steps per training window: 1 is Eq. 8's one-step fit; ``K > 1`` chains the
             step ``K`` times from the window's state and scores every step (:mod:`~lagsplat.train.shooting`),
             so one frame's chart noise is outvoted by the ``K`` frames after it. Used for d = 1 charts
             only: with the learned inertia on a double pendulum (d = 2) four steps read the held-out
-            frequency 4.4 % off against 0.8 % with one, so d > 1 charts take one step (Eq. 8).
+            frequency worse than one (``docs/experiments/code_comment_history.md``), so d > 1 charts
+            take one step (Eq. 8).
         potential_kinks: sharpness ``s`` of the potential ICNN's kinks, spread over the training range
             (:meth:`~lagsplat.models.icnn.ICNN.spread_kinks`); 0 keeps the default initialisation (every
             kink at the origin), which smears an end stop's wall over the whole range. Used for d = 1
             charts only (in d > 1 they would need directions; random ones did not help a double
             pendulum), so there the kinks stay at the origin; and only on clips without a logged input
             (``n_u = 0``): where an input drives the motion, a potential with sharp kinks over the
-            range fits the input's force as a function of ``q`` and the free rollouts fail (blind
-            suite, 32 px, actuated pendulum with nothing missing: free-rollout NRMSE on the training
-            frames 0.86 at every selection with kinks at 30, 0.77 at 10, 0.20 with none; held-out
-            ``eps_q`` 0.79, where the one-step fit read 0.047).
+            range fits the input's force as a function of ``q`` and the free rollouts fail (as on the
+            blind suite's actuated pendulum with nothing missing; ``docs/experiments/code_comment_history.md``).
         potential_kinks_alternatives: further starts of the fit, one per kink sharpness listed (e.g.
             ``[0]``: also every kink at the origin), wherever ``potential_kinks`` is used; each start is
             trained with the same seed and windows, and the one whose selection rollouts score lowest is

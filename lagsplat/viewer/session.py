@@ -80,7 +80,7 @@ class Session(Mobility):
             coordinates stay in training pixels).
         max_substeps: upper bound of the integrator sub-steps per step.
         fast: integrate with the compiled kernels of :mod:`lagsplat.dynamics.fast`
-            (float64, ~20x cheaper per step; same scheme and equations).
+            (float64, cheaper per step, benchmarks/rollout.py; same scheme and equations).
             ``None``: when the model supports them (scalar / constant inertia, no
             actuation); ``False``: always the torch path.
 

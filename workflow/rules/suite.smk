@@ -40,7 +40,7 @@ rule suite_clip:
     threads: 1  # the budgets are tuned on one core; more: --set-threads suite_clip=2
     resources:
         mem_mb=4000,
-        # minutes, with a wide margin: a cheap control clip (no refit) took 40 s on one core
+        # minutes, with a wide margin over the stage wall times the rows record (results/benchmarks/diagnosis_cheap.md)
         runtime=lambda w: 30 if w.budget == "cheap" else 180,
     shell:
         f"NUMBA_NUM_THREADS={{threads}} python benchmarks/diagnosis.py --clip {{wildcards.clip}} --budget {{wildcards.budget}} "
