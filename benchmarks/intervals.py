@@ -4,7 +4,8 @@ The realistic suite's clips are split once, by a rule fixed before any calibrati
 the SHA-1 of the clip's name), into a calibration half and a test half. ``--calibrate`` reads each run's
 ``metrics.json`` (``f_sim_hz``, ``eps_freq``, ``zeta_sim``, ``zeta_enc``; run ``python -m lagsplat evaluate`` on
 older runs first) and the clip's ground truth (the true frequency and damping ratio on the held-out frames, by
-the evaluation's own estimators), computes the split-conformal constants on the calibration half
+the evaluation's own estimators), computes the split-conformal constants on the calibration half (scores ``|f_truth / f_sim - 1| / s_f`` and
+``|zeta_truth - zeta_sim| / s_z``, the intervals' own half-widths per unit ``k``)
 (:mod:`lagsplat.evaluate.intervals`), writes them to the package's calibration file, and reports the coverage
 of the test half's true frequency and damping ratio by its intervals, per system
 (``results/benchmarks/intervals.md``).
@@ -88,7 +89,8 @@ def main() -> None:
     names = sorted(p.name for p in args.runs.iterdir() if p.is_dir() and (args.clips / f"{p.name}.truth.npz").exists())
     rows = [r for r in (row(n, args.runs, args.clips) for n in names) if r is not None]
     for r in rows:
-        r["r_freq"] = abs(r["f_sim_hz"] / r["f_truth_hz"] - 1) / r["s_freq"] if r["f_sim_hz"] and r["s_freq"] else float("nan")
+        # the interval's own measure: |f_truth - f_sim| in units of its half-width per unit k, s_f f_sim
+        r["r_freq"] = abs(r["f_truth_hz"] / r["f_sim_hz"] - 1) / r["s_freq"] if r["f_sim_hz"] and r["s_freq"] else float("nan")
         ok = None not in (r["zeta_sim"], r["zeta_truth"], r["s_zeta"])
         r["r_zeta"] = abs(r["zeta_sim"] - r["zeta_truth"]) / r["s_zeta"] if ok else float("nan")
     cal = [r for r in rows if r["half"] == "calibration"]

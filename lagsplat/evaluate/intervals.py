@@ -13,7 +13,7 @@ The interval here is calibrated against known truth instead, by split conformal 
   for a clip identified on all its frames);
 * damping ratio: ``zeta_sim +- k_z * s_z`` with ``s_z = |zeta_sim - zeta_enc| + FLOOR_ZETA``.
 
-``k`` is the ``ceil((n + 1) * level)``-th smallest of the scores ``|f_sim / f_truth - 1| / s_f``
+``k`` is the ``ceil((n + 1) * level)``-th smallest of the scores ``|f_truth / f_sim - 1| / s_f``
 (``|zeta_sim - zeta_truth| / s_z``) over ``n`` calibration clips of known truth (the rendered
 realistic suite's calibration half; ``benchmarks/intervals.py`` writes :data:`CALIBRATION_FILE`
 with the clips, the commit and the coverage it measured on the other half). The guarantee is
