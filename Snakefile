@@ -91,15 +91,42 @@ ART = Artifacts.at(f"{RESULTS}/{{system}}")
 VAR = Artifacts.at(f"{RESULTS}/{{system}}", f"{RESULTS}/{{system}}/variants/{{variant}}")
 
 
-def cli(stage, inputs=(), outputs=(), extra=""):
-    """The shell command of a per-system rule: the CLI stage reads exactly the rule's named ``{input}`` and
-    writes its ``{output}`` (``artifacts.<name>=PATH``), and writes its own log (``log={log}``) while its
-    output also reaches the screen (Stage 1 and Stage 2 print a progress line every ~30 s)."""
-    paths = [f"artifacts.{n}={{input.{n}}}" for n in inputs] + [f"artifacts.{n}={{output.{n}}}" for n in outputs]
+ARTIFACT_NAMES = set(Artifacts.names())
+
+
+def cli(stage, inputs=(), outputs=(), extra="", system="{wildcards.system}", lists=()):
+    """The shell command of a rule that runs one CLI stage: the stage reads exactly the rule's named ``{input}`` and
+    writes its ``{output}`` (``artifacts.<name>=PATH``), and writes its own log (``log={log}``) while its output also
+    reaches the screen (Stage 1 and Stage 2 print a progress line every ~30 s).
+
+    ``inputs="params"``: the named inputs ``params.inputs`` hands (:func:`named_inputs`), for a rule whose inputs
+    depend on the system; ``lists``: list-valued artifacts (``'artifacts.<name>=[...]'`` from ``params.<name>``,
+    :func:`joined`); ``system=None``: a stage that reads no system of its own (a table over several)."""
+    handed = ["{params.inputs}"] if inputs == "params" else [f"artifacts.{n}={{input.{n}}}" for n in inputs]
+    handed += [f"'artifacts.{n}=[{{params.{n}}}]'" for n in lists] + [f"artifacts.{n}={{output.{n}}}" for n in outputs]
     return (
-        f"python -m lagsplat {stage} system={{wildcards.system}} raw_dir={RAW} results_dir={RESULTS} threads={{threads}} "
-        + " ".join(paths) + f" log={{log}} {extra} {OVR}"
+        f"python -m lagsplat {stage} " + (f"system={system} " if system else "") + f"raw_dir={RAW} results_dir={RESULTS} threads={{threads}} "
+        + " ".join(handed) + f" log={{log}} {extra} {OVR}"
     )
+
+
+def named_inputs(wildcards, input):
+    """``artifacts.<name>=PATH`` for each named input of the job that is an artifact (``params.inputs`` of a rule
+    whose inputs depend on the system: a stop record or a folder of source files is not handed)."""
+    return " ".join(f"artifacts.{k}={v}" for k, v in input.items() if k in ARTIFACT_NAMES)
+
+
+def joined(name):
+    """A params function: the paths of the named input ``name``, comma-separated (a list-valued artifact of :func:`cli`)."""
+    return lambda wildcards, input: ",".join(input[name])
+
+
+def ingest_input(name):
+    """The source file ingest reads, named ``source`` (handed as ``artifacts.source``) for a system with one
+    ``source`` file; a multi-clip system's files (``sources``) are read from its configuration; none for a
+    procedural (synth) system."""
+    files = raw_input(name)
+    return {"source": files[0]} if len(files) == 1 and not system_conf(name).get("sources") else {"sources": files}
 
 
 # A system is one folder name (conf/system/<name>.yaml): never a path, so results/<a>/<b>/metrics.json

@@ -11,6 +11,7 @@ two-stage pipeline; ``docs/architecture.md``)::
     metrics.json    evaluate  the protocol's metrics                         (lagsplat.evaluate)
     figures/rollout.png, figures/forces.png, forces.json, diagnosis/...
     figures/deformation.png   deformation   the two decoders' velocity fields (paper App. B)
+    variants/deformation/stage1.pt           deformation   the deformation decoder's Stage 1 (paper App. B)
     export/         export    the model for use outside lagsplat: dynamics.py, weights, TorchScript, CSV, .ply (lagsplat.export)
     variants/<name>/          a variant: stage2 onwards on the same chart, or (decoder_variant) its own stage1 and chart
     config/<stage>.yaml       the resolved configuration of each stage
@@ -19,7 +20,12 @@ two-stage pipeline; ``docs/architecture.md``)::
 system folder, or ``variants/<name>/`` under it for an ablation on the same
 frozen chart. Every path can be overridden one by one (the configuration's
 ``artifacts`` group; Snakemake passes its ``{input}`` and ``{output}`` that
-way), so a stage reads exactly the files its rule declares.
+way), so a stage reads exactly the files its rule declares. Outside the system
+folder: ``source`` (the source clip download writes and ingest reads; standard:
+``system.source.path``), and for the table stages ``table_inputs`` (the files
+read, in row order) and ``table_tex``, ``table_csv``, ``table_md``, ``table_json``
+(the files written; standard: ``${results_dir}/tables/<name>.<suffix>``,
+:func:`table_path`).
 
 This module is the only place that spells an artifact's file name.
 """
@@ -46,11 +52,19 @@ __all__ = [
     "variant_metrics_path",
     "DIAGNOSIS_FILES",
     "DIAGNOSIS_FIGURES",
+    "DEFORMATION_VARIANT",
+    "LIST_ARTIFACTS",
 ]
 
 DIAGNOSIS_FILES = {"report_md": "report.md", "report_json": "report.json", "config": "config.yaml", "refit": "refit.pt"}
 """What the diagnosis writes into its folder (``diagnosis/``): the report, its record, the resolved
 configuration and the refitted Stage-2 model (:mod:`lagsplat.diagnose.report`)."""
+
+DEFORMATION_VARIANT = "deformation"
+"""Folder of the deformation decoder's run under ``variants/`` (paper App. B, :mod:`lagsplat.stages_deformation`)."""
+
+LIST_ARTIFACTS = ("table_inputs",)
+"""The artifacts given as a list of paths (``'artifacts.table_inputs=[a,b]'``); every other one is one path."""
 
 STOPPED_FILE = "stopped.json"
 """The record a pipeline stage leaves when it stops with a one-line reason (``{stage, reason, time}``;
@@ -89,6 +103,12 @@ class Artifacts:
             figure's record (paper §4.4-4.5; model folder).
         export: the export folder (``dynamics.py``, ``weights.npz``, TorchScript terms, ``model.json``, CSV
             tables, ``.ply`` splats; :mod:`lagsplat.export`; model folder).
+        deformation_stage1: the deformation decoder's Stage 1, trained by the decoder comparison (paper App. B;
+            ``variants/deformation/stage1.pt``; the rest of that run: :meth:`decoder_variant`).
+        source: the source clip (download writes it, ingest reads it); ``None``: ``system.source.path``.
+        table_inputs: the files a table stage reads, in the order of its rows; ``None``: its runs' standard paths.
+        table_tex, table_csv, table_md, table_json: the files a table stage writes; ``None``:
+            ``${results_dir}/tables/<name>.<suffix>`` (:meth:`table`).
         system_dir, model_dir: the two folders.
     """
 
@@ -114,6 +134,13 @@ class Artifacts:
     robot_forces_figure: Path
     robot_forces: Path
     export: Path
+    deformation_stage1: Path
+    source: Path | None = None
+    table_inputs: tuple[Path, ...] | None = None
+    table_tex: Path | None = None
+    table_csv: Path | None = None
+    table_md: Path | None = None
+    table_json: Path | None = None
 
     @classmethod
     def at(cls, system_dir: str | Path, model_dir: str | Path | None = None) -> "Artifacts":
@@ -143,6 +170,7 @@ class Artifacts:
             robot_forces_figure=m / "figures" / "robot_forces.png",
             robot_forces=m / "robot_forces.json",
             export=m / "export",
+            deformation_stage1=s / "variants" / DEFORMATION_VARIANT / "stage1.pt",
         )
 
     @classmethod
@@ -150,8 +178,8 @@ class Artifacts:
         """The paths of system ``system`` under ``results_dir``; a ``variant`` moves the model artifacts to ``variants/<variant>/``.
 
         Args:
-            overrides: artifact name -> path (the configuration's ``artifacts`` group);
-                ``None`` values keep the standard path.
+            overrides: artifact name -> path (the configuration's ``artifacts`` group; a list of paths for
+                :data:`LIST_ARTIFACTS`); ``None`` values keep the standard path.
 
         Raises:
             KeyError: naming an override that is not an artifact, and the known ones.
@@ -163,12 +191,39 @@ class Artifacts:
         bad = sorted(set(given) - set(known))
         if bad:
             raise KeyError(f"unknown artifacts {bad}; known: {known} (configuration group artifacts)")
-        return replace(a, **{k: Path(v) for k, v in given.items()})
+        return replace(a, **{k: tuple(Path(p) for p in v) if k in LIST_ARTIFACTS else Path(v) for k, v in given.items()})
 
     def decoder_variant(self, name: str) -> "Artifacts":
         """The same run with its own Stage 1 (another decoder, paper App. B): every artifact, configurations
         included, under ``variants/<name>/`` except the clip, which is this run's."""
         return replace(Artifacts.at(self.system_dir / "variants" / str(name)), clip=self.clip)
+
+    def table(self, results_dir: str | Path, name: str, suffix: str = ".tex") -> Path:
+        """The ``suffix`` file (``.tex``, ``.csv``, ``.md`` or ``.json``) a table stage writes: ``table_<suffix>``
+        when given, else ``${results_dir}/tables/<name><suffix>`` (:func:`table_path`)."""
+        given = getattr(self, "table_" + suffix.lstrip("."))
+        return Path(given) if given is not None else table_path(results_dir, name, suffix)
+
+    def table_sources(self, standard: list) -> list:
+        """What a table stage reads: ``standard`` (paths, ``None`` for a row it leaves out, or nested lists of
+        them), its paths replaced in order by :attr:`table_inputs` when given.
+
+        Raises:
+            ValueError: when ``table_inputs`` does not hold one path per standard path.
+        """
+        if self.table_inputs is None:
+            return standard
+        want = _count_paths(standard)
+        if want != len(self.table_inputs):
+            raise ValueError(f"artifacts.table_inputs: {len(self.table_inputs)} paths for the {want} files this table reads")
+        given = iter(self.table_inputs)
+
+        def fill(node):
+            if node is None:
+                return None
+            return [fill(n) for n in node] if isinstance(node, (list, tuple)) else next(given)
+
+        return fill(standard)
 
     @classmethod
     def names(cls) -> list[str]:
@@ -293,8 +348,15 @@ class Artifacts:
                 raise FileNotFoundError(f"{p}: not found; run the {writer.get(n, n)} stage first (python -m lagsplat {writer.get(n, n)} system=...)")
 
 
+def _count_paths(node) -> int:
+    """The paths in ``node``: a path, ``None`` or a nested list of them."""
+    if node is None:
+        return 0
+    return sum(_count_paths(n) for n in node) if isinstance(node, (list, tuple)) else 1
+
+
 def table_path(results_dir: str | Path, name: str, suffix: str = ".tex") -> Path:
-    """A table of results: ``${results_dir}/tables/<name><suffix>`` (``.tex``, ``.csv`` or ``.md``)."""
+    """A table of results: ``${results_dir}/tables/<name><suffix>`` (``.tex``, ``.csv``, ``.md`` or ``.json``)."""
     return Path(results_dir) / "tables" / f"{name}{suffix}"
 
 

@@ -26,7 +26,7 @@ from typing import Any, Literal, Optional, Union
 
 from hydra.core.config_store import ConfigStore
 
-from lagsplat.artifacts import Artifacts
+from lagsplat.artifacts import LIST_ARTIFACTS, Artifacts
 from lagsplat.baselines.deformation_compare import DeformationCompareConfig
 from lagsplat.baselines.extrapolation import ExtrapolationConfig
 from lagsplat.baselines.gp2d_field import GP2DConfig
@@ -318,7 +318,7 @@ class RobotFigureConfig:
 
 ArtifactsConfig = dataclasses.make_dataclass(
     "ArtifactsConfig",
-    [(n, Optional[str], None) for n in Artifacts.names()],
+    [(n, Optional[list[str]] if n in LIST_ARTIFACTS else Optional[str], None) for n in Artifacts.names()],
     namespace={"__doc__": "Per-artifact path overrides (``artifacts`` group; :class:`lagsplat.artifacts.Artifacts`); None = the standard path."},
 )
 

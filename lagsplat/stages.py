@@ -26,6 +26,7 @@ def stage_download(cfg: DictConfig) -> None:
 
     With ``sources`` (several recordings) every entry with a ``url`` is
     fetched, or only the one whose ``file`` is ``download.file`` when set.
+    ``artifacts.source`` (one file to fetch) writes it there instead of ``source.path``.
     """
     from lagsplat.io.download import fetch
 
@@ -36,19 +37,23 @@ def stage_download(cfg: DictConfig) -> None:
     if not todo:
         print(f"{cfg.system.name}: nothing to download (no source.url)")
         return
+    given = artifacts_of(cfg).source
+    if given is not None and len(todo) > 1:
+        raise ValueError(f"artifacts.source={given}: {len(todo)} source files to download; choose one with download.file")
     for src in todo:
+        path = Path(given) if given is not None else Path(src.path)
         if src.get("member"):  # a file inside a zip archive (lagsplat.io.zenodo): the member's SHA256 is verified
             from lagsplat.io.zenodo import fetch_member
 
             cache = Path(cfg.raw_dir) / src.archive_file if src.get("archive_file") else None
             hint = "or give a local copy with download.archive=PATH (Snakemake: --config krauss_archive=PATH)"
-            fetch_member(src.url, src.member, Path(src.path), src.sha256, archive=dl.get("archive"), cache=cache, hint=hint)
+            fetch_member(src.url, src.member, path, src.sha256, archive=dl.get("archive"), cache=cache, hint=hint)
             continue
-        fetch(src.url, Path(src.path), src.sha256)
+        fetch(src.url, path, src.sha256)
 
 
 def stage_ingest(cfg: DictConfig) -> None:
-    """Source clip -> ``clip.npz``."""
+    """Source clip (``artifacts.source`` when given, else ``system.source.path``) -> ``clip.npz``."""
     from lagsplat.config_schema import SystemConfig
     from lagsplat.ingest import ingest_to_file
 
@@ -58,7 +63,7 @@ def stage_ingest(cfg: DictConfig) -> None:
     if "train_fraction" not in (system.get("split") or {}) and "path" in (system.get("source") or {}):
         system["split"] = {**(system.get("split") or {}), "train_fraction": "auto"}  # a recording: three periods held out
     a = artifacts_of(cfg)
-    ingest_to_file(system, a.clip, preview=a.prepare_preview if "path" in (system.get("source") or {}) else None)
+    ingest_to_file(system, a.clip, source_path=a.source, preview=a.prepare_preview if "path" in (system.get("source") or {}) else None)
     clip = a.load_clip()
     prepared = clip.meta.get("prepare")
     if prepared:  # the automatic choices, printed and written into the resolved configuration

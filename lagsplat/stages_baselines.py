@@ -117,11 +117,13 @@ def _imported_row(folder: str, chart, ae, frames, w, xc) -> dict:
 
 
 def stage_extrapolation_table(cfg: DictConfig) -> None:
-    """``extrapolation.json`` of ``table.systems`` -> ``results/tables/extrapolation.tex``, ``.csv`` and ``.md`` (paper Table 3 layout)."""
-    from lagsplat.artifacts import Artifacts, table_path
+    """``extrapolation.json`` of ``table.systems`` -> ``results/tables/extrapolation.tex``, ``.csv`` and ``.md`` (paper Table 3
+    layout; paths: ``artifacts.table_inputs``, ``table_tex``, ``table_csv``, ``table_md`` when given)."""
+    from lagsplat.artifacts import Artifacts
     from lagsplat.report.tables import extrapolation_table
 
     t = cfg.get("table", {})
     systems = list(t.get("systems", [cfg.system.name]))
-    inputs = [Artifacts.for_run(cfg.results_dir, s).extrapolation for s in systems]
-    extrapolation_table(inputs, table_path(cfg.results_dir, "extrapolation"))
+    a, res = artifacts_of(cfg), cfg.results_dir
+    inputs = a.table_sources([Artifacts.for_run(res, s).extrapolation for s in systems])
+    extrapolation_table(inputs, a.table(res, "extrapolation"), a.table(res, "extrapolation", ".csv"), a.table(res, "extrapolation", ".md"))

@@ -15,15 +15,18 @@ from __future__ import annotations
 
 import time
 
+from dataclasses import replace
+
 from omegaconf import DictConfig, OmegaConf, open_dict
 
+from lagsplat.artifacts import DEFORMATION_VARIANT
 from lagsplat.cli_common import artifacts_of, plain, save_stage_config
 from lagsplat.stages import stage_chart, stage_stage1, stage_stage2
 
 __all__ = ["stage_deformation", "VARIANT"]
 
-VARIANT = "deformation"
-"""Folder of the deformation decoder's run under ``variants/``."""
+VARIANT = DEFORMATION_VARIANT
+"""Folder of the deformation decoder's run under ``variants/`` (its Stage 1: ``artifacts.deformation_stage1``)."""
 
 
 def _variant_cfg(cfg: DictConfig) -> DictConfig:
@@ -43,12 +46,13 @@ def stage_deformation(cfg: DictConfig) -> None:
     (Stage 1 always; chart and Stage 2 only for the forces). Both decoders are scored on the training
     frames (L1, 1 - SSIM), counted (parameters), and their velocity fields ``|J_i qdot|`` read at the
     training frame of largest ``|qdot|`` (roughness over ``deformation.k_neighbours`` neighbours;
-    :mod:`lagsplat.baselines.deformation_compare`). Settings: the ``deformation`` group.
+    :mod:`lagsplat.baselines.deformation_compare`). Settings: the ``deformation`` group. Paths: the run's
+    artifacts, ``artifacts.deformation_stage1`` (the variant's Stage 1) and ``table_json``, ``table_tex``,
+    ``table_csv`` when given.
     """
     import numpy as np
     import torch
 
-    from lagsplat.artifacts import table_path
     from lagsplat.baselines.deformation_compare import DeformationCompareConfig, compare_decoder, fast_frame
     from lagsplat.io.atomic import write_json
     from lagsplat.motion import motion_masks
@@ -61,7 +65,7 @@ def stage_deformation(cfg: DictConfig) -> None:
         raise ValueError(f"stage1.decoder={cfg.stage1.decoder}: the comparison starts from the run of the conditioned decoder")
     a = artifacts_of(cfg)
     a.require("clip", "stage1", "chart")
-    av = a.decoder_variant(VARIANT)
+    av = replace(a.decoder_variant(VARIANT), stage1=a.deformation_stage1)
     vcfg = _variant_cfg(cfg)
     clip = a.load_clip()
     do_forces = dc.forces == "on" or (dc.forces == "auto" and "theta" in clip.meta)
@@ -122,9 +126,9 @@ def stage_deformation(cfg: DictConfig) -> None:
                       f"{res['tolerance']['deg']:g} deg and {res['tolerance']['pct']:g} %, max |dir| {s['max_abs_dir_err_deg']:.2f} deg, "
                       f"max |mag| {s['max_abs_mag_err_pct']:.1f} %, median |mag| {s['median_abs_mag_err_pct']:.1f} %", flush=True)  # fmt: skip
 
-    out_json = table_path(cfg.results_dir, dc.table, ".json")
+    out_json = a.table(cfg.results_dir, dc.table, ".json")
     write_json(out_json, rec)
-    deformation_table(out_json, table_path(cfg.results_dir, dc.table))
+    deformation_table(out_json, a.table(cfg.results_dir, dc.table), a.table(cfg.results_dir, dc.table, ".csv"))
     vmax = max(float(np.percentile(f["speed"][f["visible"]], 99)) if f["visible"].any() else 1.0 for f, _ in fields)
     names = {"conditioned": "conditioned (ours)", "deformation": "deformation field"}
     panels = []

@@ -129,21 +129,24 @@ def stage_diagnose(cfg: DictConfig) -> None:
 
 
 def stage_table(cfg: DictConfig) -> None:
-    """``metrics.json`` of ``table.systems`` -> ``results/tables/<table.name>.tex`` and ``.csv``."""
-    from lagsplat.artifacts import table_path, variant_metrics_path
+    """``metrics.json`` of ``table.systems`` -> ``results/tables/<table.name>.tex`` and ``.csv``
+    (paths: ``artifacts.table_inputs``, ``table_tex``, ``table_csv`` when given)."""
+    from lagsplat.artifacts import variant_metrics_path
     from lagsplat.report.tables import physical_table
 
     t = cfg.get("table", {})
     name = t.get("name", "physical")
     systems = list(t.get("systems", [cfg.system.name]))
-    inputs = [variant_metrics_path(cfg.results_dir, s, None) for s in systems]
-    physical_table(inputs, table_path(cfg.results_dir, name))
+    a, res = artifacts_of(cfg), cfg.results_dir
+    inputs = a.table_sources([variant_metrics_path(res, s, None) for s in systems])
+    physical_table(inputs, a.table(res, name), a.table(res, name, ".csv"))
 
 
 def stage_ablation(cfg: DictConfig) -> None:
     """Variant ``metrics.json`` of one system -> ``results/tables/<system>_<ablation>.tex`` and ``.csv``
-    (with ``ablation_seeds``: each variant's runs ``<variant>@seed<k>``, its row the median over them)."""
-    from lagsplat.artifacts import table_path, variant_metrics_path
+    (with ``ablation_seeds``: each variant's runs ``<variant>@seed<k>``, its row the median over them; paths:
+    ``artifacts.table_inputs``, ``table_tex``, ``table_csv`` when given)."""
+    from lagsplat.artifacts import variant_metrics_path
     from lagsplat.cli_common import seeded_variants
     from lagsplat.report.tables import ablation_table
 
@@ -151,8 +154,9 @@ def stage_ablation(cfg: DictConfig) -> None:
     if key not in cfg.ablations:
         raise KeyError(f"unknown ablation {key!r}; known: {sorted(cfg.ablations)} (conf/config.yaml, key ablations)")
     seeds = cfg.get("ablation_seeds")
-    inputs = [[variant_metrics_path(cfg.results_dir, cfg.system.name, r) for r in seeded_variants(v, seeds)] for v in cfg.ablations[key]]
-    ablation_table(inputs, table_path(cfg.results_dir, f"{cfg.system.name}_{key}"))
+    a, res, name = artifacts_of(cfg), cfg.results_dir, f"{cfg.system.name}_{key}"
+    inputs = a.table_sources([[variant_metrics_path(res, cfg.system.name, r) for r in seeded_variants(v, seeds)] for v in cfg.ablations[key]])
+    ablation_table(inputs, a.table(res, name), a.table(res, name, ".csv"))
 
 
 def stage_seed_table(cfg: DictConfig) -> None:
@@ -161,15 +165,16 @@ def stage_seed_table(cfg: DictConfig) -> None:
     Reads ``${results_dir}/${seed_table.dir}/seed<k>/<system>/metrics.json``:
     the ``evaluate`` output of a run with ``seed=<k>
     results_dir=${results_dir}/${seed_table.dir}/seed<k>`` (the Snakemake
-    rule ``seed_run``).
+    rule ``seed_run``). Paths: ``artifacts.table_inputs``, ``table_md``, ``table_csv`` when given.
     """
-    from lagsplat.artifacts import seed_metrics_path, table_path
+    from lagsplat.artifacts import seed_metrics_path
     from lagsplat.report.tables import seed_table
 
     t = cfg.seed_table
     seeds = [int(s) for s in t.seeds]
-    inputs = [seed_metrics_path(cfg.results_dir, str(t.dir), s, cfg.system.name) for s in seeds]
-    seed_table(inputs, seeds, table_path(cfg.results_dir, f"{cfg.system.name}_seeds", ".md"))
+    a, res, name = artifacts_of(cfg), cfg.results_dir, f"{cfg.system.name}_seeds"
+    inputs = a.table_sources([seed_metrics_path(res, str(t.dir), s, cfg.system.name) for s in seeds])
+    seed_table(inputs, seeds, a.table(res, name, ".md"), a.table(res, name, ".csv"))
 
 
 def stage_krauss_table(cfg: DictConfig) -> None:
@@ -179,21 +184,22 @@ def stage_krauss_table(cfg: DictConfig) -> None:
     ours from the ``metrics.json`` of ``krauss_table.one_segment`` /
     ``two_segments`` and of the two-segment ``krauss_table.ablation``
     variants (with ``ablation_seeds``: each variant's seeded runs, its row the
-    median). A run whose ``metrics.json`` is missing gives no row.
+    median). A run whose ``metrics.json`` is missing gives no row. Paths: ``artifacts.table_inputs`` (one
+    segment, two segments, then the ablation's runs), ``table_tex``, ``table_csv``, ``table_md`` when given.
     """
-    from lagsplat.artifacts import table_path, variant_metrics_path
+    from lagsplat.artifacts import variant_metrics_path
     from lagsplat.cli_common import seeded_variants
     from lagsplat.report.krauss import krauss_table
 
     t = cfg.krauss_table
-    res = cfg.results_dir
+    a, res, name = artifacts_of(cfg), cfg.results_dir, str(t.name)
     seeds = cfg.get("ablation_seeds")
-    krauss_table(
+    one, two, ablation = a.table_sources([
         variant_metrics_path(res, str(t.one_segment), None) if t.get("one_segment") else None,
         variant_metrics_path(res, str(t.two_segments), None) if t.get("two_segments") else None,
         [[variant_metrics_path(res, str(t.two_segments), r) for r in seeded_variants(str(v), seeds)] for v in (t.get("ablation") or [])],
-        table_path(res, str(t.name)),
-    )
+    ])  # fmt: skip
+    krauss_table(one, two, ablation, a.table(res, name), out_csv=a.table(res, name, ".csv"), out_md=a.table(res, name, ".md"))
 
 
 def stage_robot_figures(cfg: DictConfig) -> None:

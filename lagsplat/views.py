@@ -10,8 +10,9 @@ and cached (App. C: 65 SHARP renders per frame). The ``views`` stage writes them
 * ``views.json``: the source settings, the views held out of training (``holdout``, indices into the ``M``
   views: never used by Stage 1, scored as novel views) and ``key``, a SHA-256 of the clip's frames and
   timestamps, the settings and the bytes of every source file. :func:`ensure_views` recomputes only when
-  the key changes; it reads the key from ``views.npz``, so the cache survives a workflow manager that
-  deletes a job's declared outputs (``views.json``) before rerunning it.
+  the key changes; it reads the key from ``views.npz`` (and rewrites a missing ``views.json`` from it). The
+  Snakemake rule declares the whole folder, which Snakemake removes before it reruns the job: the cache
+  serves runs of the stage outside Snakemake.
 
 View sources (``system.views.source``):
 

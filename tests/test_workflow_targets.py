@@ -283,3 +283,29 @@ def test_the_deformation_table_declares_the_variant_stage1_it_trains(tmp_path):
     r = dry_run([f"{res}/oscillating_cart/variants/deformation/stage1.pt", "--config", f"results_dir={res}", f"raw_dir={tmp_path / 'raw'}"])
     assert r.returncode == 0, r.stdout
     assert "deformation_table" in {j["rule"] for j in jobs(r.stdout)}
+
+
+def test_every_stage_gets_the_paths_its_rule_declares(tmp_path):
+    # a job running `python -m lagsplat <stage>` is handed every file it writes (artifacts.<name>=PATH) and every
+    # file it reads (a table's inputs as 'artifacts.table_inputs=[...]'), so no stage works a declared path out again
+    res, raw = tmp_path / "res", tmp_path / "raw"
+    targets = [f"{res}/tables/physical.tex", f"{res}/tables/two_carts_inertia.tex", f"{res}/toy/diagnosis/report.md", f"{res}/tables/deformation.tex",
+               f"{res}/tables/extrapolation.tex", f"{res}/pendulum3d/metrics.json", f"{res}/tables/toy_seeds.md"]  # fmt: skip
+    r = dry_run([*targets, "krauss", "--config", f"results_dir={res}", f"raw_dir={raw}", "krauss_source=synthetic", "seeds=0,1"])
+    assert r.returncode == 0, r.stdout
+    staged = [j for j in jobs(r.stdout) if "python -m lagsplat " in j.get("shell", "")]
+    assert {j["rule"] for j in staged} >= {"download", "ingest", "views", "stage1", "chart", "stage2", "evaluate", "figures", "table", "ablation_table",
+                                           "stage2_variant", "evaluate_variant", "diagnose", "deformation_table", "extrapolation", "extrapolation_table",
+                                           "krauss_table", "robot_figures", "seed_run", "seed_table"}  # fmt: skip
+    for j in staged:
+        # key=PATH, and the items of key=[PATH,PATH,...]
+        handed = set(re.findall(r"=([^\s'\[\],]+)", j["shell"])) | {p for items in re.findall(r"=\[([^\]]*)\]", j["shell"]) for p in items.split(",")}
+        for path in filter(None, (p.strip() for p in j.get("output", "").split(","))):
+            assert path in handed or f"/diagnosis/{Path(path).name}" in path, (j["rule"], path, j["shell"])  # the diagnosis: its folder
+        for path in filter(None, (p.strip() for p in j.get("input", "").split(","))):
+            # only dependencies: the rollout figures a table waits for, the source files that trigger the views job
+            if (j["rule"] == "table" and path.endswith("rollout.png")) or (j["rule"] == "views" and not path.endswith("clip.npz")):
+                continue
+            assert path in handed, (j["rule"], path, j["shell"])
+    views = [j for j in staged if j["rule"] == "views"]
+    assert views and all(j["output"] == f"{res}/pendulum3d/views" for j in views)  # the whole folder: views.npz, cameras.json, views.json

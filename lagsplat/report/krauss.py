@@ -320,8 +320,11 @@ def krauss_table(
     ablation: Iterable[str | Path | list[str | Path]],
     out_tex: str | Path,
     published: str | Path | None = None,
+    out_csv: str | Path | None = None,
+    out_md: str | Path | None = None,
 ) -> tuple[Path, Path, Path]:
-    """Write ``out_tex`` (paper Table 4 layout) and the same rows as ``.csv`` and ``.md`` beside it.
+    """Write ``out_tex`` (paper Table 4 layout) and the same rows as ``out_csv`` and ``out_md`` (default: the ``.csv``
+    and ``.md`` beside ``out_tex``).
 
     Args:
         one_segment, two_segments: our runs' ``metrics.json`` (missing: no row).
@@ -338,8 +341,8 @@ def krauss_table(
     """
     df = krauss_rows(one_segment, two_segments, list(ablation), load_published(published))
     out_tex = Path(out_tex)
-    tex_p, csv_p = write_tex_csv(_tex(df), df, out_tex)
-    md_p = out_tex.with_suffix(".md")
+    tex_p, csv_p = write_tex_csv(_tex(df), df, out_tex, out_csv)
+    md_p = Path(out_md) if out_md is not None else out_tex.with_suffix(".md")
     with atomic_write(md_p) as tmp:
         tmp.write_text(_md(df))
     return tex_p, csv_p, md_p

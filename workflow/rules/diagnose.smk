@@ -10,16 +10,12 @@ def diagnose_inputs(wildcards):
     return {"clip": str(a.clip), "stage1": str(a.stage1), "chart": str(a.chart), "stage2": str(a.stage2), "metrics": str(a.metrics)}
 
 
-def artifact_args(wildcards, input):
-    """``artifacts.<name>={input.<name>}`` for each named artifact input (none for a stopped run)."""
-    return " ".join(f"artifacts.{k}={v}" for k, v in input.items() if k != "stopped")
-
-
 rule diagnose:
     """Sim-to-real gap diagnosis: which unmodelled effect, where it shows (time, state,
     latent directions, image), and the held-out gap before / after a Stage-2 refit with it.
-    Writes results/<system>/diagnosis/{report.md, report.json, figures/*.png, refit.pt};
-    a run an earlier stage stopped gets a cannot_diagnose report with that stage's reason."""
+    Writes results/<system>/diagnosis/{report.md, report.json, figures/*.png, refit.pt} (the folder of its
+    outputs, artifacts.diagnosis); a run an earlier stage stopped gets a cannot_diagnose report with that
+    stage's reason."""
     input:
         unpack(diagnose_inputs),
     output:
@@ -28,9 +24,8 @@ rule diagnose:
     log:
         f"{RESULTS}/logs/{{system}}/diagnose.log",
     params:
-        diagnosis=str(ART.diagnosis),
-        artifacts=artifact_args,
+        inputs=named_inputs,
+        diagnosis=lambda w, output: str(Path(output.report_md).parent),
     threads: 2
     shell:
-        f"python -m lagsplat diagnose system={{wildcards.system}} raw_dir={RAW} results_dir={RESULTS} threads={{threads}} "
-        f"{{params.artifacts}} log={{log}} artifacts.diagnosis={{params.diagnosis}} {OVR}"
+        cli("diagnose", "params", extra="artifacts.diagnosis={params.diagnosis}")

@@ -115,7 +115,7 @@ rule krauss_extract:
     input:
         KRAUSS_ARCHIVE,
     output:
-        f"{RAW}/{{file}}",
+        source=f"{RAW}/{{file}}",
     wildcard_constraints:
         file=_kre(_KREAL),
     log:
@@ -123,7 +123,8 @@ rule krauss_extract:
     params:
         system=lambda w: _KREAL[w.file],
     shell:
-        f"python -m lagsplat download system={{params.system}} raw_dir={RAW} download.file={{wildcards.file}} download.archive={{input}} {OVR} > {{log}} 2>&1 || {{{{ cat {{log}} >&2; exit 1; }}}}"
+        f"python -m lagsplat download system={{params.system}} raw_dir={RAW} download.file={{wildcards.file}} download.archive={{input}} "
+        f"artifacts.source={{output.source}} {OVR} > {{log}} 2>&1 || {{{{ cat {{log}} >&2; exit 1; }}}}"
 
 
 rule krauss_synth:
@@ -150,20 +151,22 @@ rule krauss_table:
     two-segment system's configuration, so that --config overrides written for the robots
     (e.g. system.source.sha256=... for a local archive) compose here as they do in every other job."""
     input:
-        f"{RESULTS}/{KRAUSS['1seg']}/metrics.json",
-        f"{RESULTS}/{KRAUSS['2seg']}/metrics.json",
-        [f"{RESULTS}/{KRAUSS['2seg']}/variants/{r}/metrics.json" for v in KRAUSS_ABLATION for r in seeded_variants(v, ABLATION_SEEDS)],
+        # in the stage's row order: one segment, two segments, each ablation variant's runs
+        table_inputs=[str(ART.metrics).format(system=KRAUSS["1seg"]), str(ART.metrics).format(system=KRAUSS["2seg"])]
+        + [str(VAR.metrics).format(system=KRAUSS["2seg"], variant=r) for v in KRAUSS_ABLATION for r in seeded_variants(v, ABLATION_SEEDS)],
     output:
-        f"{RESULTS}/tables/krauss.tex",
-        f"{RESULTS}/tables/krauss.csv",
-        f"{RESULTS}/tables/krauss.md",
+        table_tex=f"{RESULTS}/tables/krauss.tex",
+        table_csv=f"{RESULTS}/tables/krauss.csv",
+        table_md=f"{RESULTS}/tables/krauss.md",
     log:
         f"{RESULTS}/logs/tables/krauss.log",
     params:
         ablation=",".join(KRAUSS_ABLATION),
+        table_inputs=joined("table_inputs"),
     shell:
-        f"python -m lagsplat krauss_table system={KRAUSS['2seg']} krauss_table.one_segment={KRAUSS['1seg']} krauss_table.two_segments={KRAUSS['2seg']} "
-        f"'krauss_table.ablation=[{{params.ablation}}]' 'ablation_seeds={json.dumps(ABLATION_SEEDS)}' results_dir={RESULTS} {OVR} > {{log}} 2>&1"
+        cli("krauss_table", outputs=["table_tex", "table_csv", "table_md"], lists=["table_inputs"], system=KRAUSS["2seg"],
+            extra=f"krauss_table.one_segment={KRAUSS['1seg']} krauss_table.two_segments={KRAUSS['2seg']} "
+            f"'krauss_table.ablation=[{{params.ablation}}]' 'ablation_seeds={json.dumps(ABLATION_SEEDS)}'")
 
 
 rule robot_figures:

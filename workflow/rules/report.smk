@@ -35,37 +35,42 @@ rule forces:
 rule table:
     """A table rebuilt from metrics.json files (paper Table 2 layout)."""
     input:
-        lambda w: [f"{RESULTS}/{s}/metrics.json" for s in TABLES[w.table]],
-        lambda w: [f"{RESULTS}/{s}/figures/rollout.png" for s in TABLES[w.table]],
+        table_inputs=lambda w: [str(ART.metrics).format(system=s) for s in TABLES[w.table]],
+        figures=lambda w: [str(ART.rollout_figure).format(system=s) for s in TABLES[w.table]],
     output:
-        f"{RESULTS}/tables/{{table}}.tex",
-        f"{RESULTS}/tables/{{table}}.csv",
+        table_tex=f"{RESULTS}/tables/{{table}}.tex",
+        table_csv=f"{RESULTS}/tables/{{table}}.csv",
     wildcard_constraints:
         table="|".join(TABLES),
     log:
         f"{RESULTS}/logs/tables/{{table}}.log",
     params:
         systems=lambda w: ",".join(TABLES[w.table]),
+        table_inputs=joined("table_inputs"),
     shell:
-        f"python -m lagsplat table table.name={{wildcards.table}} 'table.systems=[{{params.systems}}]' results_dir={RESULTS} {OVR} > {{log}} 2>&1"
+        cli("table", outputs=["table_tex", "table_csv"], lists=["table_inputs"], system=None,
+            extra="table.name={wildcards.table} 'table.systems=[{params.systems}]'")
 
 
 rule ablation_table:
     """Variants of one system side by side, e.g. results/tables/two_carts_inertia.tex
     (learned, decoder-induced and constant inertia on the same frozen chart)."""
     input:
-        lambda w: [f"{RESULTS}/{w.system}/variants/{r}/metrics.json" for v in ABLATIONS[w.ablation] for r in seeded_variants(v, ABLATION_SEEDS)],
+        # in the stage's row order: each variant's runs (<variant>@seed<k> with ablation_seeds)
+        table_inputs=lambda w: [str(VAR.metrics).format(system=w.system, variant=r) for v in ABLATIONS[w.ablation] for r in seeded_variants(v, ABLATION_SEEDS)],
     output:
-        f"{RESULTS}/tables/{{system}}_{{ablation}}.tex",
-        f"{RESULTS}/tables/{{system}}_{{ablation}}.csv",
+        table_tex=f"{RESULTS}/tables/{{system}}_{{ablation}}.tex",
+        table_csv=f"{RESULTS}/tables/{{system}}_{{ablation}}.csv",
     wildcard_constraints:
         ablation="|".join(ABLATIONS),
         system="[a-z0-9_]+?",
     log:
         f"{RESULTS}/logs/tables/{{system}}_{{ablation}}.log",
+    params:
+        table_inputs=joined("table_inputs"),
     shell:
-        f"python -m lagsplat ablation system={{wildcards.system}} ablation={{wildcards.ablation}} 'ablation_seeds={json.dumps(ABLATION_SEEDS)}' "
-        f"results_dir={RESULTS} {OVR} > {{log}} 2>&1"
+        cli("ablation", outputs=["table_tex", "table_csv"], lists=["table_inputs"],
+            extra=f"ablation={{wildcards.ablation}} 'ablation_seeds={json.dumps(ABLATION_SEEDS)}'")
 
 
 rule extrapolation:
@@ -91,15 +96,18 @@ EXTRAPOLATION_SYSTEMS = ["toy", "oscillating_cart", "red_apple_pendulum"]
 rule extrapolation_table:
     """Paper Table 3 layout: results/tables/extrapolation.tex, .csv and .md over the toy, the oscillating cart and the apple."""
     input:
-        [f"{RESULTS}/{s}/extrapolation.json" for s in EXTRAPOLATION_SYSTEMS],
+        table_inputs=[str(ART.extrapolation).format(system=s) for s in EXTRAPOLATION_SYSTEMS],
     output:
-        f"{RESULTS}/tables/extrapolation.tex",
-        f"{RESULTS}/tables/extrapolation.csv",
-        f"{RESULTS}/tables/extrapolation.md",
+        table_tex=f"{RESULTS}/tables/extrapolation.tex",
+        table_csv=f"{RESULTS}/tables/extrapolation.csv",
+        table_md=f"{RESULTS}/tables/extrapolation.md",
     log:
         f"{RESULTS}/logs/tables/extrapolation.log",
+    params:
+        table_inputs=joined("table_inputs"),
     shell:
-        f"python -m lagsplat extrapolation_table 'table.systems=[{','.join(EXTRAPOLATION_SYSTEMS)}]' results_dir={RESULTS} {OVR} > {{log}} 2>&1"
+        cli("extrapolation_table", outputs=["table_tex", "table_csv", "table_md"], lists=["table_inputs"], system=None,
+            extra=f"'table.systems=[{','.join(EXTRAPOLATION_SYSTEMS)}]'")
 
 
 DEFORMATION_SYSTEM = "oscillating_cart"
@@ -114,15 +122,14 @@ rule deformation_table:
         stage1=str(ART.stage1).format(system=DEFORMATION_SYSTEM),
         chart=str(ART.chart).format(system=DEFORMATION_SYSTEM),
     output:
-        f"{RESULTS}/tables/deformation.tex",
-        f"{RESULTS}/tables/deformation.csv",
-        f"{RESULTS}/tables/deformation.json",
-        str(ART.deformation_figure).format(system=DEFORMATION_SYSTEM),
-        str(ART.decoder_variant("deformation").stage1).format(system=DEFORMATION_SYSTEM),  # the variant's Stage 1, trained by the job
+        table_tex=f"{RESULTS}/tables/deformation.tex",
+        table_csv=f"{RESULTS}/tables/deformation.csv",
+        table_json=f"{RESULTS}/tables/deformation.json",
+        deformation_figure=str(ART.deformation_figure).format(system=DEFORMATION_SYSTEM),
+        deformation_stage1=str(ART.deformation_stage1).format(system=DEFORMATION_SYSTEM),  # the variant's Stage 1, trained by the job
     log:
         f"{RESULTS}/logs/tables/deformation.log",
     threads: 1
     shell:
-        f"python -m lagsplat deformation system={DEFORMATION_SYSTEM} raw_dir={RAW} results_dir={RESULTS} threads={{threads}} "
-        f"artifacts.clip={{input.clip}} artifacts.stage1={{input.stage1}} artifacts.chart={{input.chart}} "
-        f"artifacts.deformation_figure={{output[3]}} deformation.table=deformation {OVR} > {{log}} 2>&1"
+        cli("deformation", ["clip", "stage1", "chart"], ["table_tex", "table_csv", "table_json", "deformation_figure", "deformation_stage1"],
+            system=DEFORMATION_SYSTEM)

@@ -15,19 +15,18 @@ _SEED_TABLE = _CONF["seed_table"]  # conf/config.yaml, read by the Snakefile
 SEEDS = [int(s) for s in _csv(config.get("seeds", _SEED_TABLE["seeds"]))]
 SEED_SYSTEMS = _csv(config.get("seed_systems", "toy"))
 SEED_ROOT = f"{RESULTS}/{_SEED_TABLE['dir']}"
+# one seed's results tree, results/seeds/seed<k>/<system>/, and what seed_run writes there
+SEED_ART = Artifacts.at(f"{SEED_ROOT}/seed{{seed}}/{{system}}")
+SEED_OUTPUTS = ("clip", "stage1", "chart", "stage2", "metrics", "rollout_figure")
 
 
 rule seed_run:
-    """ingest .. figures for one system with one seed (python -m lagsplat all), in its own results tree."""
+    """ingest .. figures for one system with one seed (python -m lagsplat all), in its own results tree; the
+    source file and every artifact it writes handed as artifacts.<name>."""
     input:
-        lambda w: raw_input(w.system),
+        unpack(lambda w: ingest_input(w.system)),
     output:
-        f"{SEED_ROOT}/seed{{seed}}/{{system}}/clip.npz",
-        f"{SEED_ROOT}/seed{{seed}}/{{system}}/stage1.pt",
-        f"{SEED_ROOT}/seed{{seed}}/{{system}}/chart.npz",
-        f"{SEED_ROOT}/seed{{seed}}/{{system}}/stage2.pt",
-        f"{SEED_ROOT}/seed{{seed}}/{{system}}/metrics.json",
-        f"{SEED_ROOT}/seed{{seed}}/{{system}}/figures/rollout.png",
+        **{n: str(getattr(SEED_ART, n)) for n in SEED_OUTPUTS},
     log:
         f"{RESULTS}/logs/seeds/seed{{seed}}/{{system}}.log",
     wildcard_constraints:
@@ -36,29 +35,34 @@ rule seed_run:
     resources:
         mem_mb=8000,
         runtime=240,
+    params:
+        inputs=named_inputs,
     shell:
         f"NUMBA_NUM_THREADS={{threads}} python -m lagsplat all system={{wildcards.system}} raw_dir={RAW} "
-        f"results_dir={SEED_ROOT}/seed{{wildcards.seed}} threads={{threads}} {OVR} seed={{wildcards.seed}} > {{log}} 2>&1"
+        f"results_dir={SEED_ROOT}/seed{{wildcards.seed}} threads={{threads}} {{params.inputs}} "
+        + " ".join(f"artifacts.{n}={{output.{n}}}" for n in SEED_OUTPUTS)
+        + f" {OVR} seed={{wildcards.seed}} > {{log}} 2>&1"
 
 
 rule seed_table:
     """Per-seed metrics of one system and their mean, std, min and max (python -m lagsplat seed_table)."""
     input:
-        lambda w: [f"{SEED_ROOT}/seed{s}/{w.system}/metrics.json" for s in SEEDS],
+        table_inputs=lambda w: [str(SEED_ART.metrics).format(seed=s, system=w.system) for s in SEEDS],
     output:
-        f"{RESULTS}/tables/{{system}}_seeds.md",
-        f"{RESULTS}/tables/{{system}}_seeds.csv",
+        table_md=f"{RESULTS}/tables/{{system}}_seeds.md",
+        table_csv=f"{RESULTS}/tables/{{system}}_seeds.csv",
     log:
         f"{RESULTS}/logs/tables/{{system}}_seeds.log",
     params:
         seeds=",".join(str(s) for s in SEEDS),
+        table_inputs=joined("table_inputs"),
     threads: 1
     resources:
         mem_mb=2000,
         runtime=10,
     shell:
-        f"python -m lagsplat seed_table system={{wildcards.system}} 'seed_table.seeds=[{{params.seeds}}]' "
-        f"seed_table.dir={_SEED_TABLE['dir']} results_dir={RESULTS} {OVR} > {{log}} 2>&1"
+        cli("seed_table", outputs=["table_md", "table_csv"], lists=["table_inputs"],
+            extra=f"'seed_table.seeds=[{{params.seeds}}]' seed_table.dir={_SEED_TABLE['dir']}")
 
 
 rule seeds:

@@ -6,6 +6,8 @@ rule stage1:
         stage1=str(ART.stage1),
     log:
         f"{RESULTS}/logs/{{system}}/stage1.log",
+    params:
+        inputs=named_inputs,
     threads: 2
     shell:
-        cli("stage1", ["clip"], ["stage1"])
+        cli("stage1", "params", ["stage1"])

@@ -7,23 +7,23 @@ def views_input(name):
 
 def stage1_input(name):
     """Stage 1's inputs: the clip, and a 3-D system's cached views."""
-    return {"clip": str(ART.clip).format(system=name), **({"views": f"{RESULTS}/{name}/views/views.json"} if system_conf(name).get("views") else {})}
+    return {"clip": str(ART.clip).format(system=name), **({"views": str(ART.views).format(system=name)} if system_conf(name).get("views") else {})}
 
 
 rule views:
-    """A 3-D system's cached novel views of every frame and their cameras (lagsplat.views). The views
-    stage reuses views/views.npz when its key (clip + view settings + source files) is unchanged."""
+    """A 3-D system's cached novel views of every frame and their cameras (lagsplat.views): the folder views/
+    (views.npz, cameras.json, views.json), declared whole. Snakemake removes it before the job runs, so a rerun
+    computes the views again; the stage's own cache (views.npz's key) serves runs outside Snakemake."""
     input:
         clip=str(ART.clip),
         sources=lambda w: views_input(w.system),
     output:
-        views=f"{RESULTS}/{{system}}/views/views.json",
+        views=directory(str(ART.views)),
     log:
         f"{RESULTS}/logs/{{system}}/views.log",
     threads: 1
     shell:
-        f"python -m lagsplat views system={{wildcards.system}} raw_dir={RAW} results_dir={RESULTS} threads={{threads}} "
-        f"artifacts.clip={{input.clip}} log={{log}} {OVR}"
+        cli("views", ["clip"], ["views"])
 
 
 rule pendulum3d_data:
