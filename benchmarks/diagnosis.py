@@ -95,7 +95,7 @@ from _common import measurable_gap_medians as measurable_gap_medians_of
 
 from lagsplat.artifacts import Artifacts  # noqa: E402
 from lagsplat.chart import build_chart, load_chart, save_chart
-from lagsplat.chart_gate import chart_gate
+from lagsplat.chart.gate import chart_gate
 from lagsplat.diagnose.refit import GAP_METRICS, RefitConfig
 from lagsplat.diagnose.report import DiagnoseConfig, diagnose_system
 from lagsplat.diagnose.where import WhereConfig
@@ -341,7 +341,7 @@ def summarize(rows: list[dict], timings: dict[str, dict], budget: str, markdown:
                  + (f"; top-1 accuracy on those {float(rel['ok'].mean()):.3f}" if len(rel) else ""))  # fmt: skip
     if "gate" in table:
         passed = table[table["gate"] == True]  # noqa: E712 (None: a row from before the gate)
-        lines.append(f"chart-quality gate passed (lagsplat.chart_gate): {len(passed)}/{len(table)}"
+        lines.append(f"chart-quality gate passed (lagsplat.chart.gate): {len(passed)}/{len(table)}"
                      + (f"; top-1 accuracy on those {float(passed['ok'].mean()):.3f}" if len(passed) else ""))  # fmt: skip
     lines.append(f"effect clips refit: {len(effects)}/{int((table['truth'] != 'none').sum())}")
     commits = [r["commit"] for r in rows if r.get("commit")]

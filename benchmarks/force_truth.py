@@ -37,7 +37,7 @@ i.e. ``forces.sigma`` and ``forces.min_transmittance`` of the system's
 config), unless ``--sigma`` / ``--min-transmittance`` are given. Each row
 also shows Eq. 9's own floor (:func:`constant_j_angle`) and how far the
 brushed material moved in the training clip, rms px, as the model sees it
-(:meth:`~lagsplat.force.ForceTransport.observed_motion` on the encoded
+(:meth:`~lagsplat.forces.transport.ForceTransport.observed_motion` on the encoded
 training states) and in truth. A force is scored only where the model saw
 its material move by at least ``--min-motion`` px (default 1): the decoder
 learns ``J_i`` from the video's motion, so below a pixel the force is
@@ -73,8 +73,8 @@ from scipy.optimize import brentq
 
 from lagsplat.artifacts import Artifacts  # noqa: E402
 from lagsplat.io.clip import TRAIN
-from lagsplat.force import ForceTransport, calibrate_kappa
-from lagsplat.force_checks import ForceCheckConfig
+from lagsplat.forces.transport import ForceTransport, calibrate_kappa
+from lagsplat.forces.checks import ForceCheckConfig
 from lagsplat.synth.pendulum import PIVOT_Y, ROD_LENGTH
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -151,7 +151,7 @@ def main() -> None:
         help="folder(s) of a trained pendulum system (pendulum_force or toy); several (e.g. trainings with other seeds): "
         "one table each, then one summary line each",
     )
-    ap.add_argument("--brush", default="visible", choices=["visible", "paper"], help="brush weighting (lagsplat.force)")
+    ap.add_argument("--brush", default="visible", choices=["visible", "paper"], help="brush weighting (lagsplat.forces.transport)")
     ap.add_argument(
         "--sigma", type=float, default=None,
         help="brush radius, pixels (default: the folder's forces.json, i.e. the system's forces.sigma; the visible brush "
@@ -160,7 +160,7 @@ def main() -> None:
     ap.add_argument(
         "--min-transmittance", type=float, default=None,
         help="visible brush: a primitive counts only where at least this share of the light reaches it, the surface the "
-        "click meets (lagsplat.force; default: the folder's forces.json, i.e. the system's forces.min_transmittance)",
+        "click meets (lagsplat.forces.transport; default: the folder's forces.json, i.e. the system's forces.min_transmittance)",
     )
     ap.add_argument(
         "--min-motion", type=float, default=1.0,
@@ -198,7 +198,7 @@ def brush_settings(d: Path, args: argparse.Namespace) -> tuple[float, float, str
 
     The command line's, else the folder's ``forces.json`` (what the force
     checks of ``python -m lagsplat forces`` used), else the defaults of
-    :class:`~lagsplat.force_checks.ForceCheckConfig`.
+    :class:`~lagsplat.forces.checks.ForceCheckConfig`.
     """
     cfg = ForceCheckConfig()
     sigma, tau, source = cfg.sigma, cfg.min_transmittance, "defaults"

@@ -11,7 +11,7 @@ force ``F`` on the bob, in units of its weight ``m g``, holds it at
 
 and moves the bob by ``L (sin theta d + (1 - cos theta) z)`` metres. The model predicts the same
 displacement as ``p(q_eq) - p(q_rest)``: the application point of the material the main camera's ray
-through the bob's pixel meets first (:meth:`lagsplat.force3d.ForceTransport3D.select`), ``q_eq`` the loaded
+through the bob's pixel meets first (:meth:`lagsplat.forces.transport3d.ForceTransport3D.select`), ``q_eq`` the loaded
 equilibrium under ``kappa sum_i w_i J_i^T F`` (paper Eq. 9 with ``J_i [3,d]``, §4.5). ``kappa`` is
 calibrated on the first force (in the image plane) only; the others, pushes and pulls along the main
 camera's optical axis among them, are compared by the direction (degrees) and magnitude (%) of the
@@ -68,8 +68,8 @@ def main(argv: list[str] | None = None):
     import torch
 
     from lagsplat.artifacts import Artifacts
-    from lagsplat.force import calibrate_kappa
-    from lagsplat.force3d import ForceTransport3D
+    from lagsplat.forces.transport import calibrate_kappa
+    from lagsplat.forces.transport3d import ForceTransport3D
     from lagsplat.render.camera import project_points
     from lagsplat.synth.pendulum3d import PIVOT, ROD_M
 

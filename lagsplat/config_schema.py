@@ -4,7 +4,7 @@ Every group of ``conf/config.yaml`` and the ``system`` group of
 ``conf/system/<name>.yaml`` has a dataclass: the stages' own settings classes
 (:class:`~lagsplat.train.stage1.Stage1Config`, :class:`~lagsplat.train.stage2.Stage2Config`,
 :class:`~lagsplat.evaluate.paper.EvalConfig`, :class:`~lagsplat.evaluate.krauss.KraussEvalConfig`,
-:class:`~lagsplat.force_checks.ForceCheckConfig`, :class:`~lagsplat.diagnose.report.DiagnoseConfig`
+:class:`~lagsplat.forces.checks.ForceCheckConfig`, :class:`~lagsplat.diagnose.report.DiagnoseConfig`
 with :class:`~lagsplat.diagnose.where.WhereConfig` and :class:`~lagsplat.diagnose.refit.RefitConfig`)
 and the ones below for the groups without one. They are registered in Hydra's
 ConfigStore (group ``schema``: ``schema/<group>``, ``schema/run``) and are the
@@ -32,7 +32,7 @@ from lagsplat.baselines.extrapolation import ExtrapolationConfig
 from lagsplat.baselines.gp2d_field import GP2DConfig
 from lagsplat.diagnose.settings import DiagnoseConfig, RefitConfig, WhereConfig
 from lagsplat.evaluate.settings import EvalConfig, KraussEvalConfig
-from lagsplat.force_checks import ForceCheckConfig
+from lagsplat.forces.checks import ForceCheckConfig
 from lagsplat.train.stage1 import Stage1Config
 from lagsplat.train.stage2 import Stage2Config
 
@@ -190,11 +190,11 @@ class ChartConfig:
     Attributes:
         n_metric_samples: training frames the metric ``G_bar`` averages over (>= 1).
         rho: whitening regulariser (> 0).
-        refine_iters: Levenberg-Marquardt steps per frame of :func:`lagsplat.chart_refine.refine_latents`;
+        refine_iters: Levenberg-Marquardt steps per frame of :func:`lagsplat.chart.refine.refine_latents`;
             the refined chart is used where it passes the gate with less noise than the encoder's
-            (:func:`lagsplat.chart_gate.gated_chart`); 0: the paper's chart, the encoder's output
+            (:func:`lagsplat.chart.gate.gated_chart`); 0: the paper's chart, the encoder's output
             (``conf/experiment/encoder_chart.yaml``).
-        gate: Stage 2 refuses a chart that fails the quality gate (:func:`lagsplat.chart_gate.chart_gate`);
+        gate: Stage 2 refuses a chart that fails the quality gate (:func:`lagsplat.chart.gate.chart_gate`);
             ``false`` runs it anyway and marks the metrics as read on a failed chart.
     """
 
@@ -212,7 +212,7 @@ class ViewConfig:
         port: on 127.0.0.1; 0 = any free port.
         sigma: brush radius at the press, pixels of the training resolution (> 0).
         force_scale: drag spring, pixel force per pixel of stretch (> 0), or ``"auto"``.
-        kappa: energy factor of forces (> 0; :func:`lagsplat.force.calibrate_kappa`).
+        kappa: energy factor of forces (> 0; :func:`lagsplat.forces.transport.calibrate_kappa`).
         initial: start state: first held-out encoded frame with its velocity, or rest.
         render_scale: render at this multiple of the training resolution (> 0).
         image_format: frames over the websocket.

@@ -1,7 +1,7 @@
 """Which pixels of a clip move, change, or stay still: masks from the temporal standard deviation.
 
 Used by Stage 1 (the static-pixel prior, :func:`lagsplat.train.stage1.static_pixels`)
-and by the force-transport checks (:mod:`lagsplat.force_checks`, paper §3.4):
+and by the force-transport checks (:mod:`lagsplat.forces.checks`, paper §3.4):
 the background check probes forces only on pixels that nothing moving can reach.
 """
 

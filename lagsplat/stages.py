@@ -121,11 +121,11 @@ def stage_stage1(cfg: DictConfig, a: "Artifacts | None" = None) -> None:
 
 def stage_chart(cfg: DictConfig, a: "Artifacts | None" = None) -> None:
     """``stage1.pt`` -> ``chart.npz`` (paths: ``a``, default the run's :func:`~lagsplat.cli_common.artifacts_of`): the gated
-    chart (:func:`lagsplat.chart_gate.gated_chart`), read from the checkpoint where Stage 1 built it for the same clip and
-    chart settings (:func:`lagsplat.chart_gate.chart_from_record`), built otherwise."""
+    chart (:func:`lagsplat.chart.gate.gated_chart`), read from the checkpoint where Stage 1 built it for the same clip and
+    chart settings (:func:`lagsplat.chart.gate.chart_from_record`), built otherwise."""
     from lagsplat.chart import save_chart
 
-    from lagsplat.chart_gate import chart_from_record, chart_key, gate_summary, gated_chart
+    from lagsplat.chart.gate import chart_from_record, chart_key, gate_summary, gated_chart
 
     a = a or artifacts_of(cfg)
     clip = a.load_clip()
@@ -144,7 +144,7 @@ def stage_stage2(cfg: DictConfig, a: "Artifacts | None" = None) -> None:
     """``chart.npz`` -> ``stage2.pt`` (paths: ``a``, default the run's :func:`~lagsplat.cli_common.artifacts_of`)."""
     from lagsplat.train.stage2 import Stage2Config, save_stage2, train_stage2
 
-    from lagsplat.chart_gate import gate_summary
+    from lagsplat.chart.gate import gate_summary
 
     a = a or artifacts_of(cfg)
     s2 = Stage2Config.from_mapping(plain(cfg.stage2))
@@ -191,7 +191,7 @@ def stage_evaluate(cfg: DictConfig) -> None:
         m.update(intervals(m, load_calibration()))
     gate = chart.meta.get("gate")
     if gate is not None and not gate["passed"]:  # run with chart.gate=false: every number says what it stands on
-        from lagsplat.chart_gate import gate_summary
+        from lagsplat.chart.gate import gate_summary
 
         for entry in m.values():
             if isinstance(entry, dict):

@@ -19,13 +19,13 @@ def stage_forces(cfg: DictConfig) -> None:
 
     The figure and the top level of ``forces.json`` use the default brush
     (``brush``); ``other_brushes`` holds the background, linearity and kernel
-    checks through the others (:data:`lagsplat.force.BRUSHES`).
+    checks through the others (:data:`lagsplat.forces.transport.BRUSHES`).
     """
     import numpy as np
     import torch
 
-    from lagsplat.force import BRUSHES, ForceTransport
-    from lagsplat.force_checks import ForceCheckConfig, plot_force_checks, public_result, run_force_checks
+    from lagsplat.forces.transport import BRUSHES, ForceTransport
+    from lagsplat.forces.checks import ForceCheckConfig, plot_force_checks, public_result, run_force_checks
     from lagsplat.io.atomic import write_json
     from lagsplat.train.config import dataclass_from_mapping
 
@@ -42,7 +42,7 @@ def stage_forces(cfg: DictConfig) -> None:
     res = run_force_checks(model, tr, clip.images, rest, fc)
     lever = None
     if clip.meta.get("source") == "lagsplat.synth.pendulum":  # known pivot: the lever-arm profile along the rod
-        from lagsplat.force_checks import lever_profile
+        from lagsplat.forces.checks import lever_profile
         from lagsplat.synth.pendulum import PIVOT_Y, ROD_LENGTH
 
         H, W = ae.height, ae.width
@@ -56,7 +56,7 @@ def stage_forces(cfg: DictConfig) -> None:
     pub = public_result(res)
     pub["brush"] = tr.brush
     pub["min_transmittance"] = tr.min_transmittance
-    # the same checks through the other brush (lagsplat.force.BRUSHES), for comparison
+    # the same checks through the other brush (lagsplat.forces.transport.BRUSHES), for comparison
     pub["other_brushes"] = {}
     for name in (b for b in BRUSHES if b != tr.brush):
         other = run_force_checks(model, ForceTransport.from_autoencoder(ae, chart, brush=name), clip.images, rest, fc)

@@ -105,7 +105,7 @@ def _blob_clip(ae: AutoEncoder, z: np.ndarray):
 
 def test_refine_latents_undoes_a_saturating_encoder():
     """Paper §3.2: the chart is read through the decoder; the refined latents are where it draws each frame."""
-    from lagsplat.chart_refine import refine_latents
+    from lagsplat.chart.refine import refine_latents
 
     ae = _blob_autoencoder()
     z_true = 1.2 * np.sin(2 * np.pi * np.arange(90) / 30.0)[:, None]
@@ -143,7 +143,7 @@ def test_build_chart_refines_only_when_asked():
 
 
 def test_refine_latents_rejects_mismatched_input():
-    from lagsplat.chart_refine import refine_latents
+    from lagsplat.chart.refine import refine_latents
 
     ae = _blob_autoencoder()
     frames = np.zeros((4, 24, 24, 3), np.uint8)

@@ -1,4 +1,4 @@
-"""The chart-quality gate (lagsplat.chart_gate): tears against impacts, decoder motion, coverage, saturation."""
+"""The chart-quality gate (lagsplat.chart.gate): tears against impacts, decoder motion, coverage, saturation."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import torch
 
 from lagsplat.chart import build_chart
-from lagsplat.chart_gate import chart_gate, encoder_saturation, gate_summary, moving_pixel_r2, speed_jump_ratio
+from lagsplat.chart.gate import chart_gate, encoder_saturation, gate_summary, moving_pixel_r2, speed_jump_ratio
 from lagsplat.io.clip import Clip
 from lagsplat.models.autoencoder import AutoEncoder
 
@@ -131,7 +131,7 @@ def test_stage1_retries_while_the_gate_fails_and_records_every_attempt():
 
 
 def test_gated_chart_takes_the_refined_chart_where_the_encoders_fails_the_gate():
-    from lagsplat.chart_gate import gated_chart
+    from lagsplat.chart.gate import gated_chart
 
     clip, ae = _clip(1.2), _blob_autoencoder(saturate=0.8)  # the encoder reads the extremes at 0.8 of 1.2
     plain, gate = gated_chart(ae, clip, n_metric_samples=8, refine_iters=0)
@@ -146,7 +146,7 @@ def test_gated_chart_takes_the_refined_chart_where_the_encoders_fails_the_gate()
 
 
 def test_gated_chart_keeps_the_encoders_chart_where_refinement_adds_noise(monkeypatch):
-    import lagsplat.chart_gate as cg
+    import lagsplat.chart.gate as cg
 
     clip, ae = _clip(0.6), _blob_autoencoder()  # both charts pass the gate
     monkeypatch.setattr(cg, "relative_chart_noise", lambda chart: 0.02 if chart.meta["refine_iters"] else 0.01)
@@ -161,7 +161,7 @@ def test_gated_chart_keeps_the_encoders_chart_where_refinement_adds_noise(monkey
 def test_relative_chart_noise_reads_the_white_noise_over_the_spread():
     import dataclasses
 
-    from lagsplat.chart_gate import relative_chart_noise
+    from lagsplat.chart.gate import relative_chart_noise
 
     clip, ae = _clip(0.6, n=600), _blob_autoencoder()
     chart = build_chart(ae, clip, n_metric_samples=8)
@@ -177,7 +177,7 @@ def test_the_chart_stage_reads_the_chart_stage1_gated_and_builds_it_again_when_a
     stage would build from the saved checkpoint, for another setting or another clip there is none to read."""
     import dataclasses
 
-    from lagsplat.chart_gate import chart_from_record, chart_key, gated_chart
+    from lagsplat.chart.gate import chart_from_record, chart_key, gated_chart
     from lagsplat.models.autoencoder import load_stage1, save_stage1
     from lagsplat.synth.pendulum import make_pendulum_clip
     from lagsplat.train.attempts import train_stage1_gated

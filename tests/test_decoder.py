@@ -284,8 +284,8 @@ def test_inverse_softplus() -> None:
 
 
 def test_render_extra_channels_are_the_visible_brush_compositing_weights() -> None:
-    """render(extra=J) composites J_i with the rasteriser's weights T_i a_i: the field the visible brush reads (lagsplat.force)."""
-    from lagsplat.force import ForceTransport
+    """render(extra=J) composites J_i with the rasteriser's weights T_i a_i: the field the visible brush reads (lagsplat.forces.transport)."""
+    from lagsplat.forces.transport import ForceTransport
 
     torch.manual_seed(1)
     H, W = 10, 14

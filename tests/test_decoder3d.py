@@ -221,7 +221,7 @@ def test_the_diagnosis_sees_3d_primitives_through_the_main_camera():
     """Pixel positions are the projected means, pixel Jacobians their derivative in q, and the compositing weights
     put the nearer of two overlapping primitives in front whichever its index."""
     from lagsplat.diagnose.screen import ScreenKinematics
-    from lagsplat.force3d import ForceTransport3D
+    from lagsplat.forces.transport3d import ForceTransport3D
 
     dec = _decoder(K=2)
     with torch.no_grad():

@@ -226,7 +226,7 @@ class _SinPendulum:
 
 def test_state_dependent_jacobians_reach_the_rigid_body_equilibrium() -> None:
     from lagsplat.baselines.deformation_forces import StateTransport, loaded_state, true_angle
-    from lagsplat.force import Selection
+    from lagsplat.forces.transport import Selection
 
     class Rod(StateTransport):  # a point at rho px from the pivot: J(q) = rho (cos q, -sin q), exactly
         def __init__(self, rho):

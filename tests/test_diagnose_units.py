@@ -12,7 +12,7 @@ from lagsplat.diagnose.units import G, metres_per_source_px, motion_amplitude_so
 
 def _kinematics():
     from lagsplat.diagnose.screen import ScreenKinematics
-    from lagsplat.force import ForceTransport
+    from lagsplat.forces.transport import ForceTransport
 
     c = torch.tensor([[10.0, 20.0], [12.0, 20.0], [14.0, 20.0], [30.0, 30.0], [31.0, 30.0], [32.0, 30.0]])
     J = torch.zeros(6, 2, 1)

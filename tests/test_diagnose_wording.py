@@ -172,7 +172,7 @@ def test_an_effect_size_in_pixels_of_the_video() -> None:
 
     from lagsplat.diagnose.pixels import add_pixel_sizes, object_position_px, px_per_unit, to_source_px
     from lagsplat.diagnose.screen import ScreenKinematics
-    from lagsplat.force import ForceTransport
+    from lagsplat.forces.transport import ForceTransport
 
     c = torch.tensor([[10.0, 20.0], [12.0, 20.0], [14.0, 20.0], [30.0, 30.0], [31.0, 30.0], [32.0, 30.0]])
     J = torch.zeros(6, 2, 1)

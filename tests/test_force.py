@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from lagsplat.dynamics.integrators import rollout
-from lagsplat.force import EditedDynamics, ForceTransport, calibrate_kappa
+from lagsplat.forces.transport import EditedDynamics, ForceTransport, calibrate_kappa
 from lagsplat.models.decoder import ConditionedGaussians
 from lagsplat.models.lagrangian import Lagrangian
 

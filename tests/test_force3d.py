@@ -6,7 +6,7 @@ from types import SimpleNamespace
 import pytest
 import torch
 
-from lagsplat.force3d import ForceTransport3D
+from lagsplat.forces.transport3d import ForceTransport3D
 from lagsplat.models.decoder3d import ConditionedGaussians3D
 from lagsplat.models.lagrangian import Lagrangian
 from lagsplat.render.camera import look_at, project_points

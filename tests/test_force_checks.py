@@ -1,4 +1,4 @@
-"""Checks of the force transport on a known system (lagsplat.force_checks; paper §3.4, Fig. 7)."""
+"""Checks of the force transport on a known system (lagsplat.forces.checks; paper §3.4, Fig. 7)."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from lagsplat.force import ForceTransport
-from lagsplat.force_checks import (
+from lagsplat.forces.transport import ForceTransport
+from lagsplat.forces.checks import (
     ForceCheckConfig,
     lever_profile,
     motion_masks,

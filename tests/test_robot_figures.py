@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from lagsplat.force import ForceTransport
+from lagsplat.forces.transport import ForceTransport
 from lagsplat.train.stage2 import Stage2Config
 from lagsplat.viz.robot import force_panels, foreground, panel_equilibria, robot_body
 

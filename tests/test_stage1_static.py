@@ -3,7 +3,7 @@
 Trains the real Stage-1 loop twice on a small synthetic pendulum clip, with and
 without the prior, and measures what a force would move on the pixels that
 never change: the composited motion field ``sum_i T_i a_i J_i std(z)`` there
-(the quantity the visible brush of ``lagsplat.force`` pulls back, paper Eq. 9).
+(the quantity the visible brush of ``lagsplat.forces.transport`` pulls back, paper Eq. 9).
 """
 
 from __future__ import annotations

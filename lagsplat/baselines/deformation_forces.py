@@ -3,7 +3,7 @@
 A force ``f`` (px, image axes, ``y`` down) applied to the brushed material
 enters the latent dynamics as ``kappa sum_i w_i J_i^T f`` (paper Eq. 9). The
 conditioned decoder's ``J_i`` are constant
-(:class:`~lagsplat.force.ForceTransport`); the deformation decoder's depend
+(:class:`~lagsplat.forces.transport.ForceTransport`); the deformation decoder's depend
 on the state (:class:`StateTransport`, ``J_i(q)`` at the current state), so
 its loaded equilibrium is the fixed point of
 ``q = q_eq(kappa sum_i w_i J_i(q)^T f)`` (:func:`loaded_state`; for constant
@@ -32,7 +32,7 @@ import torch
 from scipy.optimize import brentq
 from torch import Tensor
 
-from lagsplat.force import ForceTransport, Selection
+from lagsplat.forces.transport import ForceTransport, Selection
 from lagsplat.io.clip import TRAIN
 from lagsplat.synth.pendulum import PIVOT_Y, ROD_LENGTH
 
@@ -46,13 +46,13 @@ CASES = [
 
 
 class StateTransport(ForceTransport):
-    """:class:`~lagsplat.force.ForceTransport` of the deformation decoder: positions, footprints and
+    """:class:`~lagsplat.forces.transport.ForceTransport` of the deformation decoder: positions, footprints and
     Jacobians read at the state (paper App. B), all in pixels of the training resolution and whitened ``q``.
 
     Args:
         ae: a Stage-1 autoencoder whose decoder is a :class:`~lagsplat.models.deformation.DeformationGaussians`.
         chart: its chart (``W_inv``, ``mean``).
-        brush, min_transmittance: as :class:`~lagsplat.force.ForceTransport`.
+        brush, min_transmittance: as :class:`~lagsplat.forces.transport.ForceTransport`.
 
     Raises:
         ValueError: for another decoder family.
@@ -167,7 +167,7 @@ def force_truth(ae, chart, model, clip, sigma: float = 1.5, min_transmittance: f
     Args:
         ae, chart, model: the Stage-1 autoencoder, its chart and the Stage-2 Lagrangian trained on it.
         clip: the synthetic pendulum clip (``meta["theta"]``, rad per frame).
-        sigma: brush radius, px; min_transmittance: the visible brush's threshold (:mod:`lagsplat.force`).
+        sigma: brush radius, px; min_transmittance: the visible brush's threshold (:mod:`lagsplat.forces.transport`).
         min_motion: a force is scored only where the material was seen moving this much (rms px).
         max_deg, max_pct: tolerances counted in the summary.
 

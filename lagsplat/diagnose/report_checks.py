@@ -37,7 +37,7 @@ def reliability(chart: Any, stage2_history: Mapping[str, Any] | None = None, dia
     none). Checks:
 
     * ``chart_gate``: when the chart carries the chart-quality gate's result
-      (``chart.meta["gate"]``, :func:`lagsplat.chart_gate.chart_gate`: continuity,
+      (``chart.meta["gate"]``, :func:`lagsplat.chart.gate.chart_gate`: continuity,
       decoder motion, coverage of the moving pixels, encoder saturation), it
       passed; its failed checks are the reasons. A chart from before the gate
       is read by the two older checks instead:

@@ -2,7 +2,7 @@
 
 :class:`ScreenKinematics` gives, at a chart state, the primitives' pixel positions, their compositing weights
 at pixel centres and their pixel motion per unit of ``q``: for the 2-D decoder from its own pixel kinematics
-(:class:`lagsplat.force.ForceTransport`, constant Jacobians ``J_i``, paper Eq. 9), for the 3-D decoder by
+(:class:`lagsplat.forces.transport.ForceTransport`, constant Jacobians ``J_i``, paper Eq. 9), for the 3-D decoder by
 projecting its world-space primitives through the main camera (EWA, depth-sorted front to back,
 :mod:`lagsplat.render.camera`), the way :meth:`lagsplat.models.decoder3d.ConditionedGaussians3D.render`
 draws them.
@@ -14,8 +14,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from lagsplat.force import ForceTransport
-from lagsplat.force3d import ForceTransport3D
+from lagsplat.forces.transport import ForceTransport
+from lagsplat.forces.transport3d import ForceTransport3D
 from lagsplat.render.camera import project_points
 
 __all__ = ["ScreenKinematics"]
@@ -25,8 +25,8 @@ class ScreenKinematics:
     """Pixel-space view of a decoder's primitives over its chart (module docstring).
 
     Args:
-        transport: a :class:`~lagsplat.force.ForceTransport` (2-D decoder: pixel kinematics) or a
-            :class:`~lagsplat.force3d.ForceTransport3D` (3-D decoder: world kinematics).
+        transport: a :class:`~lagsplat.forces.transport.ForceTransport` (2-D decoder: pixel kinematics) or a
+            :class:`~lagsplat.forces.transport3d.ForceTransport3D` (3-D decoder: world kinematics).
         camera: the main camera at the working resolution (3-D only).
 
     Raises:

@@ -35,7 +35,7 @@ the error in excess of that floor is the simulation's):
   rollouts against the real frames minus the AE reconstruction's error on the
   same frames (the excess), attributed to the Gaussians that render each pixel
   by their compositing weights ``T_i a_i`` (the rasteriser's rule,
-  :meth:`lagsplat.force.ForceTransport.compositing_weights`), averaged between
+  :meth:`lagsplat.forces.transport.ForceTransport.compositing_weights`), averaged between
   the encoded and the simulated state, plus the share left to the background.
 
 :func:`lagsplat.diagnose.localise.localise` runs all four (the image one is there too); :func:`lagsplat.diagnose.where_plots.plot_where` draws one figure per aspect.

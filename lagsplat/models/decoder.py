@@ -336,7 +336,7 @@ class ConditionedGaussians(nn.Module):
                 background, e.g. each primitive's Jacobian in pixels: the
                 result at pixel ``p`` is ``sum_i T_i(p) a_i(p) extra_i``, the
                 same compositing weights the visible brush of
-                :mod:`lagsplat.force` uses.
+                :mod:`lagsplat.forces.transport` uses.
 
         With a static layer the primitives are composited over zero with one more channel, their
         coverage ``A = 1 - prod_i (1 - a_i)``, and the image is ``rgb + (1 - A) backdrop``; the
@@ -367,7 +367,7 @@ class ConditionedGaussians(nn.Module):
         """Render ``z [B,d]`` with its motion field, ``sum_i T_i a_i J_i diag(q_std)`` in pixels.
 
         The field a force applied at each pixel is pulled back through (the
-        visible brush of :mod:`lagsplat.force`, paper Eq. 9), scaled by the
+        visible brush of :mod:`lagsplat.forces.transport`, paper Eq. 9), scaled by the
         spread ``q_std [d]`` of the latent; :meth:`render` with ``extra`` the
         per-primitive pixel Jacobians.
 

@@ -3,7 +3,7 @@
 A Stage-1 run can fail for reasons a second run fixes: an unlucky
 initialisation that leaves the moving object out of the decoder, or too few
 steps for a cluttered scene. :func:`train_stage1_gated` trains, builds the
-chart (paper §3.2) and runs the gate (:func:`lagsplat.chart_gate.chart_gate`);
+chart (paper §3.2) and runs the gate (:func:`lagsplat.chart.gate.chart_gate`);
 when the chart fails, it trains again with another seed, more steps and more
 Gaussians (from the second retry on, where the object was left out, the first
 budget with the anchored start of :mod:`lagsplat.train.anchor`), up to
@@ -23,7 +23,7 @@ import dataclasses
 import time
 from typing import Any
 
-from lagsplat.chart_gate import chart_key, chart_record, gate_summary, gated_chart
+from lagsplat.chart.gate import chart_key, chart_record, gate_summary, gated_chart
 from lagsplat.io.clip import Clip
 from lagsplat.models.autoencoder import AutoEncoder
 from lagsplat.train.stage1 import Stage1Config, train_stage1
@@ -83,10 +83,10 @@ def train_stage1_gated(
 
     Returns:
         ``(model, history, attempts)``: the kept model and its training history, with ``history["gated_chart"]``
-        its gated chart (:func:`lagsplat.chart_gate.chart_record`, what the chart stage would build); ``attempts``
+        its gated chart (:func:`lagsplat.chart.gate.chart_record`, what the chart stage would build); ``attempts``
         one entry per attempt: ``seed``, ``steps`` (at most), ``steps_run``, ``stopped`` (why it
         stopped early, or ``None``), ``n_gaussians``, ``w_temporal``, ``wall_s``, ``gate``
-        (:func:`lagsplat.chart_gate.chart_gate`'s result) and ``kept``.
+        (:func:`lagsplat.chart.gate.chart_gate`'s result) and ``kept``.
 
     Raises:
         ValueError: as :func:`lagsplat.train.stage1.train_stage1`, or for ``retries < 0``.

@@ -147,7 +147,7 @@ def static_motion_penalty(motion: Tensor, static: Tensor) -> Tensor:
     ``extra``); ``static [H,W]`` marks the pixels whose colour never changes in
     the training frames (:func:`lagsplat.motion.motion_masks`). The
     penalty is the mean squared motion over those pixels, in px^2: what a
-    force applied there would move (the visible brush of :mod:`lagsplat.force`
+    force applied there would move (the visible brush of :mod:`lagsplat.forces.transport`
     pulls back exactly this field, paper Eq. 9), which paper §4.5 requires to
     vanish on background. The reconstruction loss alone leaves it free
     wherever a primitive that moves with the object reaches over static

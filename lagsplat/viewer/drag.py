@@ -1,7 +1,7 @@
 """The drag of the interactive viewer as part of the dynamics: the spring to the pointer inside the acceleration.
 
 (paper §3.4, Eq. 9.) :class:`DraggedDynamics` runs on the autograd path of
-:class:`~lagsplat.force.EditedDynamics`; :class:`CompiledDraggedDynamics` on the
+:class:`~lagsplat.forces.transport.EditedDynamics`; :class:`CompiledDraggedDynamics` on the
 compiled kernels of :mod:`lagsplat.dynamics.fast` (the same numbers). Both are
 built by :class:`lagsplat.viewer.session.Session` at every step.
 """
@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from torch import Tensor
 
-from lagsplat.force import EditedDynamics, ForceTransport, Selection
+from lagsplat.forces.transport import EditedDynamics, ForceTransport, Selection
 
 __all__ = ["DraggedDynamics", "CompiledDraggedDynamics"]
 
@@ -37,7 +37,7 @@ class DraggedDynamics:
 
 
 class CompiledDraggedDynamics:
-    """:class:`~lagsplat.force.EditedDynamics` plus the drag on the compiled kernels of :mod:`lagsplat.dynamics.fast`.
+    """:class:`~lagsplat.forces.transport.EditedDynamics` plus the drag on the compiled kernels of :mod:`lagsplat.dynamics.fast`.
 
     For the inertias the kernels support (``"scalar"``, ``"constant"``) there
     is no Coriolis term, so ``qddot = (c M^-1 F_V + b M^-1 F_D + M^-1 f) / a``

@@ -31,7 +31,7 @@ class Mobility:
     def brush_jacobians(self, points: Tensor, q: Tensor | None = None, chunk: int = 1024) -> Tensor:
         """Jacobian of the brush's application point, ``J_bar(x) = sum_i w_i(x) J_i`` ``[P,2,d]``.
 
-        The weights are those of :meth:`~lagsplat.force.ForceTransport.select`
+        The weights are those of :meth:`~lagsplat.forces.transport.ForceTransport.select`
         (same formula, with the state-dependent part computed once for all points).
 
         Args:

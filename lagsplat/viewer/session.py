@@ -8,7 +8,7 @@ page (:mod:`lagsplat.viewer.server`) forwards pointer events to
 slider changes to :meth:`Session.set_params`, and shows :meth:`Session.render`.
 
 The drag (paper §3.4, Eq. 9). At the press the brush selects the material
-under the pointer (:meth:`~lagsplat.force.ForceTransport.select`, radius
+under the pointer (:meth:`~lagsplat.forces.transport.ForceTransport.select`, radius
 ``sigma`` px) and freezes the selection until the release. While held, a
 spring pulls the selected material's application point ``p(q)`` towards the
 pointer ``x``:
@@ -17,7 +17,7 @@ pointer ``x``:
     f_lat = kappa * sum_i w_i J_i^T f     (generalized force, :meth:`ForceTransport.pullback`)
 
 and the state follows the edited dynamics
-(:class:`~lagsplat.force.EditedDynamics`: inertia, damping and stiffness
+(:class:`~lagsplat.forces.transport.EditedDynamics`: inertia, damping and stiffness
 factors) integrated by velocity Verlet
 (:func:`~lagsplat.dynamics.integrators.verlet_step`). The spring force is
 evaluated at every force evaluation of the integrator (not frozen over a
@@ -42,7 +42,7 @@ from torch import Tensor
 
 from lagsplat.artifacts import Artifacts
 from lagsplat.dynamics.integrators import initial_state, verlet_step
-from lagsplat.force import EditedDynamics, ForceTransport, Selection
+from lagsplat.forces.transport import EditedDynamics, ForceTransport, Selection
 from lagsplat.io.clip import TRAIN
 from lagsplat.viewer.drag import CompiledDraggedDynamics, DraggedDynamics
 from lagsplat.viewer.mobility import Mobility
@@ -71,7 +71,7 @@ class Session(Mobility):
             (``lambda_max(d2V/dq2) / (kappa max_x |J_bar(x)|^2)``; see
             :meth:`auto_force_scale`). The page's slider moves it
             by 0.1x .. 10x around this default.
-        kappa: energy factor of the model's forces (:func:`~lagsplat.force.calibrate_kappa`; 1 = uncalibrated).
+        kappa: energy factor of the model's forces (:func:`~lagsplat.forces.transport.calibrate_kappa`; 1 = uncalibrated).
         initial: ``"rest"`` (``model.q_rest``, at rest) or ``"held_out"`` (the
             first held-out encoded frame with its finite-difference velocity;
             the rest state when the chart has none).
@@ -288,7 +288,7 @@ class Session(Mobility):
         ``{"point": [x, y], "pointer": [x, y], "force": [fx, fy], "seen_px": s}``:
         the held material's application point, the pointer, the pixel force,
         all px, and how far that material moved in the training clip, rms px
-        (:meth:`~lagsplat.force.ForceTransport.observed_motion`: below about a
+        (:meth:`~lagsplat.forces.transport.ForceTransport.observed_motion`: below about a
         pixel the video barely constrains its Jacobians)),
         ``params``, ``force_scale_default``, ``substeps``, ``compiled`` (the
         compiled dynamics are in use), ``size``

@@ -4,7 +4,7 @@
 decoder, frozen chart, Stage-2 Lagrangian) and advances it by velocity Verlet
 (:func:`~lagsplat.dynamics.integrators.verlet_step`) in steps of the clip's frame interval. A click casts a
 ray (origin and direction in world units, as viser reports it): the material the ray meets first is
-selected (:meth:`lagsplat.force3d.ForceTransport3D.select`, through a virtual camera on the ray) and a
+selected (:meth:`lagsplat.forces.transport3d.ForceTransport3D.select`, through a virtual camera on the ray) and a
 world-space force of ``force`` world units along the ray (a push into depth) or opposite to it (a pull)
 acts on it, pulled back as ``kappa sum_i w_i J_i^T f`` (paper Eq. 9, §4.5), until released.
 
@@ -29,8 +29,8 @@ import numpy as np
 import torch
 
 from lagsplat.dynamics.integrators import initial_state, verlet_step
-from lagsplat.force import Selection
-from lagsplat.force3d import ForceTransport3D
+from lagsplat.forces.transport import Selection
+from lagsplat.forces.transport3d import ForceTransport3D
 from lagsplat.io.clip import HELD_OUT
 from lagsplat.render.camera import Camera, look_at
 
@@ -47,7 +47,7 @@ class Session3D:
         force: magnitude of a push, world units (> 0), or ``"auto"``: the force whose generalized force, on the
             median primitive's Jacobian, moves the state by half a chart unit against the stiffest direction of
             the potential at rest (``0.5 lambda_max(hess V) / median_i |J_i|``).
-        kappa: energy factor of forces (:func:`lagsplat.force.calibrate_kappa`).
+        kappa: energy factor of forces (:func:`lagsplat.forces.transport.calibrate_kappa`).
 
     Raises:
         ValueError: if the decoder is not a 3-D one, or ``force <= 0``.

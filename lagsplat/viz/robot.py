@@ -21,7 +21,7 @@ import torch  # noqa: E402
 from lagsplat import timeseries  # noqa: E402
 from lagsplat.artifacts import Artifacts  # noqa: E402
 from lagsplat.dynamics.integrators import actuation_schedule, initial_state, rollout  # noqa: E402
-from lagsplat.force import ForceTransport  # noqa: E402
+from lagsplat.forces.transport import ForceTransport  # noqa: E402
 from lagsplat.io.atomic import atomic_write, write_json  # noqa: E402
 from lagsplat.io.clip import HELD_OUT, TRAIN  # noqa: E402
 from lagsplat.viz.rollout import visibility_basis  # noqa: E402

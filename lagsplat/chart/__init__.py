@@ -25,6 +25,10 @@ refinement gives up the encoder's temporal regularity (paper §3.2), and on real
 video that can cost more than it buys: it can tear the chart or widen the
 held-out gap (the blind suite's and the real clips' measurements are in
 ``docs/experiments/diagnosis_history.md``).
+
+The package's other modules: :mod:`lagsplat.chart.refine` (that refinement,
+:func:`refine_latents`) and :mod:`lagsplat.chart.gate` (the chart-quality gate,
+and :func:`~lagsplat.chart.gate.gated_chart`, the chart a run uses).
 """
 
 from __future__ import annotations
@@ -39,7 +43,7 @@ from torch import Tensor
 
 from lagsplat.io.atomic import atomic_write
 from lagsplat.io.clip import HELD_OUT, TRAIN, Clip, segments
-from lagsplat.chart_refine import refine_latents
+from lagsplat.chart.refine import refine_latents
 from lagsplat.models.autoencoder import AutoEncoder, frames_to_tensor
 
 __all__ = [

@@ -122,7 +122,7 @@ def compositing_weights(mu: Tensor, cov: Tensor, opacity: Tensor, points: Tensor
 class ChartKinematics:
     """Affine primitive motion in the whitened chart, ``mu_i(q) = c_i + J_i q`` (Schur mean, paper Eq. 2 and 9), with
     the latent gates of the opacities (paper Eq. 4): the part of the force transport shared by the image-plane
-    (:class:`ForceTransport`, ``n = 2``, pixels) and the world-space one (:class:`lagsplat.force3d.ForceTransport3D`,
+    (:class:`ForceTransport`, ``n = 2``, pixels) and the world-space one (:class:`lagsplat.forces.transport3d.ForceTransport3D`,
     ``n = 3``). Needs ``c [K,n]``, ``J [K,n,d]``, ``alpha [K]``, ``mu_q``, ``L_qq``, ``W_inv``, ``mean``."""
 
     c: Tensor

@@ -5,7 +5,7 @@ Paper §4.5 ("Forces in three dimensions") on the 3-D decoder
 whitened state, ``mu_i(q) = c_i + J_i q`` with ``J_i [3,d]`` in world units per unit ``q`` (Schur mean, paper
 Eq. 2 and 9; :meth:`~lagsplat.models.decoder3d.ConditionedGaussians3D.chart_kinematics`). A click at pixel ``x``
 of a camera casts a ray: the state's Gaussians are projected through that camera (EWA), sorted front to back,
-and the visible brush of :mod:`lagsplat.force` weighs each by its compositing share ``T_i a_i`` around ``x``
+and the visible brush of :mod:`lagsplat.forces.transport` weighs each by its compositing share ``T_i a_i`` around ``x``
 (with ``min_transmittance`` only the surface the ray meets first). A world-space force ``f [3]`` then enters
 the Euler-Lagrange equation as the generalized force ``kappa sum_i w_i J_i^T f`` and the loaded equilibrium is
 :meth:`lagsplat.models.lagrangian.Lagrangian.loaded_equilibrium`'s. A push along the viewing direction, which no
@@ -19,7 +19,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from lagsplat.force import ChartKinematics, Selection, brush_samples, compositing_weights
+from lagsplat.forces.transport import ChartKinematics, Selection, brush_samples, compositing_weights
 from lagsplat.render.camera import Camera, depth_order, project_gaussians
 
 __all__ = ["ForceTransport3D"]
@@ -32,8 +32,8 @@ class ForceTransport3D(ChartKinematics):
         c: ``[K,3]`` world position of each primitive at ``q = 0``.
         J: ``[K,3,d]`` constant Jacobians, world units per unit ``q``.
         cov: ``[K,3,3]`` world covariances.
-        alpha, mu_q, L_qq, W_inv, mean: opacities, latent gates and the chart's de-whitening (as :class:`lagsplat.force.ForceTransport`).
-        min_transmittance: the brush's front-surface threshold ``tau`` (:mod:`lagsplat.force`).
+        alpha, mu_q, L_qq, W_inv, mean: opacities, latent gates and the chart's de-whitening (as :class:`lagsplat.forces.transport.ForceTransport`).
+        min_transmittance: the brush's front-surface threshold ``tau`` (:mod:`lagsplat.forces.transport`).
     """
 
     def __init__(self, c: Tensor, J: Tensor, cov: Tensor, alpha: Tensor, mu_q: Tensor, L_qq: Tensor, W_inv: Tensor, mean: Tensor,
@@ -52,7 +52,7 @@ class ForceTransport3D(ChartKinematics):
             ValueError: if the decoder is not a 3-D one.
         """
         if ae.decoder.n_space != 3:
-            raise ValueError("ForceTransport3D needs the 3-D decoder (stage1.decoder=conditioned3d); use lagsplat.force.ForceTransport")
+            raise ValueError("ForceTransport3D needs the 3-D decoder (stage1.decoder=conditioned3d); use lagsplat.forces.transport.ForceTransport")
         g = ae.decoder.geometry()
         c, J = ae.decoder.chart_kinematics(chart.W_inv, chart.mean, ae.height, ae.width)
         W_inv = torch.as_tensor(chart.W_inv, dtype=torch.float32)
@@ -63,7 +63,7 @@ class ForceTransport3D(ChartKinematics):
     def select(self, q: Tensor, camera: Camera, x: Tensor, sigma: float = 1.0) -> Selection:
         """The material under the pixel ``x [2]`` of ``camera`` at the state ``q [1,d]``: compositing weights of the
         projected, depth-sorted Gaussians on a 5 x 5 brush of spacing ``sigma`` px (the visible brush of
-        :mod:`lagsplat.force`), normalised; a zero row when the ray meets nothing.
+        :mod:`lagsplat.forces.transport`), normalised; a zero row when the ray meets nothing.
 
         Raises:
             ValueError: for a batch of states, or ``sigma <= 0``.
@@ -78,7 +78,7 @@ class ForceTransport3D(ChartKinematics):
     def weights(self, q: Tensor, camera: Camera, points: Tensor) -> Tensor:
         """Share of each primitive in the colour ``camera`` renders at the pixel positions ``points [P,2]``, ``[P,K]``
         (in the primitives' own order), at the state ``q [1,d]``: projected (EWA), those behind the camera dropped,
-        composited front to back (:func:`lagsplat.force.compositing_weights`, this transport's ``min_transmittance``)."""
+        composited front to back (:func:`lagsplat.forces.transport.compositing_weights`, this transport's ``min_transmittance``)."""
         uv, cov2, depth = project_gaussians(self.means(q), self.cov[None], camera)
         op = self.opacity(q) * (depth > 0).to(q.dtype)
         uv_s, cov_s, op_s, order = depth_order(depth, uv, cov2, op)

@@ -1,7 +1,7 @@
 """Per-frame analysis-by-synthesis of the chart: each encoding moved to where the decoder draws its frame best.
 
 Used by :func:`lagsplat.chart.build_chart` (``chart.refine_iters``) and by the
-chart-quality gate's saturation check (:func:`lagsplat.chart_gate.encoder_saturation`).
+chart-quality gate's saturation check (:func:`lagsplat.chart.gate.encoder_saturation`).
 """
 
 from __future__ import annotations

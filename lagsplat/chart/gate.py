@@ -19,7 +19,7 @@ threshold fixed in :class:`GateThresholds`:
   temporal variance that the decoded chart reproduces. A decoder that draws
   the static scene and leaves the moving object out scores about 0.
 * ``saturation``: :func:`encoder_saturation`, how far the decoder-refined
-  latents (:func:`lagsplat.chart_refine.refine_latents`) of the most extreme frames
+  latents (:func:`lagsplat.chart.refine.refine_latents`) of the most extreme frames
   lie beyond their encodings: an encoder that saturates at the turning points
   reads a compressed amplitude.
 
@@ -43,7 +43,7 @@ import numpy as np
 import torch
 
 from lagsplat.chart import Chart, build_chart
-from lagsplat.chart_refine import refine_latents
+from lagsplat.chart.refine import refine_latents
 from lagsplat.io.clip import HELD_OUT, TRAIN, Clip, segments
 from lagsplat.models.autoencoder import AutoEncoder, frames_to_tensor
 from lagsplat.motion import motion_masks
@@ -160,7 +160,7 @@ def encoder_saturation(model: AutoEncoder, clip: Clip, chart: Chart, share: floa
 
     Along ``G_bar``'s most visible direction ``v``, the ``share`` of training
     frames with the largest and the smallest ``p = q v`` are refined by
-    :func:`lagsplat.chart_refine.refine_latents` (per frame, to where the decoder draws
+    :func:`lagsplat.chart.refine.refine_latents` (per frame, to where the decoder draws
     them best). The statistic is ``(range_refined - range_encoded) / range_encoded``
     with ``range`` the difference of the two groups' mean ``p``: 0 for an
     encoder that reads the turning points where the decoder draws them, 0.3 for
@@ -249,7 +249,7 @@ def gated_chart(
 
     With ``refine_iters > 0`` both charts are built (:func:`lagsplat.chart.build_chart`): the encoder's (paper §3.2)
     and the one whose encodings took ``refine_iters`` Levenberg-Marquardt steps towards where the decoder draws each
-    frame (:func:`lagsplat.chart_refine.refine_latents`). Per frame the refinement gives up the encoder's temporal
+    frame (:func:`lagsplat.chart.refine.refine_latents`). Per frame the refinement gives up the encoder's temporal
     regularity: it can lower the chart's noise or tear the chart (both measured on rendered and real clips,
     ``docs/experiments/diagnosis_history.md``). So the refined chart is used only when it passes the gate and its
     :func:`relative_chart_noise` is below the encoder's; otherwise the encoder's chart is used, unless it alone fails

@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from lagsplat.force import ForceTransport
+from lagsplat.forces.transport import ForceTransport
 from lagsplat.motion import motion_masks
 from lagsplat.models.lagrangian import Lagrangian
 
@@ -52,7 +52,7 @@ class ForceCheckConfig:
     Attributes:
         sigma: brush radius, pixels.
         min_transmittance: the visible brush's front-surface threshold ``tau``
-            (:mod:`lagsplat.force`; 0: every composited primitive).
+            (:mod:`lagsplat.forces.transport`; 0: every composited primitive).
         grid: spacing of the probe points, pixels.
         moving_frac: a pixel moves if its temporal std is at least this share of the largest.
         static_factor: a pixel is static if its temporal std is at most this multiple of the noise floor (10th percentile).
@@ -118,7 +118,7 @@ def run_force_checks(
 
     Args:
         model: the trained Lagrangian (``q_rest``, ``loaded_equilibrium``).
-        transport: its :class:`~lagsplat.force.ForceTransport`.
+        transport: its :class:`~lagsplat.forces.transport.ForceTransport`.
         images: uint8 ``[T,H,W,3]`` frames of the clip (where things move).
         rest_image: uint8 ``[H,W,3]`` decoder render at rest: the on-object
             points are where it shows the object (:func:`object_at_rest`);
