@@ -8,6 +8,7 @@
 #   snakemake -c2 results/tables/two_carts_inertia.tex   # inertia ablation on one frozen chart
 #
 #   snakemake -c2 results/tables/krauss.tex --config krauss_source=synthetic   # soft-robot benchmark, offline surrogate
+#   snakemake -c2 paper                            # every table and figure of the paper -> docs/results.md (workflow/rules/paper.smk)
 #
 # Multi-run targets, one job per run (workflow/rules/suite.smk, seeds.smk):
 #   snakemake -c8 suite                            # blind diagnosis suite: one job per clip, then the scoring
@@ -147,6 +148,18 @@ include: "workflow/rules/diagnose.smk"
 include: "workflow/rules/suite.smk"
 include: "workflow/rules/seeds.smk"
 include: "workflow/rules/realistic.smk"
+include: "workflow/rules/paper.smk"
+
+
+# Snakemake keeps one onstart handler: before the first job, the projected wall time of the paper target item by
+# item (workflow/rules/paper.smk), else of the soft-robot jobs (workflow/rules/krauss.smk).
+onstart:
+    for _projection in (_paper_projection, _krauss_projection):
+        try:
+            if _projection():
+                break
+        except Exception as e:  # a projection is a courtesy: it never stops a run
+            print(f"[lagsplat] no projected wall time ({type(e).__name__}: {e})", flush=True)
 
 
 rule toy:

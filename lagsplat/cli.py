@@ -7,7 +7,7 @@ resolved configuration saved beside it (``config/<stage>.yaml``).
 
 Stages: ``download``, ``ingest``, ``stage1``, ``chart``, ``stage2``,
 ``evaluate``, ``figures``, ``forces``, ``export``, ``diagnose``, ``extrapolation``, ``extrapolation_table``, ``deformation``, ``table``, ``ablation``, ``krauss_table``,
-``seed_table``, ``all`` (ingest ->
+``seed_table``, ``views_table``, ``all`` (ingest ->
 figures in one process), and ``view`` (the interactive viewer, which writes
 nothing).
 """
@@ -27,7 +27,7 @@ from lagsplat.cli_common import apply_variant, clear_stop, compose, find_conf_di
 from lagsplat.stages import stage_chart, stage_download, stage_evaluate, stage_figures, stage_ingest, stage_stage1, stage_stage2, stage_views
 from lagsplat.stages_baselines import stage_extrapolation, stage_extrapolation_table
 from lagsplat.stages_deformation import stage_deformation
-from lagsplat.stages_report import stage_ablation, stage_diagnose, stage_export, stage_forces, stage_krauss_table, stage_robot_figures, stage_render, stage_seed_table, stage_table, stage_view
+from lagsplat.stages_report import stage_ablation, stage_diagnose, stage_export, stage_forces, stage_krauss_table, stage_robot_figures, stage_render, stage_seed_table, stage_table, stage_view, stage_views_table
 
 __all__ = ["main", "STAGES", "stage_all", "stage_help", "run_logged"]
 
@@ -61,6 +61,8 @@ stages:
   krauss_table  soft-robot benchmark (paper Table 4) -> results/tables/krauss.tex/.csv/.md
   seed_table one system trained with each of seed_table.seeds (results/seeds/seed<k>/<name>/metrics.json)
              -> results/tables/<name>_seeds.md/.csv (per-seed rows, mean, std, min, max)
+  views_table  metrics.json of the 3-D systems of table.systems -> results/tables/<table.name>.csv/.md (PSNR of the
+             training views and of the held-out cameras; paper §3.2, App. C)
   all        ingest (.. views) .. figures for one system
   render     a 3-D model's novel views -> figures/novel_views.mp4, .png (render.camera=orbit|<cameras.json>,
              render.rollout_s: along a free rollout)
@@ -114,6 +116,7 @@ STAGES: dict[str, Callable[[DictConfig], None]] = {
     "krauss_table": stage_krauss_table,
     "robot_figures": stage_robot_figures,
     "seed_table": stage_seed_table,
+    "views_table": stage_views_table,
     "all": stage_all,
     "view": stage_view,
     "render": stage_render,

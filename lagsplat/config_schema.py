@@ -281,7 +281,7 @@ class TableConfig:
 class SeedTableConfig:
     """``python -m lagsplat seed_table`` (``seed_table`` group): the seeds (>= 0) and the folder under ``results_dir``."""
 
-    seeds: list[int] = field(default_factory=lambda: [0, 1, 2])
+    seeds: list[int] = field(default_factory=lambda: [0, 1, 2, 3, 4])
     dir: str = "seeds"
 
 

@@ -11,7 +11,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from lagsplat.cli_common import artifacts_of, plain, save_stage_config
 
-__all__ = ["stage_forces", "stage_export", "stage_diagnose", "stage_table", "stage_ablation", "stage_seed_table", "stage_krauss_table", "stage_render", "stage_view"]
+__all__ = ["stage_forces", "stage_export", "stage_diagnose", "stage_table", "stage_ablation", "stage_seed_table", "stage_views_table", "stage_krauss_table", "stage_render", "stage_view"]
 
 
 def stage_forces(cfg: DictConfig) -> None:
@@ -175,6 +175,21 @@ def stage_seed_table(cfg: DictConfig) -> None:
     a, res, name = artifacts_of(cfg), cfg.results_dir, f"{cfg.system.name}_seeds"
     inputs = a.table_sources([seed_metrics_path(res, str(t.dir), s, cfg.system.name) for s in seeds])
     seed_table(inputs, seeds, a.table(res, name, ".md"), a.table(res, name, ".csv"))
+
+
+def stage_views_table(cfg: DictConfig) -> None:
+    """A 3-D model's PSNR on its training views and on the held-out cameras (paper §3.2 and App. C), one row per system of
+    ``table.systems`` -> ``results/tables/<table.name>.csv`` and ``.md`` (paths: ``artifacts.table_inputs``,
+    ``table_csv``, ``table_md`` when given)."""
+    from lagsplat.artifacts import variant_metrics_path
+    from lagsplat.report.tables import view_table
+
+    t = cfg.get("table", {})
+    name = t.get("name", "novel_views")
+    systems = list(t.get("systems", [cfg.system.name]))
+    a, res = artifacts_of(cfg), cfg.results_dir
+    inputs = a.table_sources([variant_metrics_path(res, s, None) for s in systems])
+    view_table(inputs, a.table(res, name, ".csv"), a.table(res, name, ".md"))
 
 
 def stage_krauss_table(cfg: DictConfig) -> None:

@@ -1,4 +1,4 @@
-"""The projected wall time of the soft-robot chain (lagsplat.report.projection)."""
+"""The projected wall time of the soft-robot chain and of the paper target (lagsplat.report.projection)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from lagsplat.cli_common import apply_variant, compose
-from lagsplat.report.projection import COSTS, REAL_FRAMES, job_seconds, project, projection_lines
+from lagsplat.report.projection import COSTS, REAL_FRAMES, item_lines, job_seconds, project, project_items, projection_lines
 
 
 def _cfg(system: str, *extra: str):
@@ -40,3 +40,35 @@ def test_systems_share_the_cores_and_a_chain_runs_in_order() -> None:
     lines = projection_lines(p2)
     assert lines[0].startswith("[lagsplat] projected wall time") and len(lines) == 3
     assert projection_lines(project([], 2)) == []
+
+
+def test_a_whole_run_and_the_decoder_comparison_are_priced_from_their_stages() -> None:
+    toy = _cfg("toy")  # a procedural clip: its length from its parameters
+    frames = round(float(toy.system.source.params.duration_s) * float(toy.system.source.params.fps))
+    assert job_seconds("chart", toy) == pytest.approx(frames * COSTS["chart_frame"])
+    chain = sum(job_seconds(r, toy) for r in ("ingest", "stage1", "chart", "stage2", "evaluate"))
+    assert chain > 0 and job_seconds("seed_run", toy) == pytest.approx(chain)
+    assert job_seconds("deformation_table", toy) == pytest.approx(job_seconds("stage1", toy))
+    cart = _cfg("oscillating_cart")  # a video that is not on disk: per-frame jobs unpriced, Stage 1 priced
+    assert job_seconds("chart", cart) == 0.0 and job_seconds("stage1", cart) > 0
+
+
+def test_the_paper_items_share_the_cores_and_unpriced_rules_are_named() -> None:
+    toy, cart = _cfg("toy"), _cfg("oscillating_cart")
+    items = {
+        "physical": [("stage1", "toy", toy, 2), ("stage2", "toy", toy, 2), ("stage1", "oscillating_cart", cart, 2), ("table", "None", None, 1)],
+        "seeds": [("seed_run", "seed0/toy", toy, 2), ("seed_run", "seed1/toy", toy, 2)],
+        "extrapolation": [("extrapolation", "toy", toy, 2)],
+    }
+    p = project_items(items, 2)
+    s1, s2, run = job_seconds("stage1", toy), job_seconds("stage2", toy), job_seconds("seed_run", toy)
+    assert p["items"] == pytest.approx({"physical": s1 + s2 + job_seconds("stage1", cart), "seeds": 2 * run, "extrapolation": 0.0})
+    assert p["unpriced"] == {"table": 1, "extrapolation": 1}
+    # two-thread jobs on two cores run one at a time: the wall time is every priced job in turn
+    assert p["wall_seconds"] == pytest.approx(p["job_seconds"])
+    one_thread = project_items({k: [(r, lane, c, 1) for r, lane, c, _ in v] for k, v in items.items()}, 2)
+    assert one_thread["wall_seconds"] == pytest.approx(max(p["job_seconds"] / 2, s1 + s2))  # the cores shared, or the toy's chain
+    lines = item_lines(p)
+    assert lines[0].startswith("[lagsplat] projected wall time of the paper target on 2 core(s): at least ")
+    assert [ln.split(":")[0].strip() for ln in lines[1:4]] == ["[lagsplat]   physical", "[lagsplat]   seeds", "[lagsplat]   extrapolation"]
+    assert lines[3].endswith("nothing priced") and lines[4].endswith("extrapolation x1, table x1")

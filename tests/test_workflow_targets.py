@@ -1,4 +1,4 @@
-"""The multi-run Snakemake targets (blind diagnosis suite, seeds, the physical table), dry-run as a user would.
+"""The multi-run Snakemake targets (blind diagnosis suite, seeds, the physical table, the paper), dry-run as a user would.
 
 Each target must plan one job per run, every job with a log file its output is
 redirected to, so that ``--cores N`` or the SLURM profile runs the runs in
@@ -13,13 +13,16 @@ import importlib.util
 import json
 import os
 import re
+import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+import yaml
 
 from lagsplat.diagnose.refit import GAP_METRICS
+from lagsplat.report.paper import KRAUSS_SURROGATE, SEED_SYSTEMS, paper_items
 from lagsplat.synth.effect_clips import blind_suite
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -290,13 +293,14 @@ def test_every_stage_gets_the_paths_its_rule_declares(tmp_path):
     # file it reads (a table's inputs as 'artifacts.table_inputs=[...]'), so no stage works a declared path out again
     res, raw = tmp_path / "res", tmp_path / "raw"
     targets = [f"{res}/tables/physical.tex", f"{res}/tables/two_carts_inertia.tex", f"{res}/toy/diagnosis/report.md", f"{res}/tables/deformation.tex",
-               f"{res}/tables/extrapolation.tex", f"{res}/pendulum3d/metrics.json", f"{res}/tables/toy_seeds.md"]  # fmt: skip
+               f"{res}/tables/extrapolation.tex", f"{res}/pendulum3d/metrics.json", f"{res}/tables/toy_seeds.md",
+               f"{res}/pendulum3d/figures/novel_views.png", f"{res}/tables/novel_views.csv"]  # fmt: skip
     r = dry_run([*targets, "krauss", "--config", f"results_dir={res}", f"raw_dir={raw}", "krauss_source=synthetic", "seeds=0,1"])
     assert r.returncode == 0, r.stdout
     staged = [j for j in jobs(r.stdout) if "python -m lagsplat " in j.get("shell", "")]
     assert {j["rule"] for j in staged} >= {"download", "ingest", "views", "stage1", "chart", "stage2", "evaluate", "figures", "table", "ablation_table",
                                            "stage2_variant", "evaluate_variant", "diagnose", "deformation_table", "extrapolation", "extrapolation_table",
-                                           "krauss_table", "robot_figures", "seed_run", "seed_table"}  # fmt: skip
+                                           "krauss_table", "robot_figures", "seed_run", "seed_table", "render", "views_table"}  # fmt: skip
     for j in staged:
         # key=PATH, and the items of key=[PATH,PATH,...]
         handed = set(re.findall(r"=([^\s'\[\],]+)", j["shell"])) | {p for items in re.findall(r"=\[([^\]]*)\]", j["shell"]) for p in items.split(",")}
@@ -309,3 +313,55 @@ def test_every_stage_gets_the_paths_its_rule_declares(tmp_path):
             assert path in handed, (j["rule"], path, j["shell"])
     views = [j for j in staged if j["rule"] == "views"]
     assert views and all(j["output"] == f"{res}/pendulum3d/views" for j in views)  # the whole folder: views.npz, cameras.json, views.json
+
+
+@pytest.mark.parametrize("profile", PROFILES)
+def test_the_paper_target_plans_every_item_then_the_page(tmp_path, slurm_stubs, profile):
+    # every table and figure of lagsplat.report.paper, offline (the soft robot's surrogate whatever krauss_source
+    # says), each job logged, then the results page; the SLURM profile plans the same jobs and submits nothing
+    env, calls = slurm_stubs
+    res, raw = tmp_path / "res", tmp_path / "raw"
+    r = dry_run([*profile, "paper", "--config", f"results_dir={res}", f"raw_dir={raw}"], env=env)
+    assert r.returncode == 0, r.stdout
+    counts = job_counts(r.stdout)
+    seeds = len(yaml.safe_load((ROOT / "conf" / "config.yaml").read_text())["seed_table"]["seeds"])
+    assert seeds == 5 and counts["seed_run"] == seeds * len(SEED_SYSTEMS) and counts["seed_table"] == len(SEED_SYSTEMS)
+    assert {"krauss_archive", "krauss_extract"}.isdisjoint(counts) and counts["krauss_synth"] == 2
+    assert counts["results_page"] == counts["paper"] == counts["render"] == counts["views_table"] == counts["krauss_table"] == 1
+    planned = jobs(r.stdout)
+    for j in planned:
+        if j["rule"] != "paper":  # a target rule runs nothing
+            assert_logged(j)
+    (page,) = [j for j in planned if j["rule"] == "results_page"]
+    assert {p.strip() for p in page["input"].split(",")} == {it.path for it in paper_items(res)}
+    assert page["output"] == "docs/results.md, docs/results"
+    assert f"--results {res} " in page["shell"]
+    (table,) = [j for j in planned if j["rule"] == "krauss_table"]
+    assert f"krauss_table.two_segments={KRAUSS_SURROGATE['2seg']} " in table["shell"] and table["output"].startswith(f"{res}/tables/krauss_surrogate.tex")
+    called = calls.read_text().splitlines() if calls.exists() else []
+    assert not [c for c in called if c.split()[0] in ("sbatch", "srun", "scancel")], called
+
+
+def test_the_paper_target_prints_its_projected_wall_time_before_the_first_job(tmp_path):
+    # --touch runs the onstart handler and then touches outputs instead of running any job; the workflow is a copy, so
+    # that the repository's docs/results.md is left alone
+    wf = tmp_path / "wf"
+    wf.mkdir()
+    for name in ("Snakefile", "workflow", "conf"):
+        (shutil.copytree if (ROOT / name).is_dir() else shutil.copy)(ROOT / name, wf / name)
+    env = dict(os.environ, PYTHONPATH=f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")
+    cfg = ["--config", f"results_dir={tmp_path / 'res'}", f"raw_dir={tmp_path / 'raw'}"]
+
+    def touch(target: str, *config: str) -> list[str]:
+        r = subprocess.run(["snakemake", "-c2", "--touch", target, *cfg, *config], cwd=wf, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=300)
+        assert r.returncode == 0, r.stdout
+        return [line for line in r.stdout.splitlines() if line.startswith("[lagsplat]")]
+
+    lines = touch("paper")
+    assert lines[0].startswith("[lagsplat] projected wall time of the paper target on 2 core(s): at least "), lines
+    keys = [it.key for it in paper_items(tmp_path / "res")]
+    assert [line.removeprefix("[lagsplat]").split(":")[0].strip() for line in lines[1 : 1 + len(keys)]] == keys  # per item, in order
+    assert lines[-1].startswith("[lagsplat]   not in the cost model") and "extrapolation x3" in lines[-1] and "diagnose x1" in lines[-1]
+    # the soft-robot projection is still printed for a run without the paper target
+    robot = touch("krauss", "krauss_source=synthetic")
+    assert robot and robot[0].startswith("[lagsplat] projected wall time of the soft-robot jobs on 2 core(s)"), robot

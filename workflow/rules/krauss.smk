@@ -15,6 +15,9 @@
 # The chain per robot: archive -> NPZ -> ingest -> stage1 -> chart -> stage2 (+ the two-segment
 # inertia variants) -> evaluate (system.protocol: krauss) -> krauss_table; robot_figures per robot.
 #   snakemake -c2 krauss --config krauss_source=synthetic   # the table and both robots' figures
+#   snakemake -c2 results/tables/krauss_surrogate.tex        # the surrogate's table whatever krauss_source says (paper target)
+
+from lagsplat.report.paper import KRAUSS_SURROGATE, KRAUSS_SURROGATE_TABLE  # the surrogate's robots and their table
 
 KRAUSS_SOURCE = str(config.get("krauss_source", "zenodo"))
 if KRAUSS_SOURCE not in ("zenodo", "synthetic"):
@@ -82,13 +85,6 @@ def _krauss_projection():
         print(line, flush=True)
 
 
-onstart:
-    try:
-        _krauss_projection()
-    except Exception as e:  # the projection is a courtesy: it never stops a run
-        print(f"[lagsplat] no projected wall time ({type(e).__name__}: {e})", flush=True)
-
-
 ruleorder: krauss_extract > download
 ruleorder: krauss_synth > download
 
@@ -145,27 +141,42 @@ rule krauss_synth:
         "python -m lagsplat.synth.continuum_robot --segments {params.segments} --out {output.npz} --duration-s {params.duration} --seed {params.seed} > {log} 2>&1"
 
 
+# table name -> its robots: krauss, those of --config krauss_source; krauss_surrogate, the offline surrogate's whatever
+# krauss_source says (the paper target's soft-robot table, workflow/rules/paper.smk)
+KRAUSS_TABLES = {"krauss": KRAUSS, KRAUSS_SURROGATE_TABLE: KRAUSS_SURROGATE}
+
+
+def krauss_table_inputs(robots):
+    """The metrics a soft-robot table reads, in the stage's row order: one segment, two segments, each ablation variant's runs."""
+    return [str(ART.metrics).format(system=robots["1seg"]), str(ART.metrics).format(system=robots["2seg"])] + [
+        str(VAR.metrics).format(system=robots["2seg"], variant=r) for v in KRAUSS_ABLATION for r in seeded_variants(v, ABLATION_SEEDS)
+    ]
+
+
 rule krauss_table:
     """Paper Table 4: published rows (lagsplat/report/data/krauss_published.csv) and ours, plus the
-    two-segment inertia ablation (decoder-induced and constant M on the same frozen chart). It runs in the
+    two-segment inertia ablation (decoder-induced and constant M on the same frozen chart):
+    results/tables/krauss.tex (the robots of krauss_source) or krauss_surrogate.tex (the surrogate's). It runs in the
     two-segment system's configuration, so that --config overrides written for the robots
     (e.g. system.source.sha256=... for a local archive) compose here as they do in every other job."""
     input:
-        # in the stage's row order: one segment, two segments, each ablation variant's runs
-        table_inputs=[str(ART.metrics).format(system=KRAUSS["1seg"]), str(ART.metrics).format(system=KRAUSS["2seg"])]
-        + [str(VAR.metrics).format(system=KRAUSS["2seg"], variant=r) for v in KRAUSS_ABLATION for r in seeded_variants(v, ABLATION_SEEDS)],
+        table_inputs=lambda w: krauss_table_inputs(KRAUSS_TABLES[w.ktable]),
     output:
-        table_tex=f"{RESULTS}/tables/krauss.tex",
-        table_csv=f"{RESULTS}/tables/krauss.csv",
-        table_md=f"{RESULTS}/tables/krauss.md",
+        table_tex=f"{RESULTS}/tables/{{ktable}}.tex",
+        table_csv=f"{RESULTS}/tables/{{ktable}}.csv",
+        table_md=f"{RESULTS}/tables/{{ktable}}.md",
+    wildcard_constraints:
+        ktable="|".join(KRAUSS_TABLES),
     log:
-        f"{RESULTS}/logs/tables/krauss.log",
+        f"{RESULTS}/logs/tables/{{ktable}}.log",
     params:
         ablation=",".join(KRAUSS_ABLATION),
         table_inputs=joined("table_inputs"),
+        one=lambda w: KRAUSS_TABLES[w.ktable]["1seg"],
+        two=lambda w: KRAUSS_TABLES[w.ktable]["2seg"],
     shell:
-        cli("krauss_table", outputs=["table_tex", "table_csv", "table_md"], lists=["table_inputs"], system=KRAUSS["2seg"],
-            extra=f"krauss_table.one_segment={KRAUSS['1seg']} krauss_table.two_segments={KRAUSS['2seg']} "
+        cli("krauss_table", outputs=["table_tex", "table_csv", "table_md"], lists=["table_inputs"], system="{params.two}",
+            extra="krauss_table.name={wildcards.ktable} krauss_table.one_segment={params.one} krauss_table.two_segments={params.two} "
             f"'krauss_table.ablation=[{{params.ablation}}]' 'ablation_seeds={json.dumps(ABLATION_SEEDS)}'")
 
 
