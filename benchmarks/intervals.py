@@ -11,6 +11,10 @@ of the test half's true frequency and damping ratio by its intervals, per system
 (``results/benchmarks/intervals.md``).
 
     python benchmarks/intervals.py --calibrate --runs /scratch/realistic_runs --clips data/cache/realistic
+
+``--calibrate-on all --test-runs DIR`` calibrates on every run of ``--runs`` and measures the coverage on the
+runs of ``DIR`` instead (other rendered clips of known truth, e.g. the backdrop renders, that the calibration
+never saw).
 """
 
 from __future__ import annotations
@@ -80,14 +84,29 @@ def main() -> None:
     ap.add_argument("--calibrate", action="store_true", help="calibrate on the calibration half and score the test half")
     ap.add_argument("--runs", type=Path, required=True, help="the realistic suite's run folders (one per clip)")
     ap.add_argument("--clips", type=Path, default=Path("data/cache/realistic"), help="the rendered clips and their truth")
+    ap.add_argument("--calibrate-on", choices=("half", "all"), default="half",
+                    help="half: the calibration half of --runs (the other half tested); all: every run of --runs (--test-runs tested)")
+    ap.add_argument("--test-runs", type=Path, help="with --calibrate-on all: the runs the coverage is measured on")
     ap.add_argument("--out", type=Path, default=REPORTS / "intervals.md")
     ap.add_argument("--calibration", type=Path, default=CALIBRATION_FILE, help="where the constants go")
     args = ap.parse_args()
     if not args.calibrate:
         ap.error("nothing to do: give --calibrate")
+    if (args.calibrate_on == "all") != (args.test_runs is not None):
+        ap.error("--calibrate-on all and --test-runs go together")
     rep = Report("Interval calibration on the realistic suite (split conformal, 90 %)", args.out, __file__)
-    names = sorted(p.name for p in args.runs.iterdir() if p.is_dir() and (args.clips / f"{p.name}.truth.npz").exists())
-    rows = [r for r in (row(n, args.runs, args.clips) for n in names) if r is not None]
+    def read(runs: Path) -> list[dict]:
+        names = sorted(p.name for p in runs.iterdir() if p.is_dir() and (args.clips / f"{p.name}.truth.npz").exists())
+        return [r for r in (row(n, runs, args.clips) for n in names) if r is not None]
+
+    rows = read(args.runs)
+    if args.calibrate_on == "all":
+        for r in rows:
+            r["half"] = "calibration"
+        fresh = read(args.test_runs)
+        for r in fresh:
+            r["half"] = "test"
+        rows += fresh
     for r in rows:
         # the interval's own measure: |f_truth - f_sim| in units of its half-width per unit k, s_f f_sim
         r["r_freq"] = abs(r["f_truth_hz"] / r["f_sim_hz"] - 1) / r["s_freq"] if r["f_sim_hz"] and r["s_freq"] else float("nan")
@@ -116,7 +135,7 @@ def main() -> None:
             zc = [r["zeta_covered"] for r in sel if r["zeta_covered"] is not None]
             summary.append({"half": h, "system": system, "clips": len(sel), "frequency covered": f"{sum(fc)}/{len(fc)}",
                             "damping covered": f"{sum(zc)}/{len(zc)}"})  # fmt: skip
-    rep.text(f"{len(rows)} runs read from `--runs` ({len(cal)} in the calibration half, {len(rows) - len(cal)} in the test half); "
+    rep.text(f"{len(rows)} runs read ({len(cal)} calibrating, {len(rows) - len(cal)} tested; calibrate on: {args.calibrate_on}); "
              f"k_freq = {k_f:.3g}, k_zeta = {k_z:.3g} (the ceil((n+1) 0.9)-th smallest score of the calibration half).")  # fmt: skip
     rep.table(summary, "Coverage of the truth by the 90 % intervals (the test half is the measurement; the calibration half for reference)")
     rep.table(table, "Per clip")
