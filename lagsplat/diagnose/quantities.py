@@ -10,22 +10,14 @@
 
 from __future__ import annotations
 
-import math
 from typing import Any, Mapping
+
+from lagsplat.evaluate.common import finite_number, metric_value
 
 __all__ = ["identified_quantities", "report_quantities", "quantities_section", "Z90"]
 
 #: The two-sided 90 % point of the standard normal.
 Z90 = 1.6448536269514722
-
-
-def _v(m: Mapping[str, Any] | None, key: str) -> Any:
-    e = (m or {}).get(key)
-    return e.get("value") if isinstance(e, Mapping) else e
-
-
-def _finite(x: Any) -> bool:
-    return isinstance(x, (int, float)) and math.isfinite(float(x))
 
 
 def identified_quantities(metrics_json: Mapping[str, Any] | None, diagnosis: Mapping[str, Any] | None, verdict: str) -> list[dict]:
@@ -40,13 +32,13 @@ def identified_quantities(metrics_json: Mapping[str, Any] | None, diagnosis: Map
     rows: list[dict] = []
     conformal = "split-conformal 90 % interval calibrated on rendered clips of known truth (lagsplat.evaluate.intervals)"
     for key, name, units in (("f_sim_hz", "natural frequency (free rollout)", "Hz"), ("zeta_sim", "damping ratio (free rollout)", "1")):
-        v, iv = _v(m, key), _v(m, f"{key}_interval")
-        if _finite(v):
+        v, iv = metric_value(m, key), metric_value(m, f"{key}_interval")
+        if finite_number(v) is not None:
             why = conformal if iv is not None else ((m.get(f"{key}_interval") or {}).get("definition") or "no interval")
             rows.append({"quantity": name, "value": float(v), "interval": iv, "units": units, "method": why})
     for key, name, units in (("f_modes_hz", "linearised mode frequency", "Hz"), ("zeta_modes", "linearised mode damping ratio", "1")):
-        for i, v in enumerate(_v(m, key) or []):
-            if _finite(v):
+        for i, v in enumerate(metric_value(m, key) or []):
+            if finite_number(v) is not None:
                 rows.append({"quantity": f"{name} {i + 1}", "value": float(v), "interval": None, "units": units,
                              "method": "the model linearised at rest; no interval (the calibration is of the rollout's quantities)"})  # fmt: skip
     for eff in (diagnosis or {}).get("effects", []) or []:
@@ -54,8 +46,8 @@ def identified_quantities(metrics_json: Mapping[str, Any] | None, diagnosis: Map
             continue
         for cname, c in (eff.get("coefficients") or {}).items():
             val, se = c.get("value"), c.get("se")
-            if _finite(val):
-                iv = [val - Z90 * se, val + Z90 * se] if _finite(se) else None
+            if finite_number(val) is not None:
+                iv = [val - Z90 * se, val + Z90 * se] if finite_number(se) is not None else None
                 rows.append({"quantity": f"{verdict}: {cname}", "value": float(val), "interval": iv, "units": "chart units",
                              "method": "value +- 1.645 standard errors of the residual regression (normal approximation, not calibrated)"})  # fmt: skip
     return rows

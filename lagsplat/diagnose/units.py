@@ -19,6 +19,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from lagsplat.evaluate.common import finite_number, metric_value
+
 __all__ = ["G", "physical_quantities", "motion_amplitude_source_px", "metres_per_source_px"]
 
 #: Standard gravity, m/s^2.
@@ -90,11 +92,11 @@ def physical_quantities(metrics: Mapping[str, Any], scale: Mapping[str, Any] | N
     Raises:
         ValueError: as :func:`metres_per_source_px`.
     """
-    e = metrics.get("f_sim_hz") or {}
-    f = e.get("value") if isinstance(e, Mapping) else None
-    iv = (metrics.get("f_sim_hz_interval") or {}).get("value")
+    f = finite_number(metric_value(metrics, "f_sim_hz"))
+    f = f if f is not None and f > 0 else None
+    iv = metric_value(metrics, "f_sim_hz_interval")
     rows: list[dict] = []
-    if isinstance(f, (int, float)) and math.isfinite(f) and f > 0:
+    if f is not None:
         w2 = lambda x: (2 * math.pi * x) ** 2  # noqa: E731
         carried = "the frequency's interval carried through" if iv else "no interval (the frequency has none)"
         rows.append({"quantity": "stiffness-to-mass ratio k/m = (2 pi f)^2 (a mass on a spring)", "value": w2(f),
@@ -111,7 +113,7 @@ def physical_quantities(metrics: Mapping[str, Any], scale: Mapping[str, Any] | N
         if L:
             rows.append({"quantity": "amplitude (angle)", "value": math.degrees(amp_m / float(L)), "interval": None, "units": "deg",
                          "method": f"arc {amp_m:.4g} m over the pendulum length {float(L):g} m (system.scale)"})  # fmt: skip
-    if L and isinstance(f, (int, float)) and math.isfinite(f) and f > 0:
+    if L and f is not None:
         implied = G / (2 * math.pi * f) ** 2
         rows.append({"quantity": "implied over given pendulum length", "value": implied / float(L), "interval": None, "units": "1",
                      "method": f"g/(2 pi f)^2 = {implied:.4g} m against {float(L):g} m (1: an ideal simple pendulum at small swings; a heavy rod reads below 1, large swings above)"})  # fmt: skip

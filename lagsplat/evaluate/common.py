@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -11,13 +13,24 @@ from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 from lagsplat.chart import Chart
 from lagsplat.models.autoencoder import AutoEncoder, frames_to_tensor
 
-__all__ = ["metric_entry", "decode_mse", "decoded_image_errors"]
+__all__ = ["metric_entry", "metric_value", "finite_number", "decode_mse", "decoded_image_errors"]
 
 
 def metric_entry(value: Any, definition: str, horizon: str = "", units: str = "") -> dict:
     """One entry of ``metrics.json``: ``{value, definition, horizon, units}``; NumPy scalars become floats."""
     v = float(value) if isinstance(value, (float, int, np.floating, np.integer)) else value
     return {"value": v, "definition": definition, "horizon": horizon, "units": units}
+
+
+def metric_value(m: Mapping[str, Any] | None, key: str) -> Any:
+    """The value of entry ``key`` of a ``metrics`` block (a :func:`metric_entry`, or a bare value); ``None`` when absent."""
+    e = (m or {}).get(key)
+    return e.get("value") if isinstance(e, Mapping) else e
+
+
+def finite_number(x: Any) -> float | None:
+    """``x`` as a float when it is a finite number, else ``None`` (a metric a run did not have)."""
+    return float(x) if isinstance(x, (int, float)) and math.isfinite(float(x)) else None
 
 
 def _decoded(ae: AutoEncoder, chart: Chart, q_pred: np.ndarray, batch: int):

@@ -31,7 +31,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from lagsplat.evaluate.common import metric_entry
+from lagsplat.evaluate.common import finite_number, metric_entry, metric_value
 
 __all__ = ["CALIBRATION_FILE", "FLOOR_FREQ", "FLOOR_ZETA", "LEVEL", "conformal_k", "frequency_scale", "damping_scale", "load_calibration", "intervals"]
 
@@ -47,9 +47,7 @@ FLOOR_ZETA = 0.002
 
 
 def _value(m: Mapping[str, Any], key: str) -> float | None:
-    e = m.get(key)
-    v = e.get("value") if isinstance(e, Mapping) else e
-    return float(v) if isinstance(v, (int, float)) and math.isfinite(float(v)) else None
+    return finite_number(metric_value(m, key))
 
 
 def frequency_scale(m: Mapping[str, Any]) -> float | None:
