@@ -36,10 +36,24 @@ from lagsplat.io.clip import TRAIN, Clip, ClipError
 from lagsplat.models.autoencoder import AutoEncoder
 from lagsplat.models.lagrangian import Lagrangian
 
-__all__ = ["HELD_OUT_METRICS", "damping_ratio", "evaluate_in_sample"]
+__all__ = ["HELD_OUT_METRICS", "ENVELOPE", "damping_ratio", "free_rollout_projection", "evaluate_in_sample"]
 
 #: The held-out metrics of paper §4.1 that a clip without held-out frames cannot give (``value`` None).
 HELD_OUT_METRICS = ("eps_freq", "eps_q", "eps_I", "eps_AE", "eps_I_over_AE", "f_enc_segment_hz")
+
+
+#: How every damping ratio of the evaluation is read (:func:`damping_ratio`), as ``metrics.json`` defines it.
+ENVELOPE = "exponential envelope of the half-cycle amplitudes of the projection on G_bar's top eigenvector, s / sqrt(s^2 + (2 pi f)^2)"
+
+
+def free_rollout_projection(model: Lagrangian, q_s: np.ndarray, u: np.ndarray, dt: float, top: np.ndarray, lo: int) -> np.ndarray | None:
+    """One free rollout of ``model`` from the state of the smoothed segment ``q_s [n, d]`` at frame ``lo`` through its
+    end, driven by the segment's actuation ``u [n, n_u]`` (``n_u`` may be 0), projected on ``top [d]``: ``[n - lo]``,
+    or ``None`` when it diverges."""
+    q0, v0 = initial_state(q_s, np.array([lo]), dt)
+    sim, _ = rollout(model, q0, v0, dt, len(q_s) - lo, u=actuation_schedule(u[lo:][None], dt))
+    sim = sim[0].numpy()
+    return metrics.project(sim, top) if np.isfinite(sim).all() else None
 
 
 def damping_ratio(p: np.ndarray, dt: float, f_hz: float) -> float | None:
@@ -95,18 +109,14 @@ def evaluate_in_sample(clip: Clip, ae: AutoEncoder, chart: Chart, model: Lagrang
     q_s = timeseries.gaussian_smooth(chart.q[seg], cfg.sigma)
     p_enc = metrics.project(q_s[lo:], top)
     f_enc = float(timeseries.spectral_peak_frequency(p_enc, dt))
-    q0, v0 = initial_state(q_s, np.array([lo]), dt)
-    u = chart.u[seg[lo:]]
-    sim, _ = rollout(model, q0, v0, dt, n - lo, u=actuation_schedule(u[None] if u.shape[1] else None, dt))
-    sim = sim[0].numpy()
-    finite = bool(np.isfinite(sim).all())
-    p_sim = metrics.project(sim, top) if finite else None
+    p_sim = free_rollout_projection(model, q_s, chart.u[seg], dt, top, lo)
+    finite = p_sim is not None
     f_sim = float(timeseries.spectral_peak_frequency(p_sim, dt)) if finite else float("nan")
     span = f"in-sample: the {n - lo} training frames from frame {lo} ({(n - lo) * dt:.2f} s, {(n - lo) * dt * f_enc:.1f} periods)"
     why = f"not measured: {note}; the held-out protocol (paper §4.1) needs held-out frames (see eps_freq_in_sample)"
     out = {k: metric_entry(None, why, "") for k in HELD_OUT_METRICS}
     proj = "spectral peak (Hann, log-parabolic) of the projection on G_bar's top eigenvector"
-    env = "exponential envelope of the half-cycle amplitudes of the projection on G_bar's top eigenvector, s / sqrt(s^2 + (2 pi f)^2)"
+    env = ENVELOPE
     out.update(
         f_enc_hz=metric_entry(f_enc, f"frequency of the encoded video over the whole clip (in-sample); {proj}", span, "Hz"),
         f_sim_hz=metric_entry(f_sim, f"frequency of the model's free rollout from the encoded state, through the whole clip (in-sample); {proj}", span, "Hz"),

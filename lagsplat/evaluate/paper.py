@@ -215,20 +215,13 @@ def held_out_damping(model: Lagrangian, q_s: np.ndarray, u: np.ndarray, dt: floa
         model: the Lagrangian; ``q_s [n, d]`` the smoothed held-out segment, ``u [n, n_u]`` its actuation;
         dt: frame interval, s; cfg: settings (``sigma``); f_enc: the segment's frequency, Hz.
     """
-    from lagsplat.evaluate.in_sample import damping_ratio
+    from lagsplat.evaluate.in_sample import ENVELOPE as env, damping_ratio, free_rollout_projection
 
     n = len(q_s)
     lo = metrics.rollout_start(cfg.sigma, n, 16)
-    q0, v0 = initial_state(q_s, np.array([lo]), dt)
-    sim, _ = rollout(model, q0, v0, dt, n - lo, u=actuation_schedule(u[lo:][None], dt))
-    sim = sim[0].numpy()
-    p_enc = metrics.project(q_s[lo:], top)
-    z_enc = damping_ratio(p_enc, dt, f_enc)
-    z_sim = None
-    if np.isfinite(sim).all():
-        p_sim = metrics.project(sim, top)
-        z_sim = damping_ratio(p_sim, dt, float(timeseries.spectral_peak_frequency(p_sim, dt)))
-    env = "exponential envelope of the half-cycle amplitudes of the projection on G_bar's top eigenvector, s / sqrt(s^2 + (2 pi f)^2)"
+    z_enc = damping_ratio(metrics.project(q_s[lo:], top), dt, f_enc)
+    p_sim = free_rollout_projection(model, q_s, u, dt, top, lo)
+    z_sim = None if p_sim is None else damping_ratio(p_sim, dt, float(timeseries.spectral_peak_frequency(p_sim, dt)))
     span = f"the held-out segment from frame {lo} ({(n - lo) * dt:.2f} s)"
     return {
         "zeta_enc": metric_entry(z_enc, f"damping ratio of the encoded held-out video; {env}", span, "1"),
