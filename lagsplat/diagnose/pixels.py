@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import torch
 
-__all__ = ["object_position_px", "px_per_unit", "to_source_px", "add_pixel_sizes"]
+__all__ = ["object_position_px", "px_per_unit", "source_px_per_px", "to_source_px", "add_pixel_sizes"]
 
 
 def _moving_weights(tr: Any, q: np.ndarray, moving_fraction: float) -> torch.Tensor:
@@ -61,14 +61,21 @@ def px_per_unit(tr: Any, e: np.ndarray, q: np.ndarray | None = None, moving_frac
     return float((w * step).sum() / max(float(w.sum()), 1e-30))
 
 
-def to_source_px(xy: np.ndarray, meta: Mapping[str, Any]) -> np.ndarray | None:
-    """Working-frame pixels ``[2]`` to the source video's, through ``meta["crop"]`` (x0, y0, x1, y1) and ``meta["resize"]``
-    (width, height); ``None`` when the clip records neither."""
-    crop, size = meta.get("crop"), meta.get("resize")
+def source_px_per_px(meta: Mapping[str, Any] | None) -> np.ndarray | None:
+    """Source-video pixels per working-frame pixel ``[2]`` (x, y), through ``meta["crop"]`` (x0, y0, x1, y1) and
+    ``meta["resize"]`` (width, height); ``None`` when the clip records neither."""
+    crop, size = (meta or {}).get("crop"), (meta or {}).get("resize")
     if crop is None or size is None:
         return None
     x0, y0, x1, y1 = (float(v) for v in crop)
-    return np.array([x0 + xy[0] * (x1 - x0) / float(size[0]), y0 + xy[1] * (y1 - y0) / float(size[1])])
+    return np.array([(x1 - x0) / float(size[0]), (y1 - y0) / float(size[1])])
+
+
+def to_source_px(xy: np.ndarray, meta: Mapping[str, Any]) -> np.ndarray | None:
+    """Working-frame pixels ``[2]`` to the source video's (:func:`source_px_per_px`, offset by the crop's corner);
+    ``None`` when the clip records neither crop nor resize."""
+    k = source_px_per_px(meta)
+    return None if k is None else np.array([float(meta["crop"][0]), float(meta["crop"][1])]) + np.asarray(xy, float) * k
 
 
 def add_pixel_sizes(diagnosis: Any, tr: Any, meta: Mapping[str, Any] | None = None) -> None:

@@ -61,6 +61,7 @@ def motion_amplitude_source_px(tr: Any, chart: Any, meta: Mapping[str, Any] | No
     """
     import torch
 
+    from lagsplat.diagnose.pixels import source_px_per_px
     from lagsplat.metrics import normalise_trace, project, top_direction
 
     top = top_direction(normalise_trace(chart.G_bar))
@@ -70,9 +71,9 @@ def motion_amplitude_source_px(tr: Any, chart: Any, meta: Mapping[str, Any] | No
     with torch.no_grad():
         step = (tr.positions(ends[1]) - tr.positions(ends[0])).numpy().astype(float)  # [K, 2] working px
         w = torch.minimum(tr.opacity(ends[0])[0], tr.opacity(ends[1])[0]).numpy().astype(float)
-    crop, size = (meta or {}).get("crop"), (meta or {}).get("resize")
-    if crop is not None and size is not None:
-        step = step * np.array([(float(crop[2]) - float(crop[0])) / float(size[0]), (float(crop[3]) - float(crop[1])) / float(size[1])])
+    k = source_px_per_px(meta)
+    if k is not None:
+        step = step * k
     if not (w > 0).any():
         return None
     disp = np.hypot(step[:, 0], step[:, 1])
