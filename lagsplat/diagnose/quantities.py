@@ -54,18 +54,14 @@ def identified_quantities(metrics_json: Mapping[str, Any] | None, diagnosis: Map
 
 
 def report_quantities(
-    metrics_json: Mapping[str, Any] | None, report: Mapping[str, Any], ae: Any | None, chart: Any, clip: Any | None, scale: Mapping[str, Any] | None
+    metrics_json: Mapping[str, Any] | None, report: Mapping[str, Any], screen: Any | None, chart: Any, clip: Any | None, scale: Mapping[str, Any] | None
 ) -> list[dict]:
     """The report's ``identified`` rows: :func:`identified_quantities` of its verdict, then the physical units of
-    :func:`lagsplat.diagnose.units.physical_quantities` (the motion's amplitude read through the autoencoder ``ae``
-    where given, the clip's crop and resize in ``clip.meta``)."""
+    :func:`lagsplat.diagnose.units.physical_quantities` (the motion's amplitude read through the decoder's
+    :class:`~lagsplat.diagnose.screen.ScreenKinematics` ``screen`` where given, the clip's crop and resize in ``clip.meta``)."""
     from lagsplat.diagnose.units import motion_amplitude_source_px, physical_quantities
 
-    amp = None
-    if ae is not None:
-        from lagsplat.diagnose.screen import ScreenKinematics
-
-        amp = motion_amplitude_source_px(ScreenKinematics.from_autoencoder(ae, chart), chart, getattr(clip, "meta", None))
+    amp = None if screen is None else motion_amplitude_source_px(screen, chart, getattr(clip, "meta", None))
     rows = identified_quantities(metrics_json, report.get("diagnosis"), str(report.get("verdict")))
     return rows + physical_quantities((metrics_json or {}).get("metrics", {}), scale, amp)
 

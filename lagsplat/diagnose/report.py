@@ -354,14 +354,16 @@ def diagnose_artifacts(
     t0 = time.perf_counter()
     backbone_rec = _backbone_step(run, res, refit_rec, figures, title or system)
     timings["backbone_s"] = time.perf_counter() - t0
+    screen = None
     if ae is not None:  # the effect's size in pixels of the video, through the decoder
         from lagsplat.diagnose.screen import ScreenKinematics
 
-        add_pixel_sizes(diag, ScreenKinematics.from_autoencoder(ae, chart), getattr(clip, "meta", None))
+        screen = ScreenKinematics.from_autoencoder(ae, chart)
+        add_pixel_sizes(diag, screen, getattr(clip, "meta", None))
 
     report = _report_record(run, diag, where, gap, refit_rec, figures, which, timings, title, system, backbone_rec)
     # the identified frequency, damping and the named effect's coefficients, each with its 90 % interval
-    report["identified"] = jsonable(report_quantities(metrics_json, report, ae, chart, clip, scale))
+    report["identified"] = jsonable(report_quantities(metrics_json, report, screen, chart, clip, scale))
     write_report(report, run.out)
     return report
 
