@@ -8,9 +8,7 @@ definitions; the matrices at rest are read off the model (paper Eq. 7).
 from __future__ import annotations
 
 import copy
-import subprocess
 import time
-from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
@@ -18,10 +16,10 @@ import torch
 
 from lagsplat.chart import Chart
 from lagsplat.io.clip import Clip
-from lagsplat.io.common import jsonable
+from lagsplat.io.common import code_commit, jsonable
 from lagsplat.models.lagrangian import Lagrangian
 
-__all__ = ["FORMAT", "IDENTIFIED_METRICS", "HOW_TO_USE", "code_commit", "rest_matrices", "identified_metrics", "metric_intervals", "model_card"]
+__all__ = ["FORMAT", "IDENTIFIED_METRICS", "HOW_TO_USE", "rest_matrices", "identified_metrics", "metric_intervals", "model_card"]
 
 FORMAT = "lagsplat-export/1"
 """The export's format tag (``model.json``'s ``format``)."""
@@ -43,20 +41,6 @@ HOW_TO_USE = (
     "a 2-D decoder's image plane is seen as the camera saw it from z < 0 looking along +z, y down). "
     "trajectory.csv and rollout.csv: header row, comma-separated, t in seconds."
 )
-
-
-def code_commit(where: str | Path | None = None) -> dict[str, Any] | None:
-    """The git commit of the lagsplat checkout (``{"commit", "dirty"}``), or ``None`` when it is not a git
-    checkout or git is missing. ``dirty``: tracked files differ from the commit."""
-    root = Path(where) if where is not None else Path(__file__).resolve().parents[2]
-    try:
-        head = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=20)
-        if head.returncode != 0:
-            return None
-        status = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"], capture_output=True, text=True, timeout=20)
-    except (OSError, subprocess.SubprocessError):
-        return None
-    return {"commit": head.stdout.strip(), "dirty": bool(status.stdout.strip()) if status.returncode == 0 else None}
 
 
 def rest_matrices(model: Lagrangian) -> dict[str, list]:

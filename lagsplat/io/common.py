@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import math
+import os
 import re
+import subprocess
 from pathlib import Path
 from typing import Any, Callable
 
@@ -217,3 +219,18 @@ def frame_transform(src: str, crop: list[int] | None, resize: list[int] | None, 
         return np.ascontiguousarray(frame)
 
     return transform
+
+
+def code_commit(where: str | Path | None = None) -> dict[str, Any] | None:
+    """The git commit of the lagsplat checkout (``{"commit", "dirty"}``, the full hash), or ``None`` when it is not a git
+    checkout or git is missing. ``dirty``: tracked files differ from the commit."""
+    root = Path(where) if where is not None else Path(__file__).resolve().parents[2]
+    env = {**os.environ, "GIT_OPTIONAL_LOCKS": "0"}  # read-only: git status does not rewrite the index
+    try:
+        head = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], env=env, capture_output=True, text=True, timeout=20)
+        if head.returncode != 0:
+            return None
+        status = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"], env=env, capture_output=True, text=True, timeout=20)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return {"commit": head.stdout.strip(), "dirty": bool(status.stdout.strip()) if status.returncode == 0 else None}

@@ -19,7 +19,6 @@ import argparse
 import csv
 import json
 import os
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -28,6 +27,7 @@ from typing import Iterable
 import pandas as pd
 
 from lagsplat.io.atomic import atomic_write
+from lagsplat.io.common import code_commit
 from lagsplat.report.paper import PaperItem, paper_items
 
 __all__ = ["MAX_BYTES", "csv_markdown", "shrink_png", "git_commit", "results_page", "write_results_page", "main"]
@@ -79,15 +79,10 @@ def shrink_png(src: str | Path, dst: str | Path, max_bytes: int = MAX_BYTES) -> 
 
 
 def git_commit(where: str | Path | None = None) -> str:
-    """Short hash of the checkout's commit, ``+ uncommitted changes`` when tracked files differ; ``unknown`` outside git."""
-    root = str(Path(where) if where is not None else Path(__file__).resolve().parents[2])
-    env = {**os.environ, "GIT_OPTIONAL_LOCKS": "0"}  # read-only: git status does not rewrite the index
-    try:
-        head = subprocess.run(["git", "-C", root, "rev-parse", "--short", "HEAD"], env=env, capture_output=True, text=True, timeout=30, check=True)
-        dirty = subprocess.run(["git", "-C", root, "status", "--porcelain", "--untracked-files=no"], env=env, capture_output=True, text=True, timeout=30)
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
-    return head.stdout.strip() + (" + uncommitted changes" if dirty.stdout.strip() else "")
+    """Short hash of the checkout's commit (:func:`lagsplat.io.common.code_commit`), ``+ uncommitted changes`` when
+    tracked files differ; ``unknown`` outside git."""
+    c = code_commit(where)
+    return "unknown" if c is None else c["commit"][:7] + (" + uncommitted changes" if c["dirty"] else "")
 
 
 def _rel(path: str | Path, start: Path) -> str:
