@@ -36,7 +36,9 @@ from lagsplat.artifacts import Artifacts
 from lagsplat.evaluate.in_sample import damping_ratio
 from lagsplat.evaluate.intervals import CALIBRATION_FILE, LEVEL, conformal_k, damping_scale, frequency_scale, intervals
 from lagsplat.io.atomic import write_json
+from lagsplat.io.clip import HELD_OUT
 from lagsplat.synth.realistic import clip_spec
+from lagsplat.timeseries import spectral_peak_frequency
 
 
 def half(name: str) -> str:
@@ -51,15 +53,12 @@ def truth_damping(truth_npz: Path, clip, sigma: float = 1.0) -> float | None:
     q, t = z["q"][:, 0].astype(float), z["t"]
     dt = float(np.median(np.diff(t)))
     first = int((clip.meta.get("frames") or [0])[0] or 0)
-    ho = clip.held_out_idx
-    if len(ho) == 0:
+    held = clip.segments(HELD_OUT)
+    if not held:
         return None
-    runs = np.split(ho, np.flatnonzero(np.diff(ho) != 1) + 1)
-    seg = first + max(runs, key=len)
+    seg = first + max(held, key=len)
     lo = lmetrics.rollout_start(sigma, len(seg), 16)
     p = q[seg[lo:]]
-    from lagsplat.timeseries import spectral_peak_frequency
-
     return damping_ratio(p - p.mean(), dt, float(spectral_peak_frequency(p[:, None], dt)))
 
 
